@@ -5,6 +5,18 @@
 //! Knows nothing of neural networks, burn, datasets or the body model: capsules, rays and
 //! the posed-to-canonical map come in as plain data and callbacks.
 
+pub mod bvh;
 pub mod capsule;
+pub mod error;
+pub mod intersect;
+pub mod intervals;
+mod packing;
+pub mod ray;
+mod rng;
 
+pub use bvh::CapsuleBvh;
 pub use capsule::{Capsule, Part};
+pub use error::GridError;
+pub use intersect::{CapsuleHit, brute_force_hits, ray_capsule};
+pub use intervals::{Interval, RayIntervals};
+pub use ray::Ray;

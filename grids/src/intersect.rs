@@ -1,0 +1,294 @@
+//! Exact ray-capsule intersection and point/ray distances to capsules.
+//!
+//! All arithmetic runs in f64 on coordinates taken relative to the capsule, so rays far
+//! from the origin (1e6 m) or tiny scenes (1e-6 m) keep their precision and squares of
+//! f32 coordinates cannot overflow. A capsule is the union of a finite cylinder and two
+//! end spheres; it is convex, so a line meets it in one interval, which is the union of
+//! the three pieces' intervals.
+
+use glam::{DVec3, Vec3};
+
+use crate::{Capsule, GridError, Ray};
+
+/// One capsule crossed by a ray: the ray is inside capsule `capsule` for `t_in..=t_out`
+/// (clipped to the ray's `[t_min, t_max]`). `t_in == t_out` for a tangent ray.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CapsuleHit {
+    pub t_in: f32,
+    pub t_out: f32,
+    /// Index into the capsule slice the query was made with.
+    pub capsule: u32,
+}
+
+/// Checks that a capsule is finite, has a non-negative radius and a bone below 64.
+pub fn validate_capsule(capsule: &Capsule, index: usize) -> Result<(), GridError> {
+    for (field, ok) in [
+        ("a", capsule.a.is_finite()),
+        ("b", capsule.b.is_finite()),
+        ("radius", capsule.radius.is_finite()),
+    ] {
+        if !ok {
+            return Err(GridError::NonFiniteCapsule { index, field });
+        }
+    }
+    if capsule.radius < 0.0 {
+        return Err(GridError::NegativeRadius {
+            index,
+            radius: capsule.radius,
+        });
+    }
+    if capsule.bone >= 64 {
+        return Err(GridError::BoneOutOfRange {
+            index,
+            bone: capsule.bone,
+        });
+    }
+    Ok(())
+}
+
+/// Validates every capsule of a slice, reporting the first bad one.
+pub fn validate_capsules(capsules: &[Capsule]) -> Result<(), GridError> {
+    capsules
+        .iter()
+        .enumerate()
+        .try_for_each(|(i, c)| validate_capsule(c, i))
+}
+
+/// The closed interval `[t_in, t_out]` of the ray inside the capsule, clipped to
+/// `[ray.t_min, ray.t_max]`, or `None` if they do not meet. A ray starting inside the
+/// capsule gets `t_in == ray.t_min`; a tangent ray gets `t_in == t_out`.
+///
+/// Inputs are assumed validated ([`Ray::validate`], [`validate_capsule`]); non-finite
+/// values give `None`, never a panic.
+pub fn ray_capsule(ray: &Ray, capsule: &Capsule) -> Option<(f32, f32)> {
+    let a = capsule.a.as_dvec3();
+    let o = ray.origin.as_dvec3() - a;
+    let d = ray.direction.as_dvec3();
+    let axis = capsule.b.as_dvec3() - a;
+    let r = capsule.radius as f64;
+
+    let mut span: Option<(f64, f64)> = None;
+    let mut add = |piece: Option<(f64, f64)>| {
+        if let Some((lo, hi)) = piece {
+            span = Some(match span {
+                None => (lo, hi),
+                Some((l, h)) => (l.min(lo), h.max(hi)),
+            });
+        }
+    };
+    add(line_sphere(o, d, DVec3::ZERO, r));
+    if axis != DVec3::ZERO {
+        add(line_sphere(o, d, axis, r));
+        add(line_cylinder(o, d, axis, r));
+    }
+    let (lo, hi) = span?;
+    let t_in = lo.max(ray.t_min as f64);
+    let t_out = hi.min(ray.t_max as f64);
+    // `!(a <= b)` rather than `a > b` so NaN also misses.
+    if !(t_in <= t_out) {
+        return None;
+    }
+    Some((t_in as f32, t_out as f32))
+}
+
+/// Line `o + t d` against the sphere at `c`: the closest approach is computed first and
+/// the discriminant from the perpendicular distance, which avoids the cancellation of
+/// the textbook `b^2 - 4ac` for far-away origins.
+fn line_sphere(o: DVec3, d: DVec3, c: DVec3, r: f64) -> Option<(f64, f64)> {
+    let dd = d.length_squared();
+    let oc = o - c;
+    let t_mid = -oc.dot(d) / dd;
+    let perp = oc + t_mid * d;
+    let disc = r * r - perp.length_squared();
+    if !(disc >= 0.0) {
+        return None;
+    }
+    let half = (disc / dd).sqrt();
+    Some((t_mid - half, t_mid + half))
+}
+
+/// Line `o + t d` against the cylinder of radius `r` around segment `0..axis`, without
+/// its end discs (the spheres cover those).
+fn line_cylinder(o: DVec3, d: DVec3, axis: DVec3, r: f64) -> Option<(f64, f64)> {
+    let l2 = axis.length_squared();
+    // Axial coordinate s(t) = s0 + t s1, in units of the segment length.
+    let s0 = o.dot(axis) / l2;
+    let s1 = d.dot(axis) / l2;
+    let o_perp = o - s0 * axis;
+    let d_perp = d - s1 * axis;
+    let a = d_perp.length_squared();
+    let (mut lo, mut hi);
+    // Ray parallel to the axis (within ~1e-10 rad): inside the infinite cylinder for all
+    // t or never.
+    if a <= 1e-20 * d.length_squared() {
+        if !(o_perp.length_squared() <= r * r) {
+            return None;
+        }
+        lo = f64::NEG_INFINITY;
+        hi = f64::INFINITY;
+    } else {
+        let t_mid = -o_perp.dot(d_perp) / a;
+        let perp = o_perp + t_mid * d_perp;
+        let disc = r * r - perp.length_squared();
+        if !(disc >= 0.0) {
+            return None;
+        }
+        let half = (disc / a).sqrt();
+        lo = t_mid - half;
+        hi = t_mid + half;
+    }
+    if s1 == 0.0 {
+        if !(0.0..=1.0).contains(&s0) {
+            return None;
+        }
+    } else {
+        let t0 = -s0 / s1;
+        let t1 = (1.0 - s0) / s1;
+        lo = lo.max(t0.min(t1));
+        hi = hi.min(t0.max(t1));
+    }
+    (lo <= hi).then_some((lo, hi))
+}
+
+/// Every capsule the ray crosses, by testing all of them: the plain reference the BVH
+/// is checked against. Appends to `out` in capsule order.
+pub fn brute_force_hits(capsules: &[Capsule], ray: &Ray, out: &mut Vec<CapsuleHit>) {
+    for (i, capsule) in capsules.iter().enumerate() {
+        if let Some((t_in, t_out)) = ray_capsule(ray, capsule) {
+            out.push(CapsuleHit {
+                t_in,
+                t_out,
+                capsule: i as u32,
+            });
+        }
+    }
+}
+
+/// Distance from `p` to the capsule's segment `a`-`b` (not its surface).
+pub fn distance_to_segment(p: Vec3, a: Vec3, b: Vec3) -> f32 {
+    let (p, a, b) = (p.as_dvec3(), a.as_dvec3(), b.as_dvec3());
+    let ab = b - a;
+    let l2 = ab.length_squared();
+    let s = if l2 > 0.0 {
+        ((p - a).dot(ab) / l2).clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
+    (p - (a + s * ab)).length() as f32
+}
+
+/// Signed distance from `p` to the capsule surface (negative inside).
+pub fn signed_distance(p: Vec3, capsule: &Capsule) -> f32 {
+    distance_to_segment(p, capsule.a, capsule.b) - capsule.radius
+}
+
+/// How much the capsule's radius must grow for the ray (over `[t_min, t_max]`) to touch
+/// it: distance between the ray and the capsule segment minus the radius, at least 0.
+/// Ray and segment closest points as in Ericson, Real-Time Collision Detection 5.1.9.
+pub fn margin_to_hit(ray: &Ray, capsule: &Capsule) -> f32 {
+    let a = capsule.a.as_dvec3();
+    let o = ray.origin.as_dvec3() - a;
+    let d = ray.direction.as_dvec3();
+    let seg = capsule.b.as_dvec3() - a;
+    let dd = d.length_squared();
+    // The closest point of the ray to the segment is never past the last point where
+    // the ray still approaches one of the segment's ends.
+    let t_last = ((-o).dot(d) / dd).max((seg - o).dot(d) / dd);
+    let t_min = ray.t_min as f64;
+    let t_max = (ray.t_max as f64).min(t_last.max(t_min));
+    let p1 = o + t_min * d;
+    let d1 = (t_max - t_min) * d;
+    let (p2, d2) = (DVec3::ZERO, seg);
+    let r = p1 - p2;
+    let (aa, e, f) = (d1.length_squared(), d2.length_squared(), d2.dot(r));
+    let (s, t);
+    if aa == 0.0 && e == 0.0 {
+        (s, t) = (0.0, 0.0);
+    } else if aa == 0.0 {
+        (s, t) = (0.0, (f / e).clamp(0.0, 1.0));
+    } else {
+        let c = d1.dot(r);
+        if e == 0.0 {
+            (s, t) = ((-c / aa).clamp(0.0, 1.0), 0.0);
+        } else {
+            let b = d1.dot(d2);
+            let denom = aa * e - b * b;
+            let s0 = if denom > 1e-12 * aa * e {
+                ((b * f - c * e) / denom).clamp(0.0, 1.0)
+            } else {
+                0.0
+            };
+            let t0 = (b * s0 + f) / e;
+            if t0 < 0.0 {
+                (s, t) = ((-c / aa).clamp(0.0, 1.0), 0.0);
+            } else if t0 > 1.0 {
+                (s, t) = (((b - c) / aa).clamp(0.0, 1.0), 1.0);
+            } else {
+                (s, t) = (s0, t0);
+            }
+        }
+    }
+    let gap = ((p1 + s * d1) - (p2 + t * d2)).length() - capsule.radius as f64;
+    gap.max(0.0) as f32
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::Part;
+    use glam::vec3;
+
+    fn capsule(a: Vec3, b: Vec3, radius: f32) -> Capsule {
+        Capsule {
+            a,
+            b,
+            radius,
+            part: Part::Body,
+            bone: 0,
+        }
+    }
+
+    fn ray(o: Vec3, d: Vec3) -> Ray {
+        Ray::new(o, d, 0.0, f32::INFINITY).unwrap()
+    }
+
+    #[test]
+    fn straight_through_the_middle() {
+        let c = capsule(vec3(-1.0, 0.0, 0.0), vec3(1.0, 0.0, 0.0), 0.5);
+        let (t0, t1) = ray_capsule(&ray(vec3(0.0, 0.0, -3.0), Vec3::Z), &c).unwrap();
+        assert!(
+            (t0 - 2.5).abs() < 1e-6 && (t1 - 3.5).abs() < 1e-6,
+            "{t0} {t1}"
+        );
+    }
+
+    #[test]
+    fn along_the_axis_goes_cap_to_cap() {
+        let c = capsule(vec3(-1.0, 0.0, 0.0), vec3(1.0, 0.0, 0.0), 0.5);
+        let (t0, t1) = ray_capsule(&ray(vec3(-4.0, 0.0, 0.0), Vec3::X), &c).unwrap();
+        assert!(
+            (t0 - 2.5).abs() < 1e-6 && (t1 - 5.5).abs() < 1e-6,
+            "{t0} {t1}"
+        );
+    }
+
+    #[test]
+    fn tangent_ray_touches_in_one_point() {
+        let c = capsule(vec3(-1.0, 0.0, 0.0), vec3(1.0, 0.0, 0.0), 0.5);
+        let (t0, t1) = ray_capsule(&ray(vec3(0.25, 0.5, -2.0), Vec3::Z), &c).unwrap();
+        assert_eq!((t0, t1), (2.0, 2.0));
+        assert!(ray_capsule(&ray(vec3(0.25, 0.5001, -2.0), Vec3::Z), &c).is_none());
+    }
+
+    #[test]
+    fn margin_to_hit_is_the_gap() {
+        let c = capsule(vec3(-1.0, 0.0, 0.0), vec3(1.0, 0.0, 0.0), 0.5);
+        let m = margin_to_hit(&ray(vec3(3.0, 0.8, -2.0), Vec3::Z), &c);
+        let expected = (2.0f32 * 2.0 + 0.8 * 0.8).sqrt() - 0.5;
+        assert!((m - expected).abs() < 1e-6, "{m} vs {expected}");
+        assert_eq!(margin_to_hit(&ray(vec3(0.0, 0.2, -2.0), Vec3::Z), &c), 0.0);
+        // Behind the origin does not count.
+        let m = margin_to_hit(&ray(vec3(0.0, 0.0, 2.0), Vec3::Z), &c);
+        assert!((m - 1.5).abs() < 1e-6, "{m}");
+    }
+}
