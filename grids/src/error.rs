@@ -40,6 +40,10 @@ pub enum GridError {
     GridMismatch,
     #[error("ray {index}: label {label} is not a body part (1..=4)")]
     BadLabel { index: usize, label: u8 },
+    #[error("unknown sampler {0:?}: expected \"dense\" or \"accelerated\"")]
+    UnknownSampler(String),
+    #[error("packed samples are malformed: {0}")]
+    BadPacking(String),
     #[error("option {field} = {value}: {expected}")]
     BadOption {
         field: &'static str,

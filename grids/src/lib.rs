@@ -5,6 +5,10 @@
 //! Knows nothing of neural networks, burn, datasets or the body model: capsules, rays and
 //! the posed-to-canonical map come in as plain data and callbacks.
 
+// `!(a <= b)` is how this crate makes NaN fail a geometric test; clippy would have us
+// write the NaN-unsafe `a > b`.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
+
 pub mod bvh;
 pub mod capsule;
 pub mod error;
@@ -14,6 +18,10 @@ pub mod occupancy;
 mod packing;
 pub mod ray;
 mod rng;
+pub mod sampler;
+pub mod sampler_accelerated;
+pub mod sampler_dense;
+pub mod samples;
 
 pub use bvh::CapsuleBvh;
 pub use capsule::{Capsule, Part};
@@ -22,3 +30,9 @@ pub use intersect::{CapsuleHit, brute_force_hits, ray_capsule};
 pub use intervals::{Interval, RayIntervals};
 pub use occupancy::{OccUpdateOpts, OccUpdateReport, OccupancyGrid};
 pub use ray::Ray;
+pub use sampler::SamplerKind;
+pub use sampler_accelerated::{
+    AcceleratedOpts, cull_with_grid, sample_accelerated, sample_in_capsules,
+};
+pub use sampler_dense::{DenseOpts, sample_dense};
+pub use samples::{ALL_BONES, ALL_PARTS, PackedSamples};

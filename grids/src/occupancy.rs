@@ -260,7 +260,7 @@ impl OccupancyGrid {
         density_fn: impl FnMut(&[Vec3]) -> Vec<f32>,
         opts: &OccUpdateOpts,
     ) -> Result<Option<OccUpdateReport>, GridError> {
-        if opts.n == 0 || step % opts.n != 0 {
+        if opts.n == 0 || !step.is_multiple_of(opts.n) {
             return Ok(None);
         }
         self.update(step, density_fn, opts).map(Some)

@@ -30,10 +30,10 @@ impl Rng {
     pub fn unit(&mut self) -> Vec3 {
         loop {
             let v = self.vec(-1.0, 1.0);
-            if let Some(u) = v.try_normalize() {
-                if v.length() <= 1.0 {
-                    return u;
-                }
+            if let Some(u) = v.try_normalize()
+                && v.length() <= 1.0
+            {
+                return u;
             }
         }
     }
