@@ -14,6 +14,7 @@ pub mod capsule;
 pub mod error;
 pub mod intersect;
 pub mod intervals;
+pub mod margins;
 pub mod occupancy;
 mod packing;
 pub mod ray;
@@ -28,6 +29,9 @@ pub use capsule::{Capsule, Part};
 pub use error::GridError;
 pub use intersect::{CapsuleHit, brute_force_hits, ray_capsule};
 pub use intervals::{Interval, RayIntervals};
+pub use margins::{
+    LabelledRay, MarginFitOpts, MarginReport, PartFit, PartMargins, fit_part_margins,
+};
 pub use occupancy::{OccUpdateOpts, OccUpdateReport, OccupancyGrid};
 pub use ray::Ray;
 pub use sampler::SamplerKind;
