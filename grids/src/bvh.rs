@@ -69,7 +69,10 @@ impl CapsuleBvh {
         } else {
             build_bvh2(
                 &bounds,
-                BvhBuildParams::fast_build(),
+                BvhBuildParams {
+                    max_prims_per_leaf: 1,
+                    ..BvhBuildParams::fast_build()
+                },
                 &mut Duration::default(),
             )
         };
@@ -91,8 +94,8 @@ impl CapsuleBvh {
             return;
         }
         let slab = Slab::new(ray);
-        let mut stack: Vec<u32> = Vec::new();
-        let mut visit = |node: u32, stack: &mut Vec<u32>| {
+        let mut stack = NodeStack::default();
+        let mut visit = |node: u32, stack: &mut NodeStack| {
             let node = &self.bvh.nodes[node as usize];
             if !slab.hits(node.aabb()) {
                 return;
@@ -187,5 +190,44 @@ impl Slab {
         }
         // Relative slack for the f32 rounding of the divisions above.
         t0 - t1 <= 1e-6 * t0.abs().max(t1.abs())
+    }
+}
+
+/// Traversal stack on the stack: a BVH over a skeleton is a few levels deep; deeper
+/// ones spill to the heap instead of failing.
+struct NodeStack {
+    inline: [u32; 64],
+    len: usize,
+    spill: Vec<u32>,
+}
+
+impl Default for NodeStack {
+    fn default() -> Self {
+        NodeStack {
+            inline: [0; 64],
+            len: 0,
+            spill: Vec::new(),
+        }
+    }
+}
+
+impl NodeStack {
+    #[inline]
+    fn push(&mut self, node: u32) {
+        if self.len < self.inline.len() {
+            self.inline[self.len] = node;
+            self.len += 1;
+        } else {
+            self.spill.push(node);
+        }
+    }
+
+    #[inline]
+    fn pop(&mut self) -> Option<u32> {
+        if let Some(node) = self.spill.pop() {
+            return Some(node);
+        }
+        self.len = self.len.checked_sub(1)?;
+        Some(self.inline[self.len])
     }
 }

@@ -3,10 +3,11 @@
 use glam::Vec3;
 use serde::{Deserialize, Serialize};
 
-use crate::packing::par_pack;
+use rayon::prelude::*;
+
 use crate::ray::{clip_to_box, validate_rays};
 use crate::rng::SplitMix;
-use crate::samples::{ALL_BONES, ALL_PARTS, PackedSamples, Sample, stratified_bins};
+use crate::samples::{ALL_BONES, ALL_PARTS, PackedSamples, stratified_bins};
 use crate::{GridError, Ray};
 
 /// Options of [`sample_dense`].
@@ -48,26 +49,48 @@ pub fn sample_dense(
             expected: ">= 1",
         });
     }
-    let (offsets, samples) = par_pack(
-        rays.len(),
-        || (),
-        |_, i, out| {
-            let Some((t0, t1)) = clip_to_box(&rays[i], bbox_min, bbox_max) else {
-                return;
-            };
+    // Every ray that meets the box gets exactly `n` samples, so the layout is known
+    // up front and the arrays are filled in place, ray-parallel.
+    let n = opts.samples_per_ray as usize;
+    let spans: Vec<Option<(f32, f32)>> = rays
+        .par_iter()
+        .map(|r| clip_to_box(r, bbox_min, bbox_max))
+        .collect();
+    let mut ray_offsets = Vec::with_capacity(rays.len() + 1);
+    ray_offsets.push(0u32);
+    let mut total = 0usize;
+    for span in &spans {
+        total += if span.is_some() { n } else { 0 };
+        ray_offsets.push(u32::try_from(total).expect("more than 2^32 dense samples"));
+    }
+    let hit: Vec<(usize, (f32, f32))> = spans
+        .iter()
+        .enumerate()
+        .filter_map(|(i, s)| s.map(|s| (i, s)))
+        .collect();
+    let mut t_start = vec![0.0f32; total];
+    let mut t_end = vec![0.0f32; total];
+    t_start
+        .par_chunks_mut(n)
+        .zip(t_end.par_chunks_mut(n))
+        .zip(hit.par_iter())
+        .for_each(|((starts, ends), &(i, (t0, t1)))| {
             let mut rng = SplitMix::new(opts.seed, i as u64);
             let rng = opts.jitter.then_some(&mut rng);
+            let mut k = 0;
             stratified_bins(t0, t1, opts.samples_per_ray, rng, |a, b| {
-                out.push(Sample {
-                    t_start: a,
-                    t_end: b,
-                    part_mask: ALL_PARTS,
-                    bone_mask: ALL_BONES,
-                })
+                starts[k] = a;
+                ends[k] = b;
+                k += 1;
             });
-        },
-    );
-    Ok(PackedSamples::from_parts(offsets, samples))
+        });
+    Ok(PackedSamples {
+        ray_offsets,
+        t_start,
+        t_end,
+        part_mask: vec![ALL_PARTS; total],
+        bone_mask: vec![ALL_BONES; total],
+    })
 }
 
 pub(crate) fn check_box(min: Vec3, max: Vec3) -> Result<(), GridError> {
