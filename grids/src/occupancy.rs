@@ -440,12 +440,13 @@ mod tests {
     #[test]
     fn warmup_finds_the_ball_and_never_drops_dense_cells() {
         let mut g = grid(32);
-        let opts = OccUpdateOpts {
-            warmup_steps: 2,
-            n: 1,
-            ..Default::default()
-        };
         for step in 0..8 {
+            let opts = OccUpdateOpts {
+                warmup_steps: 2,
+                n: 1,
+                dilation: step % 2,
+                ..Default::default()
+            };
             let mut seen: Vec<(Vec3, f32)> = Vec::new();
             let report = g
                 .update_every_n_steps(
@@ -473,6 +474,22 @@ mod tests {
             assert!(g.is_occupied(vec3(0.3, 0.0, 0.0)));
             assert!(!g.is_occupied(vec3(-0.8, -0.8, -0.8)));
         }
+        // Dilation grows exactly the undilated result by one cell.
+        let undilated = OccUpdateOpts {
+            warmup_steps: 0,
+            ..Default::default()
+        };
+        let dilated = OccUpdateOpts {
+            dilation: 1,
+            ..undilated
+        };
+        let (mut a, mut b) = (g.clone(), g.clone());
+        a.update(100, ball, &undilated).unwrap();
+        b.update(100, ball, &dilated).unwrap();
+        assert!(b.num_occupied() > a.num_occupied());
+        a.dilate(1);
+        assert_eq!(a, b);
+        g.update(8, ball, &OccUpdateOpts::default()).unwrap();
         let occupied = g.num_occupied() as f32 / g.num_cells() as f32;
         let ball_fraction = 4.0 / 3.0 * std::f32::consts::PI * 0.4f32.powi(3) / 8.0;
         assert!(

@@ -7,12 +7,11 @@ use crate::GridError;
 
 /// The two samplers: `dense` (HumanNeRF's baseline, every speed/quality claim is made
 /// against it) and `accelerated` (capsule intervals + occupancy culling).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Default)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum SamplerKind {
     /// [`crate::sample_dense`].
     Dense,
     /// [`crate::sample_accelerated`].
-    #[default]
     Accelerated,
 }
 
