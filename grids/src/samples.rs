@@ -94,6 +94,9 @@ impl PackedSamples {
     }
 
     /// World (posed) position of every sample's midpoint; `rays` are the rays sampled.
+    ///
+    /// # Panics
+    /// If `rays.len()` differs from [`PackedSamples::num_rays`].
     pub fn midpoints_in_world(&self, rays: &[Ray]) -> Vec<Vec3> {
         assert_eq!(rays.len(), self.num_rays(), "rays do not match the samples");
         let mut out = vec![Vec3::ZERO; self.num_samples()];
@@ -149,6 +152,9 @@ impl PackedSamples {
     }
 
     /// Keeps the samples with `keep[s]`, preserving order and per-ray grouping.
+    ///
+    /// # Panics
+    /// If `keep.len()` differs from [`PackedSamples::num_samples`].
     pub fn retain(&mut self, keep: &[bool]) {
         assert_eq!(keep.len(), self.num_samples(), "keep mask length");
         let mut w = 0usize;
