@@ -1,1 +1,15 @@
-//! engine
+//! engine: the human and the pipeline. Owns the body model, cameras, the dataset format and
+//! its loader, the synthetic talking-human generator, and (wiring `grids` and `nets`) the
+//! training, rendering and evaluation pipeline.
+//!
+//! Library code returns typed errors that name the file, field and expected shape; the
+//! binary turns them into messages and exit codes.
+
+pub mod body;
+pub mod camera;
+pub mod dataset;
+pub mod draw;
+pub mod inspect;
+pub mod json_shape;
+pub mod motion;
+pub mod synth;
