@@ -1,0 +1,304 @@
+//! Multiresolution hash encoding (instant-ngp): per level a grid of trainable feature vectors,
+//! dense where it fits in `2^log2_hashmap_size` entries and spatially hashed above that,
+//! trilinearly interpolated. Corner indices are computed on the host (they are piecewise
+//! constant in the point, so carry no gradient); the interpolation weights are tensor ops on
+//! the point, so gradients reach both the table and the input points.
+
+use burn::prelude::*;
+use burn::tensor::Distribution;
+
+use crate::util::{floats, host, ints};
+
+/// instant-ngp's spatial-hash primes (the first is 1 for cache coherence along x).
+const PRIMES: [u32; 3] = [1, 2_654_435_761, 805_459_861];
+
+/// Configuration of [`HashGrid`] (tiny-cuda-nn's `HashGrid` fields).
+#[derive(Config, Debug)]
+pub struct HashGridConfig {
+    /// Number of resolution levels.
+    #[config(default = 16)]
+    pub n_levels: usize,
+    /// Feature width per level (output width is `n_levels * n_features_per_level`).
+    #[config(default = 2)]
+    pub n_features_per_level: usize,
+    /// Entries per level, as a power of two.
+    #[config(default = 19)]
+    pub log2_hashmap_size: usize,
+    /// Cells per axis of the coarsest level.
+    #[config(default = 16)]
+    pub base_resolution: usize,
+    /// Resolution growth from one level to the next.
+    #[config(default = 1.5)]
+    pub per_level_scale: f64,
+    /// Table entries start uniform in `[-init_scale, init_scale]` (instant-ngp: 1e-4).
+    #[config(default = 1e-4)]
+    pub init_scale: f64,
+}
+
+impl HashGridConfig {
+    /// Builds the grid with a freshly initialised table.
+    pub fn init(&self, device: &Device) -> HashGrid {
+        let max_entries = 1usize << self.log2_hashmap_size;
+        let mut resolutions = Vec::with_capacity(self.n_levels);
+        let mut offsets = Vec::with_capacity(self.n_levels + 1);
+        let mut total = 0usize;
+        for level in 0..self.n_levels {
+            let res = (self.base_resolution as f64 * self.per_level_scale.powi(level as i32))
+                .floor()
+                .max(1.0) as usize;
+            let dense = (res + 1).pow(3);
+            resolutions.push(res);
+            offsets.push(total);
+            total += dense.min(max_entries);
+        }
+        offsets.push(total);
+        let s = self.init_scale;
+        let table = Tensor::<2>::random(
+            [total, self.n_features_per_level],
+            Distribution::Uniform(-s, s),
+            device,
+        );
+        HashGrid {
+            table: burn::module::Param::from_tensor(table),
+            resolutions,
+            offsets,
+            n_features: self.n_features_per_level,
+        }
+    }
+}
+
+/// The trainable multiresolution hash table.
+#[derive(Module, Debug)]
+pub struct HashGrid {
+    /// All levels' feature vectors, level after level. `[entries, features]`
+    pub table: burn::module::Param<Tensor<2>>,
+    resolutions: Vec<usize>,
+    /// Start of each level in `table`, plus the total at the end.
+    offsets: Vec<usize>,
+    n_features: usize,
+}
+
+impl HashGrid {
+    /// Output width: `n_levels * n_features_per_level`.
+    pub fn output_dim(&self) -> usize {
+        self.resolutions.len() * self.n_features
+    }
+
+    /// Number of table rows.
+    pub fn n_entries(&self) -> usize {
+        *self.offsets.last().unwrap_or(&0)
+    }
+
+    /// Table row of integer vertex `c` on `level`.
+    fn vertex_index(&self, level: usize, c: [u32; 3]) -> usize {
+        let res1 = self.resolutions[level] + 1;
+        let size = self.offsets[level + 1] - self.offsets[level];
+        let local = if res1.pow(3) <= size {
+            c[0] as usize + res1 * (c[1] as usize + res1 * c[2] as usize)
+        } else {
+            // size is a power of two when hashed.
+            let h = c[0].wrapping_mul(PRIMES[0])
+                ^ c[1].wrapping_mul(PRIMES[1])
+                ^ c[2].wrapping_mul(PRIMES[2]);
+            h as usize & (size - 1)
+        };
+        self.offsets[level] + local
+    }
+
+    /// Host-side lower cell corners `[n, L, 3]` and the 8 vertex rows `[n, L, 8]` of each
+    /// point (points already clamped to [0, 1]). Corner `k` is `(k & 1, k >> 1 & 1, k >> 2)`.
+    fn corners(&self, points: &[f32]) -> (Vec<f32>, Vec<i64>) {
+        let n = points.len() / 3;
+        let l = self.resolutions.len();
+        let mut lower = Vec::with_capacity(n * l * 3);
+        let mut rows = Vec::with_capacity(n * l * 8);
+        for p in points.chunks_exact(3) {
+            for (level, &res) in self.resolutions.iter().enumerate() {
+                let mut c = [0u32; 3];
+                for a in 0..3 {
+                    let cell = (p[a] as f64 * res as f64)
+                        .floor()
+                        .clamp(0.0, res as f64 - 1.0);
+                    c[a] = cell as u32;
+                    lower.push(cell as f32);
+                }
+                for k in 0..8u32 {
+                    let v = [c[0] + (k & 1), c[1] + ((k >> 1) & 1), c[2] + (k >> 2)];
+                    rows.push(self.vertex_index(level, v) as i64);
+                }
+            }
+        }
+        (lower, rows)
+    }
+
+    /// Encodes points given in the unit cube (clamped to it: outside, the gradient w.r.t.
+    /// the point is zero).
+    ///
+    /// # Shapes
+    /// - `x`: `[n, 3]` in [0, 1]^3
+    /// - output: `[n, n_levels * n_features_per_level]`, level-major.
+    pub fn forward(&self, x: Tensor<2>) -> Tensor<2> {
+        let [n, _] = x.dims();
+        let l = self.resolutions.len();
+        let f = self.n_features;
+        let device = x.device();
+        if n == 0 {
+            return Tensor::zeros([0, l * f], &device);
+        }
+        let x = x.clamp(0.0, 1.0);
+        let (lower, rows) = self.corners(&host(&x));
+        let res: Vec<f32> = self.resolutions.iter().map(|&r| r as f32).collect();
+        let res = floats(res, [1, l, 1], &device); // [1, L, 1]
+        let lower = floats(lower, [n, l, 3], &device); // [n, L, 3]
+        let frac = x.unsqueeze_dim::<3>(1) * res - lower; // [n, L, 3] in [0, 1]
+        let axis = |a: usize| {
+            let t = frac.clone().narrow(2, a, 1); // [n, L, 1]
+            Tensor::cat(vec![t.clone().neg().add_scalar(1.0), t], 2) // [n, L, 2]
+        };
+        let weights = axis(0).reshape([n, l, 1, 1, 2])
+            * axis(1).reshape([n, l, 1, 2, 1])
+            * axis(2).reshape([n, l, 2, 1, 1]); // [n, L, z, y, x]
+        let weights = weights.reshape([n, l, 8, 1]);
+        let features = self
+            .table
+            .val()
+            .select(0, ints(rows, &device)) // [n L 8, F]
+            .reshape([n, l, 8, f]);
+        (features * weights).sum_dim(2).reshape([n, l * f]) // [n, L F]
+    }
+}
+
+#[cfg(test)]
+pub(crate) mod tests {
+    use super::*;
+
+    /// Plain f64 reference of the encoding (same vertex indexing).
+    pub(crate) fn reference(grid: &HashGrid, table: &[f64], p: [f64; 3]) -> Vec<f64> {
+        let f = grid.n_features;
+        let mut out = Vec::new();
+        for (level, &res) in grid.resolutions.iter().enumerate() {
+            let mut c = [0u32; 3];
+            let mut t = [0f64; 3];
+            for a in 0..3 {
+                let q = p[a].clamp(0.0, 1.0) * res as f64;
+                let cell = q.floor().clamp(0.0, res as f64 - 1.0);
+                c[a] = cell as u32;
+                t[a] = q - cell;
+            }
+            let mut acc = vec![0.0; f];
+            for k in 0..8u32 {
+                let d = [k & 1, (k >> 1) & 1, k >> 2];
+                let mut w = 1.0;
+                for a in 0..3 {
+                    w *= if d[a] == 1 { t[a] } else { 1.0 - t[a] };
+                }
+                let row = grid.vertex_index(level, [c[0] + d[0], c[1] + d[1], c[2] + d[2]]);
+                for j in 0..f {
+                    acc[j] += w * table[row * f + j];
+                }
+            }
+            out.extend(acc);
+        }
+        out
+    }
+
+    fn small_grid(device: &Device) -> HashGrid {
+        // Levels 0-1 dense, 2-3 hashed into 512 entries.
+        HashGridConfig::new()
+            .with_n_levels(4)
+            .with_log2_hashmap_size(9)
+            .with_base_resolution(3)
+            .with_per_level_scale(2.0)
+            .with_init_scale(1.0)
+            .init(device)
+    }
+
+    #[test]
+    fn matches_reference_and_levels_hash_when_full() {
+        let device = Device::flex();
+        let grid = small_grid(&device);
+        assert_eq!(
+            grid.offsets,
+            vec![0, 64, 64 + 343, 64 + 343 + 512, 64 + 343 + 1024]
+        );
+        let table: Vec<f64> = host(&grid.table.val()).iter().map(|&v| v as f64).collect();
+        let pts = [[0.1f32, 0.5, 0.9], [0.77, 0.01, 0.33], [1.0, 0.0, 0.5]];
+        let x = floats(pts.iter().flatten().copied().collect(), [3, 3], &device);
+        let y = host(&grid.forward(x));
+        for (i, p) in pts.iter().enumerate() {
+            let r = reference(&grid, &table, p.map(|v| v as f64));
+            for (j, v) in r.iter().enumerate() {
+                assert!((y[i * 8 + j] as f64 - v).abs() < 1e-5, "{i} {j}");
+            }
+        }
+    }
+
+    /// Autodiff gradients w.r.t. the table and the points against central differences of
+    /// the f64 reference. Loss = sum(out * coeff).
+    #[test]
+    fn gradients_match_central_differences() {
+        let device = Device::flex().autodiff();
+        let grid = small_grid(&device);
+        let table: Vec<f64> = host(&grid.table.val()).iter().map(|&v| v as f64).collect();
+        // Points away from every level's cell boundaries (res 3, 6, 12, 24).
+        let pts: [[f64; 3]; 2] = [[0.105, 0.52, 0.93], [0.771, 0.0623, 0.354]];
+        let out_dim = grid.output_dim();
+        let coeff: Vec<f64> = (0..2 * out_dim)
+            .map(|i| ((i * 7 % 11) as f64 - 5.0) / 5.0)
+            .collect();
+        let x = floats(
+            pts.iter().flatten().map(|&v| v as f32).collect(),
+            [2, 3],
+            &device,
+        )
+        .require_grad();
+        let out = grid.forward(x.clone());
+        let c = floats(
+            coeff.iter().map(|&v| v as f32).collect(),
+            [2, out_dim],
+            &device,
+        );
+        let grads = (out * c).sum().backward();
+        let g_table = host(&grid.table.grad(&grads).expect("table grad"));
+        let g_x = host(&x.grad(&grads).expect("point grad"));
+
+        let loss = |table: &[f64], pts: &[[f64; 3]; 2]| -> f64 {
+            let mut s = 0.0;
+            for (i, p) in pts.iter().enumerate() {
+                for (j, v) in reference(&grid, table, *p).iter().enumerate() {
+                    s += v * coeff[i * out_dim + j];
+                }
+            }
+            s
+        };
+        let h = 1e-5;
+        for (i, p) in pts.iter().enumerate() {
+            for a in 0..3 {
+                let (mut plus, mut minus) = (pts, pts);
+                plus[i][a] = p[a] + h;
+                minus[i][a] = p[a] - h;
+                let fd = (loss(&table, &plus) - loss(&table, &minus)) / (2.0 * h);
+                let ad = g_x[i * 3 + a] as f64;
+                assert!(
+                    (fd - ad).abs() < 1e-3 * (1.0 + fd.abs()),
+                    "dx[{i}][{a}] fd {fd} ad {ad}"
+                );
+            }
+        }
+        let mut checked = 0;
+        for row in 0..table.len() {
+            let mut t = table.clone();
+            t[row] += h;
+            let up = loss(&t, &pts);
+            t[row] -= 2.0 * h;
+            let fd = (up - loss(&t, &pts)) / (2.0 * h);
+            let ad = g_table[row] as f64;
+            assert!(
+                (fd - ad).abs() < 1e-4 * (1.0 + fd.abs()),
+                "dtable[{row}] fd {fd} ad {ad}"
+            );
+            checked += (fd != 0.0) as usize;
+        }
+        assert!(checked > 16, "only {checked} table entries touched");
+    }
+}

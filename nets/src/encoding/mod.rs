@@ -1,0 +1,61 @@
+//! Input encodings: sinusoidal positional encoding (with HumanNeRF's Hann window) and the
+//! multiresolution hash grid, behind one [`Encoding`] that presets choose by config.
+
+pub mod frequency;
+pub mod hash_grid;
+
+use burn::prelude::*;
+
+pub use frequency::{FrequencyConfig, FrequencyEncoding, HannWindowConfig};
+pub use hash_grid::{HashGrid, HashGridConfig};
+
+/// Which point encoding a radiance net uses.
+#[derive(Config, Debug)]
+pub enum EncodingConfig {
+    /// NeRF positional encoding (the `paper` preset: 10 bands).
+    Frequency(FrequencyConfig),
+    /// Multiresolution hash grid (the `fast` preset).
+    HashGrid(HashGridConfig),
+}
+
+impl EncodingConfig {
+    /// Builds the encoding.
+    pub fn init(&self, device: &Device) -> Encoding {
+        match self {
+            EncodingConfig::Frequency(c) => Encoding::Frequency(c.init()),
+            EncodingConfig::HashGrid(c) => Encoding::HashGrid(c.init(device)),
+        }
+    }
+}
+
+/// A point encoding of canonical positions.
+#[derive(Module, Debug)]
+pub enum Encoding {
+    /// Sinusoidal.
+    Frequency(FrequencyEncoding),
+    /// Hash grid.
+    HashGrid(HashGrid),
+}
+
+impl Encoding {
+    /// Output width for 3-D points.
+    pub fn output_dim(&self) -> usize {
+        match self {
+            Encoding::Frequency(e) => e.output_dim(3),
+            Encoding::HashGrid(e) => e.output_dim(),
+        }
+    }
+
+    /// Encodes points given in the unit cube of the canonical bounding box.
+    ///
+    /// # Shapes
+    /// - `unit_points`: `[n, 3]` in [0, 1]^3
+    /// - output: `[n, output_dim]`
+    pub fn forward(&self, unit_points: Tensor<2>, step: usize) -> Tensor<2> {
+        match self {
+            // Sinusoids want coordinates in about [-1, 1].
+            Encoding::Frequency(e) => e.forward(unit_points.mul_scalar(2.0).sub_scalar(1.0), step),
+            Encoding::HashGrid(e) => e.forward(unit_points),
+        }
+    }
+}

@@ -1,0 +1,954 @@
+//! The TalkinNeRF field: D_r (inverse LBS) + D_nr, F_body with segmentation, and hard
+//! routing of head samples to F_face and hand samples to D_hands + F_hands.
+//!
+//! Activations: `rgb = sigmoid`, `sigma = softplus` (the overflow-free form
+//! `max(x,0) + ln(1+exp(-|x|))`: smooth, never negative, linear for large inputs, with a
+//! gradient that never vanishes the way a ReLU's does on an all-negative init).
+
+use burn::module::Param;
+use burn::prelude::*;
+use burn::tensor::activation::sigmoid;
+use burn::tensor::{Distribution, IndexingUpdateOp};
+
+use crate::encoding::{
+    Encoding, EncodingConfig, FrequencyConfig, FrequencyEncoding, HannWindowConfig, HashGridConfig,
+};
+use crate::error::{NetsError, check_len};
+use crate::mlp::{Mlp, MlpConfig};
+use crate::render::{OwnedRaySamples, RaySamples, RenderedRays, render_in_front, render_packed};
+use crate::skinning::{BlendWeightVolume, BoneSegment, N_BODY_JOINTS, RigidWarp, SkinningConfig};
+use crate::util::{floats, host, ints, softplus};
+
+/// Segmentation classes of the body net (DensePose-derived labels of the paper).
+pub const N_SEG_CLASSES: usize = 5;
+/// Label: background.
+pub const SEG_BACKGROUND: usize = 0;
+/// Label: rest of the body.
+pub const SEG_BODY: usize = 1;
+/// Label: arms.
+pub const SEG_ARMS: usize = 2;
+/// Label: hands.
+pub const SEG_HANDS: usize = 3;
+/// Label: head.
+pub const SEG_HEAD: usize = 4;
+/// Candidate-part bit of hands in a sample's part mask (`grids::Part::Hands.bit()`).
+pub const PART_BIT_HANDS: u8 = 1 << 2;
+/// Candidate-part bit of the head (`grids::Part::Head.bit()`).
+pub const PART_BIT_HEAD: u8 = 1 << 3;
+/// Expression coefficients psi.
+pub const EXPRESSION_DIM: usize = 10;
+/// Jaw axis-angle.
+pub const JAW_DIM: usize = 3;
+/// Both hands' 15 joints x 3.
+pub const HAND_POSE_DIM: usize = 90;
+
+/// Everything that decides the field's architecture; saved as JSON beside checkpoints.
+#[derive(Config, Debug)]
+pub struct FieldConfig {
+    /// Point encoding of F_body, F_face and F_hands.
+    pub encoding: EncodingConfig,
+    /// F_body.
+    pub body: MlpConfig,
+    /// F_face.
+    pub face: MlpConfig,
+    /// F_hands.
+    pub hands: MlpConfig,
+    /// D_nr and D_hands.
+    pub deform: MlpConfig,
+    /// Sinusoidal bands of the deformation nets' input.
+    #[config(default = 6)]
+    pub deform_bands: usize,
+    /// Hann window of D_nr's encoding (absolute steps).
+    pub non_rigid_window: HannWindowConfig,
+    /// Hann window of D_hands' encoding (absolute steps).
+    pub hand_window: HannWindowConfig,
+    /// The skinning-weight volume.
+    pub skinning: SkinningConfig,
+    /// Subjects (one learned code each).
+    #[config(default = 1)]
+    pub n_identities: usize,
+    /// Identity code width.
+    #[config(default = 32)]
+    pub identity_dim: usize,
+    /// Body pose condition of D_nr (21 x 3 axis-angle).
+    #[config(default = 63)]
+    pub pose_dim: usize,
+    /// Canonical box (metres): the weight volume and the encodings live here.
+    #[config(default = "[-1.0, -1.3, -0.5]")]
+    pub aabb_min: [f32; 3],
+    /// Canonical box maximum.
+    #[config(default = "[1.0, 1.0, 0.5]")]
+    pub aabb_max: [f32; 3],
+    /// Step from which D_nr runs; `None`: D_nr is not built.
+    #[config(default = "Some(100_000)")]
+    pub non_rigid_start_step: Option<usize>,
+    /// Build and route to F_face.
+    #[config(default = true)]
+    pub has_face: bool,
+    /// Build and route to D_hands + F_hands.
+    #[config(default = true)]
+    pub has_hands: bool,
+    /// Ablation "w/o D_hands" when false.
+    #[config(default = true)]
+    pub use_d_hands: bool,
+    /// The body's rendered colour is the hands' background (paper); false is the ablation
+    /// "w/o background": hand outputs replace the body's in a single pass.
+    #[config(default = true)]
+    pub hand_background: bool,
+    /// Condition F_face on `e = [psi; jaw]` (13); false: psi only (10).
+    #[config(default = true)]
+    pub face_uses_jaw: bool,
+}
+
+impl FieldConfig {
+    /// The paper's sizes: 8x256 MLPs with a skip at layer 4 and 10-band PE for the
+    /// radiance nets, 6x128 deformation nets with 6 Hann-windowed bands, D_nr after 100k.
+    pub fn paper(n_identities: usize) -> Self {
+        let big = MlpConfig::new(8, 256).with_skips(vec![4]);
+        FieldConfig::new(
+            EncodingConfig::Frequency(FrequencyConfig::new(10)),
+            big.clone(),
+            big.clone(),
+            big,
+            MlpConfig::new(6, 128).with_skips(vec![4]),
+            HannWindowConfig::new(100_000, 150_000),
+            HannWindowConfig::new(0, 50_000),
+            SkinningConfig::new(),
+        )
+        .with_n_identities(n_identities)
+    }
+
+    /// The CPU default: a 12-level hash grid (2^15 entries per level) and 2x64 MLPs.
+    pub fn fast(n_identities: usize) -> Self {
+        let small = MlpConfig::new(2, 64);
+        FieldConfig::new(
+            EncodingConfig::HashGrid(
+                HashGridConfig::new()
+                    .with_n_levels(12)
+                    .with_log2_hashmap_size(15),
+            ),
+            small.clone(),
+            small.clone(),
+            small.clone(),
+            small,
+            HannWindowConfig::new(20_000, 30_000),
+            HannWindowConfig::new(0, 10_000),
+            SkinningConfig::new(),
+        )
+        .with_n_identities(n_identities)
+        .with_non_rigid_start_step(Some(20_000))
+    }
+
+    /// A preset by name (`"paper"` or `"fast"`).
+    pub fn preset(name: &str, n_identities: usize) -> Option<Self> {
+        match name {
+            "paper" => Some(Self::paper(n_identities)),
+            "fast" => Some(Self::fast(n_identities)),
+            _ => None,
+        }
+    }
+
+    fn expression_dim(&self) -> usize {
+        EXPRESSION_DIM + if self.face_uses_jaw { JAW_DIM } else { 0 }
+    }
+
+    /// Builds the field; `prior` initialises the skinning weights. Modules the config
+    /// switches off are not built.
+    pub fn init(&self, prior: &[BoneSegment], device: &Device) -> Result<TalkinField, NetsError> {
+        let radiance = |mlp: &MlpConfig, d_cond: usize, d_out: usize| {
+            let encoding = self.encoding.init(device);
+            let d_in = encoding.output_dim() + d_cond + self.identity_dim;
+            RadianceNet {
+                mlp: mlp.init(d_in, d_out, None, device),
+                encoding,
+            }
+        };
+        let deform = |window: HannWindowConfig, d_cond: usize| {
+            let encoding = FrequencyConfig::new(self.deform_bands)
+                .with_window(Some(window))
+                .init();
+            let d_in = encoding.output_dim(3) + d_cond;
+            DeformNet {
+                mlp: self.deform.init(d_in, 3, Some(1e-5), device),
+                encoding,
+            }
+        };
+        let identity = Tensor::<2>::random(
+            [self.n_identities.max(1), self.identity_dim],
+            Distribution::Normal(0.0, 0.1),
+            device,
+        );
+        Ok(TalkinField {
+            identity: Param::from_tensor(identity),
+            skinning: self
+                .skinning
+                .init(self.aabb_min, self.aabb_max, prior, device)?,
+            non_rigid: self
+                .non_rigid_start_step
+                .map(|_| deform(self.non_rigid_window, self.pose_dim)),
+            body: radiance(&self.body, 0, 4 + N_SEG_CLASSES),
+            face: self
+                .has_face
+                .then(|| radiance(&self.face, self.expression_dim(), 4)),
+            hand_deform: (self.has_hands && self.use_d_hands)
+                .then(|| deform(self.hand_window, HAND_POSE_DIM)),
+            hands: self.has_hands.then(|| radiance(&self.hands, 0, 4)),
+            settings: FieldSettings {
+                aabb_min: self.aabb_min,
+                aabb_max: self.aabb_max,
+                non_rigid_start_step: self.non_rigid_start_step,
+                hand_background: self.hand_background,
+                face_uses_jaw: self.face_uses_jaw,
+                pose_dim: self.pose_dim,
+                n_identities: self.n_identities.max(1),
+            },
+        })
+    }
+}
+
+/// Encoding + MLP predicting raw `[sigma, rgb (3), extra...]`.
+#[derive(Module, Debug)]
+pub struct RadianceNet {
+    pub(crate) encoding: Encoding,
+    pub(crate) mlp: Mlp,
+}
+
+impl RadianceNet {
+    /// # Shapes
+    /// - `unit_points`: `[n, 3]`, each of `conditions`: `[n, d_k]`; output `[n, d_out]`
+    pub fn forward(
+        &self,
+        unit_points: Tensor<2>,
+        conditions: Vec<Tensor<2>>,
+        step: usize,
+    ) -> Tensor<2> {
+        let mut inputs = vec![self.encoding.forward(unit_points, step)];
+        inputs.extend(conditions);
+        self.mlp.forward(Tensor::cat(inputs, 1))
+    }
+}
+
+/// Windowed PE + MLP predicting an offset (metres).
+#[derive(Module, Debug)]
+pub struct DeformNet {
+    pub(crate) encoding: FrequencyEncoding,
+    pub(crate) mlp: Mlp,
+}
+
+impl DeformNet {
+    /// # Shapes
+    /// - `unit_points`: `[n, 3]`, `condition`: `[n, d]`; output `[n, 3]`
+    pub fn forward(&self, unit_points: Tensor<2>, condition: Tensor<2>, step: usize) -> Tensor<2> {
+        let enc = self
+            .encoding
+            .forward(unit_points.mul_scalar(2.0).sub_scalar(1.0), step);
+        self.mlp.forward(Tensor::cat(vec![enc, condition], 1))
+    }
+}
+
+#[derive(Clone, Debug)]
+struct FieldSettings {
+    aabb_min: [f32; 3],
+    aabb_max: [f32; 3],
+    non_rigid_start_step: Option<usize>,
+    hand_background: bool,
+    face_uses_jaw: bool,
+    pose_dim: usize,
+    n_identities: usize,
+}
+
+/// Per-frame conditions (one frame per forward call).
+#[derive(Clone, Debug, PartialEq)]
+pub struct FrameConditions {
+    /// Subject index (< `n_identities`).
+    pub identity: usize,
+    /// `[22]` row-major 4x4 `canonical_from_posed` per body bone (see [`crate::skinning`]).
+    pub canonical_from_posed: Vec<[f32; 16]>,
+    /// `[pose_dim]` body pose for D_nr (21 x 3 axis-angle).
+    pub body_pose: Vec<f32>,
+    /// psi.
+    pub expression: [f32; EXPRESSION_DIM],
+    /// Jaw axis-angle.
+    pub jaw: [f32; JAW_DIM],
+    /// `[90]` both hands' poses.
+    pub hand_pose: Vec<f32>,
+}
+
+/// One packed batch of samples of one frame.
+#[derive(Clone, Copy, Debug)]
+pub struct FieldInput<'a> {
+    /// `[n]` observation-space sample positions.
+    pub points: &'a [[f32; 3]],
+    /// `[n]` candidate SMPL-X joints (bit j = joint j < 55), from the capsule BVH.
+    pub bone_masks: &'a [u64],
+    /// `[n]` candidate parts ([`PART_BIT_HEAD`], [`PART_BIT_HANDS`], ...).
+    pub part_masks: &'a [u8],
+    /// The frame's conditions.
+    pub frame: &'a FrameConditions,
+    /// Training step (D_nr switch, Hann windows); use a large value at inference.
+    pub step: usize,
+}
+
+/// Hand-routed samples kept apart for the second compositing pass.
+#[derive(Clone, Debug)]
+pub struct HandSamples {
+    /// Ascending sample indices into the batch. `[h]`
+    pub indices: Vec<usize>,
+    /// `[h, 3]`
+    pub rgb: Tensor<2>,
+    /// `[h]`
+    pub sigma: Tensor<1>,
+}
+
+/// Rows evaluated by each net in one forward: what routing saved.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct RoutingStats {
+    /// Samples in the batch (= rows through F_body).
+    pub samples: usize,
+    /// (sample, bone) pairs evaluated by inverse LBS.
+    pub skinning_pairs: usize,
+    /// Rows through D_nr (0 before its start step).
+    pub non_rigid_rows: usize,
+    /// Rows through F_face.
+    pub face_rows: usize,
+    /// Rows through F_hands (and D_hands when used).
+    pub hand_rows: usize,
+}
+
+/// Per-sample outputs of [`TalkinField::forward`].
+#[derive(Clone, Debug)]
+pub struct FieldOutput {
+    /// Body colour, face-replaced where routed (and hand-replaced without the two-pass
+    /// background). `[n, 3]`
+    pub rgb: Tensor<2>,
+    /// Density, same replacement rules. `[n]`
+    pub sigma: Tensor<1>,
+    /// F_body's segmentation logits. `[n, 5]`
+    pub seg_logits: Tensor<2>,
+    /// Canonical positions after D_r and D_nr. `[n, 3]`
+    pub x_canonical: Tensor<2>,
+    /// Hand samples for the second pass (`hand_background` and at least one routed).
+    pub hands: Option<HandSamples>,
+    /// Rows per net.
+    pub stats: RoutingStats,
+}
+
+impl FieldOutput {
+    /// Volume-renders the batch: pass 1 composites every sample's body/face output;
+    /// with hand samples, pass 2 composites them in ray order in front of pass 1's colour.
+    pub fn render(&self, samples: &RaySamples) -> Result<RenderedRays, NetsError> {
+        let body = render_packed(
+            self.sigma.clone(),
+            self.rgb.clone(),
+            self.seg_logits.clone(),
+            samples,
+        )?;
+        match &self.hands {
+            None => Ok(body),
+            Some(h) => {
+                let front = OwnedRaySamples::subset(samples, &h.indices);
+                render_in_front(h.sigma.clone(), h.rgb.clone(), &front.view(), &body)
+            }
+        }
+    }
+}
+
+/// The whole TalkinNeRF field.
+#[derive(Module, Debug)]
+pub struct TalkinField {
+    /// Identity codes. `[n_identities, identity_dim]`
+    pub identity: Param<Tensor<2>>,
+    /// D_r's weight volume.
+    pub skinning: BlendWeightVolume,
+    /// D_nr (absent when the config never starts it).
+    pub non_rigid: Option<DeformNet>,
+    /// F_body.
+    pub body: RadianceNet,
+    /// F_face.
+    pub face: Option<RadianceNet>,
+    /// D_hands.
+    pub hand_deform: Option<DeformNet>,
+    /// F_hands.
+    pub hands: Option<RadianceNet>,
+    #[module(skip)]
+    settings: FieldSettings,
+}
+
+/// Splits raw `[sigma, rgb]` into activated `(sigma [n], rgb [n, 3])`.
+fn activate(raw: &Tensor<2>) -> (Tensor<1>, Tensor<2>) {
+    let sigma = softplus(raw.clone().narrow(1, 0, 1)).squeeze_dim::<1>(1);
+    let rgb = sigmoid(raw.clone().narrow(1, 1, 3));
+    (sigma, rgb)
+}
+
+/// `base` with rows `idx` replaced by `values` (unique indices; gradients exact).
+fn replace_rows<const D: usize>(base: Tensor<D>, idx: &[usize], values: Tensor<D>) -> Tensor<D> {
+    let device = base.device();
+    let n = base.dims()[0];
+    let mut keep = vec![1.0f32; n];
+    for &i in idx {
+        keep[i] = 0.0;
+    }
+    let mut keep_shape = [1usize; D];
+    keep_shape[0] = n;
+    let keep = floats(keep, keep_shape, &device);
+    let idx = ints(idx.iter().map(|&i| i as i64).collect(), &device);
+    let scattered = Tensor::<D>::zeros(base.shape(), &device).select_assign(
+        0,
+        idx,
+        values,
+        IndexingUpdateOp::Add,
+    );
+    base * keep + scattered
+}
+
+impl TalkinField {
+    fn device(&self) -> Device {
+        self.identity.val().device()
+    }
+
+    /// Maps canonical metres to the unit cube of the canonical box. `[n, 3]`
+    pub fn to_unit(&self, x: Tensor<2>) -> Tensor<2> {
+        let device = x.device();
+        let s = &self.settings;
+        let min = floats(s.aabb_min.to_vec(), [1, 3], &device);
+        let inv: Vec<f32> = (0..3)
+            .map(|a| 1.0 / (s.aabb_max[a] - s.aabb_min[a]))
+            .collect();
+        (x - min) * floats(inv, [1, 3], &device)
+    }
+
+    /// D_r alone (e.g. for the engine's occupancy test before the full forward).
+    pub fn rigid_warp(
+        &self,
+        points: &[[f32; 3]],
+        bone_masks: &[u64],
+        frame: &FrameConditions,
+    ) -> Result<RigidWarp, NetsError> {
+        self.skinning.inverse_lbs(
+            points,
+            bone_masks,
+            &frame.canonical_from_posed,
+            &self.device(),
+        )
+    }
+
+    fn check(&self, input: &FieldInput) -> Result<(), NetsError> {
+        let n = input.points.len();
+        check_len("bone_masks", input.bone_masks.len(), n)?;
+        check_len("part_masks", input.part_masks.len(), n)?;
+        let f = input.frame;
+        check_len(
+            "canonical_from_posed",
+            f.canonical_from_posed.len(),
+            N_BODY_JOINTS,
+        )?;
+        check_len("body_pose", f.body_pose.len(), self.settings.pose_dim)?;
+        check_len("hand_pose", f.hand_pose.len(), HAND_POSE_DIM)?;
+        if f.identity >= self.settings.n_identities {
+            return Err(NetsError::Index {
+                what: "identity",
+                index: f.identity,
+                limit: self.settings.n_identities,
+            });
+        }
+        if input.points.iter().flatten().any(|v| !v.is_finite()) {
+            return Err(NetsError::NonFinite { what: "points" });
+        }
+        Ok(())
+    }
+
+    /// Evaluates the field on a packed batch of one frame.
+    ///
+    /// # Shapes
+    /// `n = input.points.len()`; outputs as documented on [`FieldOutput`].
+    pub fn forward(&self, input: &FieldInput) -> Result<FieldOutput, NetsError> {
+        self.check(input)?;
+        let device = self.device();
+        let n = input.points.len();
+        let step = input.step;
+        let frame = input.frame;
+        let mut stats = RoutingStats {
+            samples: n,
+            ..Default::default()
+        };
+
+        let warp = self.rigid_warp(input.points, input.bone_masks, frame)?;
+        stats.skinning_pairs = warp.n_pairs;
+        if n == 0 {
+            return Ok(FieldOutput {
+                rgb: Tensor::zeros([0, 3], &device),
+                sigma: Tensor::zeros([0], &device),
+                seg_logits: Tensor::zeros([0, N_SEG_CLASSES], &device),
+                x_canonical: warp.x_canonical,
+                hands: None,
+                stats,
+            });
+        }
+        let mut x = warp.x_canonical; // [n, 3]
+        let started = self
+            .settings
+            .non_rigid_start_step
+            .is_some_and(|s| step >= s);
+        if let (Some(nr), true) = (&self.non_rigid, started) {
+            let pose = floats(
+                frame.body_pose.clone(),
+                [1, self.settings.pose_dim],
+                &device,
+            )
+            .repeat_dim(0, n);
+            x = x.clone() + nr.forward(self.to_unit(x), pose, step); // [n, 3]
+            stats.non_rigid_rows = n;
+        }
+        let identity = self
+            .identity
+            .val()
+            .select(0, ints(vec![frame.identity as i64], &device)); // [1, id]
+        let raw = self.body.forward(
+            self.to_unit(x.clone()),
+            vec![identity.clone().repeat_dim(0, n)],
+            step,
+        ); // [n, 9]
+        let (mut sigma, mut rgb) = activate(&raw);
+        let seg_logits = raw.narrow(1, 4, N_SEG_CLASSES); // [n, 5]
+
+        // Hard routing: candidates (BVH) whose body label is the part.
+        let labels = argmax_rows(&host(&seg_logits), N_SEG_CLASSES);
+        let routed = |bit: u8, label: usize| -> Vec<usize> {
+            (0..n)
+                .filter(|&i| input.part_masks[i] & bit != 0 && labels[i] == label)
+                .collect()
+        };
+        if let Some(face) = &self.face {
+            let head = routed(PART_BIT_HEAD, SEG_HEAD);
+            if !head.is_empty() {
+                let h = head.len();
+                let xh = x
+                    .clone()
+                    .select(0, ints(head.iter().map(|&i| i as i64).collect(), &device)); // [h, 3]
+                let mut e = frame.expression.to_vec();
+                if self.settings.face_uses_jaw {
+                    e.extend(frame.jaw);
+                }
+                let d_e = e.len();
+                let e = floats(e, [1, d_e], &device).repeat_dim(0, h);
+                let raw = face.forward(
+                    self.to_unit(xh),
+                    vec![e, identity.clone().repeat_dim(0, h)],
+                    step,
+                );
+                let (s_face, c_face) = activate(&raw);
+                sigma = replace_rows(sigma, &head, s_face);
+                rgb = replace_rows(rgb, &head, c_face);
+                stats.face_rows = h;
+            }
+        }
+        let mut hands_out = None;
+        if let Some(hands) = &self.hands {
+            let idx = routed(PART_BIT_HANDS, SEG_HANDS);
+            if !idx.is_empty() {
+                let h = idx.len();
+                let mut xh = x
+                    .clone()
+                    .select(0, ints(idx.iter().map(|&i| i as i64).collect(), &device));
+                if let Some(dh) = &self.hand_deform {
+                    let pose = floats(frame.hand_pose.clone(), [1, HAND_POSE_DIM], &device)
+                        .repeat_dim(0, h);
+                    xh = xh.clone() + dh.forward(self.to_unit(xh), pose, step);
+                }
+                let raw = hands.forward(self.to_unit(xh), vec![identity.repeat_dim(0, h)], step);
+                let (s_hand, c_hand) = activate(&raw);
+                stats.hand_rows = h;
+                if self.settings.hand_background {
+                    hands_out = Some(HandSamples {
+                        indices: idx,
+                        rgb: c_hand,
+                        sigma: s_hand,
+                    });
+                } else {
+                    sigma = replace_rows(sigma, &idx, s_hand);
+                    rgb = replace_rows(rgb, &idx, c_hand);
+                }
+            }
+        }
+        Ok(FieldOutput {
+            rgb,
+            sigma,
+            seg_logits,
+            x_canonical: x,
+            hands: hands_out,
+            stats,
+        })
+    }
+}
+
+/// Row-wise argmax of a row-major `[n, c]` host matrix (first maximum wins).
+fn argmax_rows(values: &[f32], c: usize) -> Vec<usize> {
+    values
+        .chunks_exact(c)
+        .map(|row| {
+            let mut best = 0;
+            for j in 1..c {
+                if row[j] > row[best] {
+                    best = j;
+                }
+            }
+            best
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::skinning::N_BODY_JOINTS;
+    use burn::optim::{AdamConfig, GradientsParams};
+
+    pub(crate) fn prior() -> Vec<BoneSegment> {
+        (0..N_BODY_JOINTS)
+            .map(|b| {
+                let y = -1.0 + b as f32 * 0.09;
+                BoneSegment {
+                    bone: b,
+                    a: [-0.3, y, 0.0],
+                    b: [0.3, y + 0.05, 0.0],
+                }
+            })
+            .collect()
+    }
+
+    pub(crate) fn frame() -> FrameConditions {
+        let mut t = [0.0f32; 16];
+        for i in 0..4 {
+            t[i * 5] = 1.0;
+        }
+        FrameConditions {
+            identity: 0,
+            canonical_from_posed: vec![t; N_BODY_JOINTS],
+            body_pose: vec![0.05; 63],
+            expression: [0.1; EXPRESSION_DIM],
+            jaw: [0.2, 0.0, 0.0],
+            hand_pose: vec![0.0; HAND_POSE_DIM],
+        }
+    }
+
+    /// `rays` rays of `per_ray` samples marching through the box along z.
+    pub(crate) fn batch(rays: usize, per_ray: usize) -> (Vec<[f32; 3]>, OwnedRaySamples) {
+        let mut pts = Vec::new();
+        let mut s = OwnedRaySamples {
+            offsets: vec![0],
+            ..Default::default()
+        };
+        for r in 0..rays {
+            let (x, y) = (
+                -0.6 + 1.2 * (r % 7) as f32 / 7.0,
+                -1.0 + 1.8 * (r % 11) as f32 / 11.0,
+            );
+            for k in 0..per_ray {
+                let t = 0.4 * k as f32 / per_ray as f32;
+                pts.push([x, y, -0.2 + t]);
+                s.t_start.push(t);
+                s.t_end.push(t + 0.4 / per_ray as f32);
+            }
+            s.offsets.push(pts.len());
+        }
+        (pts, s)
+    }
+
+    fn tiny_fast() -> FieldConfig {
+        let mut c = FieldConfig::fast(2).with_non_rigid_start_step(Some(10));
+        c.encoding = EncodingConfig::HashGrid(
+            HashGridConfig::new()
+                .with_n_levels(4)
+                .with_log2_hashmap_size(12),
+        );
+        c.skinning = SkinningConfig::new().with_resolution(8);
+        c
+    }
+
+    /// Makes F_body output exactly `bias` (zero weights), so routing labels are known.
+    fn force_body(field: &mut TalkinField, bias: [f32; 9]) {
+        let device = field.device();
+        let out = &mut field.body.mlp.output;
+        let w = out.weight.val().zeros_like();
+        out.weight = Param::from_tensor(w);
+        out.bias = Some(Param::from_tensor(floats(bias.to_vec(), [9], &device)));
+    }
+
+    /// Makes a radiance net output NaN on every row it sees.
+    fn poison(net: &mut RadianceNet) {
+        let w = net.mlp.output.weight.val().full_like(f32::NAN);
+        net.mlp.output.weight = Param::from_tensor(w);
+    }
+
+    #[test]
+    fn non_candidates_never_reach_face_or_hands() {
+        let device = Device::flex();
+        let (pts, _) = batch(6, 8);
+        let n = pts.len();
+        let bones = vec![1u64 << 15; n];
+        let frame = frame();
+        let mut field = tiny_fast().init(&prior(), &device).unwrap();
+        poison(field.face.as_mut().unwrap());
+        poison(field.hands.as_mut().unwrap());
+        // Every sample's body label is head; only every third sample is a head candidate,
+        // and every sample is a hand candidate (but no label is hands).
+        force_body(&mut field, [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 5.0]);
+        let parts: Vec<u8> = (0..n)
+            .map(|i| PART_BIT_HANDS | if i % 3 == 0 { PART_BIT_HEAD } else { 0 })
+            .collect();
+        let input = FieldInput {
+            points: &pts,
+            bone_masks: &bones,
+            part_masks: &parts,
+            frame: &frame,
+            step: 0,
+        };
+        let out = field.forward(&input).unwrap();
+        assert_eq!(out.stats.face_rows, n.div_ceil(3));
+        assert_eq!(out.stats.hand_rows, 0);
+        let (rgb, sigma) = (host(&out.rgb), host(&out.sigma));
+        for i in 0..n {
+            if i % 3 == 0 {
+                assert!(
+                    sigma[i].is_nan(),
+                    "candidate {i} went through the (poisoned) face net"
+                );
+            } else {
+                assert_eq!(sigma[i], std::f32::consts::LN_2, "{i}");
+                assert_eq!(rgb[i * 3], 0.5);
+            }
+        }
+
+        // Now every label is hands; candidates are every other sample.
+        force_body(&mut field, [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 5.0, 0.0]);
+        let parts: Vec<u8> = (0..n)
+            .map(|i| PART_BIT_HEAD | if i % 2 == 0 { PART_BIT_HANDS } else { 0 })
+            .collect();
+        let input = FieldInput {
+            part_masks: &parts,
+            ..input
+        };
+        let out = field.forward(&input).unwrap();
+        assert_eq!(out.stats.face_rows, 0);
+        assert_eq!(out.stats.hand_rows, n / 2);
+        let hands = out.hands.as_ref().expect("two-pass hands");
+        assert_eq!(hands.indices, (0..n).step_by(2).collect::<Vec<_>>());
+        assert!(
+            host(&out.sigma).iter().all(|s| s.is_finite()),
+            "pass 1 holds body outputs only"
+        );
+    }
+
+    #[test]
+    fn hands_without_background_replace_body_outputs() {
+        let device = Device::flex();
+        let (pts, samples) = batch(4, 6);
+        let n = pts.len();
+        let (bones, frame) = (vec![0u64; n], frame());
+        let mut field = tiny_fast()
+            .with_hand_background(false)
+            .init(&prior(), &device)
+            .unwrap();
+        force_body(&mut field, [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 5.0, 0.0]);
+        let parts: Vec<u8> = (0..n)
+            .map(|i| if i < 5 { PART_BIT_HANDS } else { 0 })
+            .collect();
+        let input = FieldInput {
+            points: &pts,
+            bone_masks: &bones,
+            part_masks: &parts,
+            frame: &frame,
+            step: 0,
+        };
+        let out = field.forward(&input).unwrap();
+        assert!(out.hands.is_none());
+        assert_eq!(out.stats.hand_rows, 5);
+        let sigma = host(&out.sigma);
+        assert!(sigma[..5].iter().all(|&s| s != std::f32::consts::LN_2));
+        assert!(sigma[5..].iter().all(|&s| s == std::f32::consts::LN_2));
+        assert_eq!(out.render(&samples.view()).unwrap().rgb.dims(), [4, 3]);
+    }
+
+    #[test]
+    fn absent_modules_are_not_built_or_run() {
+        let device = Device::flex();
+        let full = tiny_fast().init(&prior(), &device).unwrap();
+        let cfg = tiny_fast()
+            .with_has_face(false)
+            .with_has_hands(false)
+            .with_non_rigid_start_step(None);
+        let mut bare = cfg.init(&prior(), &device).unwrap();
+        assert!(
+            bare.face.is_none()
+                && bare.hands.is_none()
+                && bare.hand_deform.is_none()
+                && bare.non_rigid.is_none()
+        );
+        assert!(bare.num_params() < full.num_params());
+        let no_dh = tiny_fast()
+            .with_use_d_hands(false)
+            .init(&prior(), &device)
+            .unwrap();
+        assert!(no_dh.hand_deform.is_none() && no_dh.hands.is_some());
+        let jawless = tiny_fast()
+            .with_face_uses_jaw(false)
+            .init(&prior(), &device)
+            .unwrap();
+        assert!(jawless.num_params() < full.num_params());
+
+        force_body(&mut bare, [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 5.0]);
+        let (pts, _) = batch(2, 4);
+        let n = pts.len();
+        let (bones, parts, frame) = (vec![0u64; n], vec![0xffu8; n], frame());
+        let input = FieldInput {
+            points: &pts,
+            bone_masks: &bones,
+            part_masks: &parts,
+            frame: &frame,
+            step: 1 << 30,
+        };
+        let stats = bare.forward(&input).unwrap().stats;
+        assert_eq!(
+            stats,
+            RoutingStats {
+                samples: n,
+                skinning_pairs: n * 22,
+                ..Default::default()
+            }
+        );
+    }
+
+    #[test]
+    fn non_rigid_switches_on_at_its_step() {
+        let device = Device::flex();
+        let field = tiny_fast().init(&prior(), &device).unwrap();
+        let (pts, _) = batch(2, 4);
+        let n = pts.len();
+        let (bones, parts, frame) = (vec![1u64 << 3; n], vec![0u8; n], frame());
+        let mut input = FieldInput {
+            points: &pts,
+            bone_masks: &bones,
+            part_masks: &parts,
+            frame: &frame,
+            step: 9,
+        };
+        assert_eq!(field.forward(&input).unwrap().stats.non_rigid_rows, 0);
+        input.step = 10;
+        assert_eq!(field.forward(&input).unwrap().stats.non_rigid_rows, n);
+    }
+
+    #[test]
+    fn rejects_bad_conditions() {
+        let device = Device::flex();
+        let field = tiny_fast().init(&prior(), &device).unwrap();
+        let (pts, _) = batch(1, 2);
+        let mut f = frame();
+        f.identity = 2;
+        let input = FieldInput {
+            points: &pts,
+            bone_masks: &[0, 0],
+            part_masks: &[0, 0],
+            frame: &f,
+            step: 0,
+        };
+        assert!(matches!(
+            field.forward(&input),
+            Err(NetsError::Index {
+                what: "identity",
+                ..
+            })
+        ));
+        let f = FrameConditions {
+            body_pose: vec![0.0; 3],
+            ..frame()
+        };
+        let input = FieldInput { frame: &f, ..input };
+        assert!(matches!(
+            field.forward(&input),
+            Err(NetsError::Length {
+                what: "body_pose",
+                ..
+            })
+        ));
+    }
+
+    #[test]
+    fn config_round_trips_through_json() {
+        let dir = std::env::temp_dir().join(format!("talkin-nets-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        for cfg in [
+            FieldConfig::paper(3),
+            FieldConfig::fast(1).with_hand_background(false),
+        ] {
+            let path = dir.join("field.json");
+            cfg.save(&path).unwrap();
+            let back = FieldConfig::load(&path).unwrap();
+            assert_eq!(format!("{back:?}"), format!("{cfg:?}"));
+        }
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    /// One training step: forward, two-pass render, MSE, backward, Adam. Returns the loss.
+    fn train_step(
+        field: TalkinField,
+        optim: &mut burn::optim::ModuleOptimizer,
+        pts: &[[f32; 3]],
+        samples: &OwnedRaySamples,
+        target: &Tensor<2>,
+        step: usize,
+    ) -> (TalkinField, f32) {
+        let n = pts.len();
+        let bones: Vec<u64> = (0..n).map(|i| (1u64 << (i % 22)) | (1 << 15)).collect();
+        let parts: Vec<u8> = (0..n)
+            .map(|i| [0, PART_BIT_HEAD, PART_BIT_HANDS, 0xff][i % 4])
+            .collect();
+        let f = frame();
+        let input = FieldInput {
+            points: pts,
+            bone_masks: &bones,
+            part_masks: &parts,
+            frame: &f,
+            step,
+        };
+        let out = field.forward(&input).unwrap();
+        let rendered = out.render(&samples.view()).unwrap();
+        let loss = (rendered.rgb_over([1.0, 1.0, 1.0]) - target.clone())
+            .square()
+            .mean();
+        let value = host(&loss)[0];
+        let grads = GradientsParams::from_grads(loss.backward(), &field);
+        (optim.step(1e-2, field, grads), value)
+    }
+
+    #[test]
+    fn both_presets_train_and_the_fast_one_fits() {
+        let device = Device::flex().autodiff();
+        device.seed(5);
+        let (pts, samples) = batch(24, 8);
+        let r = samples.offsets.len() - 1;
+        let target: Vec<f32> = (0..r * 3)
+            .map(|i| 0.2 + 0.6 * ((i * 7 % 5) as f32 / 4.0))
+            .collect();
+        let target = floats(target, [r, 3], &device);
+
+        let mut paper = FieldConfig::paper(1);
+        paper.skinning = SkinningConfig::new().with_resolution(8);
+        let mut optim = AdamConfig::new().init();
+        let field = paper.init(&prior(), &device).unwrap();
+        let (field, first) = train_step(field, &mut optim, &pts, &samples, &target, 200_000);
+        let (_, second) = train_step(field, &mut optim, &pts, &samples, &target, 200_000);
+        assert!(first.is_finite() && second.is_finite());
+
+        let mut optim = AdamConfig::new().init();
+        let mut field = tiny_fast().init(&prior(), &device).unwrap();
+        let mut losses = Vec::new();
+        for step in 0..25 {
+            let (f, loss) = train_step(field, &mut optim, &pts, &samples, &target, step);
+            field = f;
+            losses.push(loss);
+        }
+        assert!(losses.iter().all(|l| l.is_finite()));
+        assert!(losses[24] < 0.5 * losses[0], "{losses:?}");
+    }
+}

@@ -1,0 +1,34 @@
+//! Small host <-> tensor helpers. Index lists and constant weights are built on the host
+//! (they are piecewise constant in the inputs, so no gradient flows through them) and then
+//! uploaded; only the differentiable arithmetic runs as tensor ops.
+
+use burn::prelude::*;
+
+/// A float tensor from a host vector.
+pub(crate) fn floats<const D: usize>(
+    values: Vec<f32>,
+    shape: [usize; D],
+    device: &Device,
+) -> Tensor<D> {
+    Tensor::from_data(TensorData::new(values, shape), device)
+}
+
+/// A 1-D int tensor from host indices.
+pub(crate) fn ints(values: Vec<i64>, device: &Device) -> Tensor<1, Int> {
+    let n = values.len();
+    Tensor::from_data(TensorData::new(values, [n]), device)
+}
+
+/// Reads a float tensor back to the host (a sync point on GPU backends).
+pub(crate) fn host<const D: usize>(tensor: &Tensor<D>) -> Vec<f32> {
+    tensor
+        .try_to_vec_as::<f32>()
+        .expect("reading a float tensor back to the host")
+}
+
+/// Numerically stable softplus, `max(x, 0) + ln(1 + exp(-|x|))`: never overflows, and its
+/// gradient (a sigmoid) is exact for large |x|.
+pub(crate) fn softplus<const D: usize>(x: Tensor<D>) -> Tensor<D> {
+    let relu = x.clone().clamp_min(0.0);
+    relu + x.abs().neg().exp().log1p()
+}
