@@ -39,7 +39,11 @@ pub enum MotionError {
         source: ShapeError,
     },
     #[error("{}: array `{array}`: {problem}", file.display())]
-    Array { file: PathBuf, array: String, problem: String },
+    Array {
+        file: PathBuf,
+        array: String,
+        problem: String,
+    },
     #[error("{}: {problem}", file.display())]
     Format { file: PathBuf, problem: String },
 }
@@ -47,19 +51,34 @@ pub enum MotionError {
 /// Loads a motion file (`.json` or `.npz`).
 pub fn load_motion(path: impl AsRef<Path>) -> Result<Vec<FrameParams>, MotionError> {
     let file = path.as_ref().to_path_buf();
-    let ext = file.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
+    let ext = file
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase);
     match ext.as_deref() {
         Some("json") => load_json(&file),
         Some("npz") => load_npz(&file),
-        _ => Err(MotionError::Format { file, problem: "expected a .json or .npz motion file".into() }),
+        _ => Err(MotionError::Format {
+            file,
+            problem: "expected a .json or .npz motion file".into(),
+        }),
     }
 }
 
 fn load_json(file: &Path) -> Result<Vec<FrameParams>, MotionError> {
-    let text = std::fs::read_to_string(file).map_err(|source| MotionError::Io { file: file.into(), source })?;
-    let doc: Value = serde_json::from_str(&text).map_err(|e| MotionError::Json { file: file.into(), message: e.to_string() })?;
+    let text = std::fs::read_to_string(file).map_err(|source| MotionError::Io {
+        file: file.into(),
+        source,
+    })?;
+    let doc: Value = serde_json::from_str(&text).map_err(|e| MotionError::Json {
+        file: file.into(),
+        message: e.to_string(),
+    })?;
     let Some(list) = doc.as_array().filter(|a| !a.is_empty()) else {
-        return Err(MotionError::Format { file: file.into(), problem: "expected a non-empty JSON list of params objects".into() });
+        return Err(MotionError::Format {
+            file: file.into(),
+            problem: "expected a non-empty JSON list of params objects".into(),
+        });
     };
     list.iter()
         .enumerate()
@@ -68,7 +87,10 @@ fn load_json(file: &Path) -> Result<Vec<FrameParams>, MotionError> {
                 Some(p) => (p, format!("[{i}].params")),
                 None => (v, format!("[{i}]")),
             };
-            FrameParams::from_json(v, &path).map_err(|source| MotionError::Shape { file: file.into(), source })
+            FrameParams::from_json(v, &path).map_err(|source| MotionError::Shape {
+                file: file.into(),
+                source,
+            })
         })
         .collect()
 }
@@ -81,27 +103,50 @@ struct Npy {
 }
 
 fn load_npz(file: &Path) -> Result<Vec<FrameParams>, MotionError> {
-    let f = std::fs::File::open(file).map_err(|source| MotionError::Io { file: file.into(), source })?;
-    let mut zip = zip::ZipArchive::new(f)
-        .map_err(|e| MotionError::Format { file: file.into(), problem: format!("not an .npz (zip) archive: {e}") })?;
+    let f = std::fs::File::open(file).map_err(|source| MotionError::Io {
+        file: file.into(),
+        source,
+    })?;
+    let mut zip = zip::ZipArchive::new(f).map_err(|e| MotionError::Format {
+        file: file.into(),
+        problem: format!("not an .npz (zip) archive: {e}"),
+    })?;
     let mut read = |names: &[&str]| -> Result<Option<(String, Npy)>, MotionError> {
         for name in names {
             let entry = format!("{name}.npy");
             let mut bytes = Vec::new();
             match zip.by_name(&entry) {
                 Ok(mut e) => {
-                    e.read_to_end(&mut bytes).map_err(|source| MotionError::Io { file: file.into(), source })?;
+                    e.read_to_end(&mut bytes)
+                        .map_err(|source| MotionError::Io {
+                            file: file.into(),
+                            source,
+                        })?;
                 }
                 Err(zip::result::ZipError::FileNotFound) => continue,
-                Err(e) => return Err(MotionError::Format { file: file.into(), problem: format!("{entry}: {e}") }),
+                Err(e) => {
+                    return Err(MotionError::Format {
+                        file: file.into(),
+                        problem: format!("{entry}: {e}"),
+                    });
+                }
             }
-            let npy = parse_npy(&bytes).map_err(|problem| MotionError::Array { file: file.into(), array: name.to_string(), problem })?;
+            let npy = parse_npy(&bytes).map_err(|problem| MotionError::Array {
+                file: file.into(),
+                array: name.to_string(),
+                problem,
+            })?;
             if let Some(k) = npy.data.iter().position(|x| !x.is_finite()) {
                 let cols = npy.shape.get(1).copied().unwrap_or(1).max(1);
                 return Err(MotionError::Array {
                     file: file.into(),
                     array: name.to_string(),
-                    problem: format!("non-finite value {} at [{}, {}]", npy.data[k], k / cols, k % cols),
+                    problem: format!(
+                        "non-finite value {} at [{}, {}]",
+                        npy.data[k],
+                        k / cols,
+                        k % cols
+                    ),
                 });
             }
             return Ok(Some((name.to_string(), npy)));
@@ -121,26 +166,41 @@ fn load_npz(file: &Path) -> Result<Vec<FrameParams>, MotionError> {
         problem: format!("expected shape {expected}, found {found:?}"),
     };
     if poses.shape.len() != 2 || poses.shape[1] != POSE_COLUMNS || poses.shape[0] == 0 {
-        return Err(shape_err("poses", format!("(N >= 1, {POSE_COLUMNS})"), &poses.shape));
+        return Err(shape_err(
+            "poses",
+            format!("(N >= 1, {POSE_COLUMNS})"),
+            &poses.shape,
+        ));
     }
     let n = poses.shape[0];
     let expressions = read(&["expressions", "expression"])?;
     if let Some((name, e)) = &expressions
         && (e.shape.len() != 2 || e.shape[0] != n || e.shape[1] < N_EXPRESSION)
     {
-        return Err(shape_err(name, format!("({n}, >= {N_EXPRESSION}) to match poses"), &e.shape));
+        return Err(shape_err(
+            name,
+            format!("({n}, >= {N_EXPRESSION}) to match poses"),
+            &e.shape,
+        ));
     }
     let trans = read(&["trans", "transl"])?;
     if let Some((name, t)) = &trans
         && (t.shape.len() != 2 || t.shape[0] != n || t.shape[1] != 3)
     {
-        return Err(shape_err(name, format!("({n}, 3) to match poses"), &t.shape));
+        return Err(shape_err(
+            name,
+            format!("({n}, 3) to match poses"),
+            &t.shape,
+        ));
     }
     Ok((0..n)
         .map(|i| {
             let row = &poses.data[i * POSE_COLUMNS..(i + 1) * POSE_COLUMNS];
             let v = |k: usize| DVec3::new(row[3 * k], row[3 * k + 1], row[3 * k + 2]);
-            let mut p = FrameParams { global_orient: v(0), ..Default::default() };
+            let mut p = FrameParams {
+                global_orient: v(0),
+                ..Default::default()
+            };
             for j in 0..N_BODY_JOINTS - 1 {
                 p.body_pose[j] = v(1 + j);
             }
@@ -153,7 +213,8 @@ fn load_npz(file: &Path) -> Result<Vec<FrameParams>, MotionError> {
             }
             if let Some((_, e)) = &expressions {
                 let cols = e.shape[1];
-                p.expression.copy_from_slice(&e.data[i * cols..i * cols + N_EXPRESSION]);
+                p.expression
+                    .copy_from_slice(&e.data[i * cols..i * cols + N_EXPRESSION]);
             }
             if let Some((_, t)) = &trans {
                 p.transl = DVec3::new(t.data[3 * i], t.data[3 * i + 1], t.data[3 * i + 2]);
@@ -165,9 +226,14 @@ fn load_npz(file: &Path) -> Result<Vec<FrameParams>, MotionError> {
 
 /// The text after `'key':` in a .npy header dict.
 fn header_value<'h>(header: &'h str, key: &str) -> Result<&'h str, String> {
-    let at = header.find(&format!("'{key}'")).ok_or_else(|| format!("the .npy header has no '{key}'"))?;
+    let at = header
+        .find(&format!("'{key}'"))
+        .ok_or_else(|| format!("the .npy header has no '{key}'"))?;
     let rest = header[at + key.len() + 2..].trim_start();
-    Ok(rest.strip_prefix(':').ok_or_else(|| format!("malformed '{key}' in the .npy header"))?.trim_start())
+    Ok(rest
+        .strip_prefix(':')
+        .ok_or_else(|| format!("malformed '{key}' in the .npy header"))?
+        .trim_start())
 }
 
 /// Parses a .npy v1/v2/v3 file holding a little-endian f4 or f8 C-order array.
@@ -178,10 +244,15 @@ fn parse_npy(bytes: &[u8]) -> Result<Npy, String> {
     let major = bytes[6];
     let (header_len, start) = match major {
         1 => (u16::from_le_bytes([bytes[8], bytes[9]]) as usize, 10),
-        2 | 3 if bytes.len() >= 12 => (u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]) as usize, 12),
+        2 | 3 if bytes.len() >= 12 => (
+            u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]) as usize,
+            12,
+        ),
         _ => return Err(format!(".npy version {major} is not supported (1, 2 or 3)")),
     };
-    let header = bytes.get(start..start + header_len).ok_or("truncated .npy header")?;
+    let header = bytes
+        .get(start..start + header_len)
+        .ok_or("truncated .npy header")?;
     let header = std::str::from_utf8(header).map_err(|_| "the .npy header is not text")?;
     let value_of = |key: &str| header_value(header, key);
     let descr = value_of("descr")?;
@@ -191,7 +262,9 @@ fn parse_npy(bytes: &[u8]) -> Result<Npy, String> {
         8
     } else {
         let d: String = descr.chars().take_while(|c| *c != ',').collect();
-        return Err(format!("dtype {d} is not supported (expected '<f4' or '<f8')"));
+        return Err(format!(
+            "dtype {d} is not supported (expected '<f4' or '<f8')"
+        ));
     };
     if value_of("fortran_order")?.starts_with("True") {
         return Err("Fortran-order arrays are not supported (expected C order)".into());
@@ -205,17 +278,31 @@ fn parse_npy(bytes: &[u8]) -> Result<Npy, String> {
         .split(',')
         .map(str::trim)
         .filter(|s| !s.is_empty())
-        .map(|s| s.parse::<usize>().map_err(|_| format!("malformed shape entry {s:?}")))
+        .map(|s| {
+            s.parse::<usize>()
+                .map_err(|_| format!("malformed shape entry {s:?}"))
+        })
         .collect::<Result<Vec<_>, _>>()?;
-    let count = shape.iter().try_fold(1usize, |a, &b| a.checked_mul(b)).ok_or("shape too large")?;
+    let count = shape
+        .iter()
+        .try_fold(1usize, |a, &b| a.checked_mul(b))
+        .ok_or("shape too large")?;
     let data = &bytes[start + header_len..];
     if data.len() != count * width {
-        return Err(format!("shape {shape:?} needs {} bytes of data, found {}", count * width, data.len()));
+        return Err(format!(
+            "shape {shape:?} needs {} bytes of data, found {}",
+            count * width,
+            data.len()
+        ));
     }
     let data = if width == 4 {
-        data.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]) as f64).collect()
+        data.chunks_exact(4)
+            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]) as f64)
+            .collect()
     } else {
-        data.chunks_exact(8).map(|c| f64::from_le_bytes(c.try_into().expect("8 bytes"))).collect()
+        data.chunks_exact(8)
+            .map(|c| f64::from_le_bytes(c.try_into().expect("8 bytes")))
+            .collect()
     };
     Ok(Npy { shape, data })
 }
@@ -226,7 +313,10 @@ mod tests {
 
     fn npy(descr: &str, values: &[f64]) -> Vec<u8> {
         let mut b = b"\x93NUMPY\x01\x00".to_vec();
-        let h = format!("{{'descr': '{descr}', 'fortran_order': False, 'shape': ({},), }}", values.len());
+        let h = format!(
+            "{{'descr': '{descr}', 'fortran_order': False, 'shape': ({},), }}",
+            values.len()
+        );
         b.extend((h.len() as u16).to_le_bytes());
         b.extend(h.as_bytes());
         for v in values {
@@ -242,6 +332,10 @@ mod tests {
         assert_eq!(a.shape, vec![2]);
         assert_eq!(a.data, vec![1.5, -2.0]);
         assert!(parse_npy(&b[..b.len() - 1]).unwrap_err().contains("bytes"));
-        assert!(parse_npy(&npy(">f8", &[1.0])).unwrap_err().contains("dtype"));
+        assert!(
+            parse_npy(&npy(">f8", &[1.0]))
+                .unwrap_err()
+                .contains("dtype")
+        );
     }
 }

@@ -5,8 +5,8 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use glam::{DVec3, Vec3};
-use talkin_engine::body::{FrameParams, limb_capsules};
 use talkin_engine::body::skeleton::joint;
+use talkin_engine::body::{FrameParams, limb_capsules};
 use talkin_engine::dataset::{Dataset, Split};
 use talkin_engine::motion::{MotionError, load_motion};
 use talkin_engine::synth::{SynthConfig, generate};
@@ -19,7 +19,13 @@ fn temp_dir(name: &str) -> PathBuf {
 }
 
 fn tiny() -> SynthConfig {
-    SynthConfig { identities: 2, frames: 4, size: 64, seed: 3, motion: None }
+    SynthConfig {
+        identities: 2,
+        frames: 4,
+        size: 64,
+        seed: 3,
+        motion: None,
+    }
 }
 
 /// Every file under `dir`, relative, sorted.
@@ -55,7 +61,11 @@ fn generator_is_deterministic_and_its_frames_are_consistent() {
     assert_eq!(fa, fb);
     assert_eq!(fa.len(), 1 + 4 * total);
     for f in &fa {
-        assert!(std::fs::read(a.join(f)).unwrap() == std::fs::read(b.join(f)).unwrap(), "{} differs", f.display());
+        assert!(
+            std::fs::read(a.join(f)).unwrap() == std::fs::read(b.join(f)).unwrap(),
+            "{} differs",
+            f.display()
+        );
     }
 
     let ds = Dataset::load(&a).unwrap();
@@ -63,19 +73,40 @@ fn generator_is_deterministic_and_its_frames_are_consistent() {
     assert_eq!(ds.background, talkin_engine::synth::BACKGROUND);
     for split in Split::ALL {
         for s in 0..2 {
-            let n = ds.frames.iter().filter(|f| f.split == split && f.subject == s).count();
+            let n = ds
+                .frames
+                .iter()
+                .filter(|f| f.split == split && f.subject == s)
+                .count();
             assert!(n >= 1, "subject {s} has no {split} frames");
         }
     }
-    assert_eq!(ds.frames.iter().filter(|f| f.split == Split::Train && f.subject == 0).count(), 4);
+    assert_eq!(
+        ds.frames
+            .iter()
+            .filter(|f| f.split == Split::Train && f.subject == 0)
+            .count(),
+        4
+    );
     // Held-out frames are not training frames.
     for s in 0..2 {
-        let train: Vec<f64> = ds.frames.iter().filter(|f| f.subject == s && f.split == Split::Train).map(|f| f.time).collect();
-        for f in ds.frames.iter().filter(|f| f.subject == s && f.split == Split::TestSame) {
+        let train: Vec<f64> = ds
+            .frames
+            .iter()
+            .filter(|f| f.subject == s && f.split == Split::Train)
+            .map(|f| f.time)
+            .collect();
+        for f in ds
+            .frames
+            .iter()
+            .filter(|f| f.subject == s && f.split == Split::TestSame)
+        {
             assert!(!train.contains(&f.time));
         }
     }
 
+    // How far clothing and hair stick out of the bare skeleton's capsules.
+    let mut farthest = 0.0f32;
     for (i, frame) in ds.frames.iter().enumerate() {
         let img = ds.images(i).unwrap();
         let depth = ds.depth(i).unwrap().expect("synthetic frames carry depth");
@@ -87,27 +118,54 @@ fn generator_is_deterministic_and_its_frames_are_consistent() {
         let capsules = limb_capsules(skeleton, &posed);
         let fx = frame.camera.intrinsics.x_axis.x;
         let fy = frame.camera.intrinsics.y_axis.y;
-        let (cx, cy) = (frame.camera.intrinsics.z_axis.x, frame.camera.intrinsics.z_axis.y);
+        let (cx, cy) = (
+            frame.camera.intrinsics.z_axis.x,
+            frame.camera.intrinsics.z_axis.y,
+        );
         let world_from_camera = frame.camera.camera_from_world.inverse();
         for y in 0..h {
             for x in 0..w {
                 let label = img.segmentation.get_pixel(x, y).0[0];
                 let mask = img.mask.get_pixel(x, y).0[0];
-                assert_eq!(mask == 255, label > 0, "frame {i} pixel ({x}, {y}): mask {mask}, label {label}");
+                assert_eq!(
+                    mask == 255,
+                    label > 0,
+                    "frame {i} pixel ({x}, {y}): mask {mask}, label {label}"
+                );
                 assert!(mask == 0 || mask == 255);
                 count[label as usize] += 1;
                 if label == 4 {
-                    head_box = (head_box.0.min(x), head_box.1.min(y), head_box.2.max(x), head_box.3.max(y));
+                    head_box = (
+                        head_box.0.min(x),
+                        head_box.1.min(y),
+                        head_box.2.max(x),
+                        head_box.3.max(y),
+                    );
                 }
                 let z = depth[(y * w + x) as usize];
-                assert_eq!(z.is_some(), label > 0, "frame {i} pixel ({x}, {y}): depth vs label");
+                assert_eq!(
+                    z.is_some(),
+                    label > 0,
+                    "frame {i} pixel ({x}, {y}): depth vs label"
+                );
                 if let Some(z) = z {
                     let z = z as f64;
                     assert!(z.is_finite() && z > 0.5 && z < 10.0, "depth {z}");
-                    let p_cam = DVec3::new((x as f64 + 0.5 - cx) * z / fx, (y as f64 + 0.5 - cy) * z / fy, z);
+                    let p_cam = DVec3::new(
+                        (x as f64 + 0.5 - cx) * z / fx,
+                        (y as f64 + 0.5 - cy) * z / fy,
+                        z,
+                    );
                     let p = world_from_camera.transform_point3(p_cam).as_vec3();
-                    let nearest = capsules.iter().map(|c| capsule_distance(p, c.a, c.b, c.radius)).fold(f32::MAX, f32::min);
-                    assert!(nearest < 0.25, "frame {i} pixel ({x}, {y}): surface point {p} is {nearest} m from every capsule");
+                    let nearest = capsules
+                        .iter()
+                        .map(|c| capsule_distance(p, c.a, c.b, c.radius))
+                        .fold(f32::MAX, f32::min);
+                    farthest = farthest.max(nearest);
+                    assert!(
+                        nearest < 0.25,
+                        "frame {i} pixel ({x}, {y}): surface point {p} is {nearest} m from every capsule"
+                    );
                 }
             }
         }
@@ -124,8 +182,70 @@ fn generator_is_deterministic_and_its_frames_are_consistent() {
         );
         assert!(img.rgb.pixels().any(|p| p.0 != [255, 255, 255]));
     }
+    assert!(
+        farthest > 0.03,
+        "hair and clothes should stick out of the capsules, max {farthest} m"
+    );
     let _ = std::fs::remove_dir_all(&a);
     let _ = std::fs::remove_dir_all(&b);
+}
+
+#[test]
+fn jaw_and_expressions_move_only_the_face() {
+    let dir = temp_dir("face");
+    let neutral = FrameParams::default();
+    let mut pose = neutral.clone();
+    // Arms down and forward so the hands are in view.
+    pose.body_pose[joint::LEFT_SHOULDER - 1] = DVec3::new(0.0, 0.0, -1.2);
+    pose.body_pose[joint::RIGHT_SHOULDER - 1] = DVec3::new(0.0, 0.0, 1.2);
+    let mut jaw = pose.clone();
+    jaw.jaw_pose = DVec3::new(0.35, 0.0, 0.0);
+    let mut brows = pose.clone();
+    brows.expression[1] = 2.0;
+    let mut smile = pose.clone();
+    smile.expression[0] = 2.0;
+    let mut blink = pose.clone();
+    blink.expression[3] = 2.5;
+    let cfg = SynthConfig {
+        identities: 1,
+        frames: 1,
+        size: 160,
+        seed: 0,
+        motion: Some(vec![pose, jaw, brows, smile, blink]),
+    };
+    let ds = generate(&cfg, &dir, &mut |_, _| {}).unwrap();
+    let base = ds.images(0).unwrap();
+    // Lowest head row of the neutral face, projected chin included.
+    let chin_row = base
+        .segmentation
+        .enumerate_pixels()
+        .filter(|p| p.2.0[0] == 4)
+        .map(|p| p.1)
+        .max()
+        .unwrap();
+    for (i, what) in [(1, "jaw"), (2, "brow raise"), (3, "smile"), (4, "blink")] {
+        let img = ds.images(i).unwrap();
+        let mut changed = 0;
+        for (x, y, p) in img.rgb.enumerate_pixels() {
+            if p != base.rgb.get_pixel(x, y) {
+                changed += 1;
+                let labels = [
+                    base.segmentation.get_pixel(x, y).0[0],
+                    img.segmentation.get_pixel(x, y).0[0],
+                ];
+                // Head pixels, or the neck just under the chin (the chin blends smoothly
+                // into it) and anti-aliased pixels beside the head: never arms or hands.
+                let ok =
+                    labels.contains(&4) || (labels.iter().all(|&l| l <= 1) && y <= chin_row + 8);
+                assert!(
+                    ok,
+                    "{what} changed pixel ({x}, {y}) with labels {labels:?}, chin row {chin_row}"
+                );
+            }
+        }
+        assert!(changed > 3, "{what} changed only {changed} pixels");
+    }
+    let _ = std::fs::remove_dir_all(&dir);
 }
 
 fn capsule_distance(p: Vec3, a: Vec3, b: Vec3, r: f32) -> f32 {
@@ -141,12 +261,27 @@ fn generator_renders_a_given_motion() {
     p.body_pose[joint::LEFT_SHOULDER - 1] = DVec3::new(0.0, 0.0, -1.2);
     p.body_pose[joint::RIGHT_SHOULDER - 1] = DVec3::new(0.0, 0.0, 1.2);
     p.jaw_pose = DVec3::new(0.3, 0.0, 0.0);
-    let cfg = SynthConfig { identities: 1, frames: 1, size: 48, seed: 0, motion: Some(vec![p.clone(), FrameParams { transl: DVec3::new(0.0, 0.0, 0.1), ..p }]) };
+    let cfg = SynthConfig {
+        identities: 1,
+        frames: 1,
+        size: 48,
+        seed: 0,
+        motion: Some(vec![
+            p.clone(),
+            FrameParams {
+                transl: DVec3::new(0.0, 0.0, 0.1),
+                ..p
+            },
+        ]),
+    };
     let ds = generate(&cfg, &dir, &mut |_, _| {}).unwrap();
     assert_eq!(ds.frames.len(), 2);
     assert!(ds.frames.iter().all(|f| f.split == Split::Train));
     Dataset::load(&dir).unwrap();
-    let bad = SynthConfig { identities: 0, ..tiny() };
+    let bad = SynthConfig {
+        identities: 0,
+        ..tiny()
+    };
     assert!(generate(&bad, &dir, &mut |_, _| {}).is_err());
     let _ = std::fs::remove_dir_all(&dir);
 }
@@ -154,7 +289,11 @@ fn generator_renders_a_given_motion() {
 /// A .npy file with a hand-made v1 header.
 fn npy(descr: &str, shape: &[usize], values: &[f64]) -> Vec<u8> {
     let dims: Vec<String> = shape.iter().map(|d| d.to_string()).collect();
-    let shape = if dims.len() == 1 { format!("({},)", dims[0]) } else { format!("({})", dims.join(", ")) };
+    let shape = if dims.len() == 1 {
+        format!("({},)", dims[0])
+    } else {
+        format!("({})", dims.join(", "))
+    };
     let mut header = format!("{{'descr': '{descr}', 'fortran_order': False, 'shape': {shape}, }}");
     while (10 + header.len() + 1) % 64 != 0 {
         header.push(' ');
@@ -176,7 +315,11 @@ fn npy(descr: &str, shape: &[usize], values: &[f64]) -> Vec<u8> {
 fn npz(path: &Path, arrays: &[(&str, Vec<u8>)]) {
     let mut zip = zip::ZipWriter::new(std::fs::File::create(path).unwrap());
     for (name, bytes) in arrays {
-        zip.start_file(format!("{name}.npy"), zip::write::SimpleFileOptions::default()).unwrap();
+        zip.start_file(
+            format!("{name}.npy"),
+            zip::write::SimpleFileOptions::default(),
+        )
+        .unwrap();
         zip.write_all(bytes).unwrap();
     }
     zip.finish().unwrap();
@@ -186,23 +329,31 @@ fn npz(path: &Path, arrays: &[(&str, Vec<u8>)]) {
 fn motion_files_load_and_fail_clearly() {
     let dir = temp_dir("npz");
     let n = 2;
-    let poses: Vec<f64> = (0..n * 165).map(|k| (k % 7) as f64 * 0.125 - 0.25).collect();
+    let poses: Vec<f64> = (0..n * 165)
+        .map(|k| (k % 7) as f64 * 0.125 - 0.25)
+        .collect();
     let expressions: Vec<f64> = (0..n * 12).map(|k| k as f64 * 0.5).collect();
     let trans: Vec<f64> = vec![0.0, 0.5, 1.0, 0.25, 0.75, 1.25];
     for descr in ["<f4", "<f8"] {
         let file = dir.join(format!("ok{}.npz", &descr[2..]));
-        npz(&file, &[
-            ("poses", npy(descr, &[n, 165], &poses)),
-            ("expressions", npy(descr, &[n, 12], &expressions)),
-            ("trans", npy(descr, &[n, 3], &trans)),
-        ]);
+        npz(
+            &file,
+            &[
+                ("poses", npy(descr, &[n, 165], &poses)),
+                ("expressions", npy(descr, &[n, 12], &expressions)),
+                ("trans", npy(descr, &[n, 3], &trans)),
+            ],
+        );
         let m = load_motion(&file).unwrap();
         assert_eq!(m.len(), 2);
         let row = &poses[165..];
         assert_eq!(m[1].global_orient, DVec3::new(row[0], row[1], row[2]));
         assert_eq!(m[1].body_pose[20], DVec3::new(row[63], row[64], row[65]));
         assert_eq!(m[1].jaw_pose, DVec3::new(row[66], row[67], row[68]));
-        assert_eq!(m[1].right_hand_pose[14], DVec3::new(row[162], row[163], row[164]));
+        assert_eq!(
+            m[1].right_hand_pose[14],
+            DVec3::new(row[162], row[163], row[164])
+        );
         assert_eq!(m[1].expression[9], expressions[12 + 9]);
         assert_eq!(m[1].transl, DVec3::new(0.25, 0.75, 1.25));
     }
@@ -215,11 +366,23 @@ fn motion_files_load_and_fail_clearly() {
 
     let message = |e: MotionError| e.to_string();
     let wrong = dir.join("wrong.npz");
-    npz(&wrong, &[("poses", npy("<f8", &[n, 160], &poses[..n * 160]))]);
+    npz(
+        &wrong,
+        &[("poses", npy("<f8", &[n, 160], &poses[..n * 160]))],
+    );
     let e = message(load_motion(&wrong).unwrap_err());
-    assert!(e.contains("wrong.npz") && e.contains("poses") && e.contains("165"), "{e}");
+    assert!(
+        e.contains("wrong.npz") && e.contains("poses") && e.contains("165"),
+        "{e}"
+    );
     let mismatch = dir.join("mismatch.npz");
-    npz(&mismatch, &[("poses", npy("<f8", &[n, 165], &poses)), ("trans", npy("<f8", &[1, 3], &trans[..3]))]);
+    npz(
+        &mismatch,
+        &[
+            ("poses", npy("<f8", &[n, 165], &poses)),
+            ("trans", npy("<f8", &[1, 3], &trans[..3])),
+        ],
+    );
     let e = message(load_motion(&mismatch).unwrap_err());
     assert!(e.contains("trans") && e.contains("(2, 3)"), "{e}");
     let mut with_nan = poses.clone();
@@ -227,7 +390,10 @@ fn motion_files_load_and_fail_clearly() {
     let nan = dir.join("nan.npz");
     npz(&nan, &[("poses", npy("<f4", &[n, 165], &with_nan))]);
     let e = message(load_motion(&nan).unwrap_err());
-    assert!(e.contains("poses") && e.contains("non-finite") && e.contains("[1, 5]"), "{e}");
+    assert!(
+        e.contains("poses") && e.contains("non-finite") && e.contains("[1, 5]"),
+        "{e}"
+    );
     let missing = dir.join("missing.npz");
     npz(&missing, &[("trans", npy("<f8", &[n, 3], &trans))]);
     let e = message(load_motion(&missing).unwrap_err());
@@ -237,16 +403,32 @@ fn motion_files_load_and_fail_clearly() {
     assert!(message(load_motion(&int).unwrap_err()).contains("dtype"));
 
     // JSON: a list of params objects.
-    let mut a = FrameParams::default();
-    a.jaw_pose = DVec3::new(0.25, 0.0, 0.0);
+    let mut a = FrameParams {
+        jaw_pose: DVec3::new(0.25, 0.0, 0.0),
+        ..Default::default()
+    };
     a.expression[3] = 1.5;
     let json = dir.join("motion.json");
-    std::fs::write(&json, serde_json::to_string(&vec![a.to_json(), FrameParams::default().to_json()]).unwrap()).unwrap();
-    assert_eq!(load_motion(&json).unwrap(), vec![a.clone(), FrameParams::default()]);
+    std::fs::write(
+        &json,
+        serde_json::to_string(&vec![a.to_json(), FrameParams::default().to_json()]).unwrap(),
+    )
+    .unwrap();
+    assert_eq!(
+        load_motion(&json).unwrap(),
+        vec![a.clone(), FrameParams::default()]
+    );
     let mut broken = FrameParams::default().to_json();
     broken["body_pose"] = serde_json::json!([[0, 0, 0]]);
-    std::fs::write(&json, serde_json::to_string(&vec![a.to_json(), broken]).unwrap()).unwrap();
+    std::fs::write(
+        &json,
+        serde_json::to_string(&vec![a.to_json(), broken]).unwrap(),
+    )
+    .unwrap();
     let e = message(load_motion(&json).unwrap_err());
-    assert!(e.contains("[1].body_pose") && e.contains("motion.json"), "{e}");
+    assert!(
+        e.contains("[1].body_pose") && e.contains("motion.json"),
+        "{e}"
+    );
     let _ = std::fs::remove_dir_all(&dir);
 }

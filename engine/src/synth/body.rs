@@ -35,9 +35,30 @@ pub struct Proportions {
 /// The proportions of identity `i`: three authored ones, then random variations of them.
 pub fn proportions(identity: usize) -> Proportions {
     let base = [
-        Proportions { height: 0.97, shoulder: 0.165, arm: 0.97, leg: 1.0, head: 1.0, hand: 0.95 },
-        Proportions { height: 1.07, shoulder: 0.198, arm: 1.06, leg: 1.03, head: 1.06, hand: 1.08 },
-        Proportions { height: 0.91, shoulder: 0.152, arm: 0.92, leg: 0.96, head: 0.95, hand: 0.9 },
+        Proportions {
+            height: 0.97,
+            shoulder: 0.165,
+            arm: 0.97,
+            leg: 1.0,
+            head: 1.0,
+            hand: 0.95,
+        },
+        Proportions {
+            height: 1.07,
+            shoulder: 0.198,
+            arm: 1.06,
+            leg: 1.03,
+            head: 1.06,
+            hand: 1.08,
+        },
+        Proportions {
+            height: 0.91,
+            shoulder: 0.152,
+            arm: 0.92,
+            leg: 0.96,
+            head: 0.95,
+            hand: 0.9,
+        },
     ];
     let p = base[identity % 3];
     if identity < 3 {
@@ -64,8 +85,12 @@ const FINGERS: [([f64; 3], [f64; 3], f32); 4] = [
     ([0.089, 0.002, -0.013], [0.038, 0.026, 0.021], 0.0090),
 ];
 /// Left thumb: base (CMC) relative to the wrist, direction, segment lengths, radius.
-const THUMB: ([f64; 3], [f64; 3], [f64; 3], f32) =
-    ([0.024, -0.012, 0.026], [0.72, -0.2, 0.66], [0.036, 0.032, 0.026], 0.0108);
+const THUMB: ([f64; 3], [f64; 3], [f64; 3], f32) = (
+    [0.024, -0.012, 0.026],
+    [0.72, -0.2, 0.66],
+    [0.036, 0.032, 0.026],
+    0.0108,
+);
 
 /// Rest (T-pose) joints of identity `identity`, in metres, feet near y = 0.
 pub fn default_rest_joints(identity: usize) -> Skeleton {
@@ -83,8 +108,8 @@ pub fn rest_joints(p: &Proportions) -> Skeleton {
     j[SPINE1] = j[PELVIS] + DVec3::new(0.0, 0.10 * s, -0.012);
     j[SPINE2] = j[SPINE1] + DVec3::new(0.0, 0.13 * s, 0.004);
     j[SPINE3] = j[SPINE2] + DVec3::new(0.0, 0.06 * s, 0.01);
-    j[NECK] = j[SPINE3] + DVec3::new(0.0, 0.22 * s, -0.02);
-    j[HEAD] = j[NECK] + DVec3::new(0.0, 0.09 * s, 0.015);
+    j[NECK] = j[SPINE3] + DVec3::new(0.0, 0.2 * s, -0.02);
+    j[HEAD] = j[NECK] + DVec3::new(0.0, 0.08 * s, 0.015);
     for (side, sign) in [(0usize, 1.0f64), (1, -1.0)] {
         let m = |v: DVec3| DVec3::new(v.x * sign, v.y, v.z);
         j[LEFT_KNEE + side] = m(DVec3::new(0.09 * s, hip_y - 0.40 * s * p.leg, 0.01));
@@ -138,7 +163,10 @@ impl HeadFrame {
     const EYE_R: f32 = 0.0125;
 
     fn new(joint: DVec3, k: f64) -> Self {
-        Self { joint: joint.as_vec3(), k: k as f32 }
+        Self {
+            joint: joint.as_vec3(),
+            k: k as f32,
+        }
     }
     fn at(&self, x: f32, y: f32, z: f32) -> DVec3 {
         (self.joint + Vec3::new(x, y, z) * self.k).as_dvec3()
@@ -153,30 +181,66 @@ impl HeadFrame {
     }
     fn eye_centre(&self, sign: f32) -> Vec3 {
         let x = sign * Self::EYE_X;
-        self.p(x, Self::EYE_Y, Self::front(x, Self::EYE_Y) - Self::EYE_R + 0.0035)
+        self.p(
+            x,
+            Self::EYE_Y,
+            Self::front(x, Self::EYE_Y) - Self::EYE_R + 0.0035,
+        )
     }
 }
 
 /// A clothing pattern, evaluated at rest-space points (metres).
 #[derive(Clone, Copy, Debug)]
 pub enum Pattern {
-    Stripes { a: Vec3, b: Vec3, period: f32, dir: Vec3 },
-    Checks { a: Vec3, b: Vec3, cell: f32 },
-    Dots { a: Vec3, b: Vec3, spacing: f32, radius: f32 },
-    Plaid { a: Vec3, b: Vec3, c: Vec3, cell: f32 },
+    Stripes {
+        a: Vec3,
+        b: Vec3,
+        period: f32,
+        dir: Vec3,
+    },
+    Checks {
+        a: Vec3,
+        b: Vec3,
+        cell: f32,
+    },
+    Dots {
+        a: Vec3,
+        b: Vec3,
+        spacing: f32,
+        radius: f32,
+    },
+    Plaid {
+        a: Vec3,
+        b: Vec3,
+        c: Vec3,
+        cell: f32,
+    },
 }
 
 impl Pattern {
     pub fn colour(&self, p: Vec3) -> Vec3 {
         match *self {
             Pattern::Stripes { a, b, period, dir } => {
-                if (p.dot(dir) / period).rem_euclid(1.0) < 0.5 { a } else { b }
+                if (p.dot(dir) / period).rem_euclid(1.0) < 0.5 {
+                    a
+                } else {
+                    b
+                }
             }
             Pattern::Checks { a, b, cell } => {
                 let q = (p / cell).floor();
-                if (q.x + q.y + q.z).rem_euclid(2.0) < 1.0 { a } else { b }
+                if (q.x + q.y + q.z).rem_euclid(2.0) < 1.0 {
+                    a
+                } else {
+                    b
+                }
             }
-            Pattern::Dots { a, b, spacing, radius } => {
+            Pattern::Dots {
+                a,
+                b,
+                spacing,
+                radius,
+            } => {
                 let q = p / spacing;
                 let f = (q - q.round()) * spacing;
                 if f.length() < radius { b } else { a }
@@ -242,8 +306,18 @@ pub fn look(identity: usize) -> Look {
             hair: rgb(62, 40, 28),
             lip: rgb(178, 82, 88),
             iris: rgb(70, 45, 25),
-            top: Pattern::Stripes { a: rgb(28, 40, 92), b: rgb(236, 232, 220), period: 0.034, dir: Vec3::Y },
-            bottom: Pattern::Dots { a: rgb(170, 30, 40), b: rgb(250, 220, 120), spacing: 0.045, radius: 0.011 },
+            top: Pattern::Stripes {
+                a: rgb(28, 40, 92),
+                b: rgb(236, 232, 220),
+                period: 0.034,
+                dir: Vec3::Y,
+            },
+            bottom: Pattern::Dots {
+                a: rgb(170, 30, 40),
+                b: rgb(250, 220, 120),
+                spacing: 0.045,
+                radius: 0.011,
+            },
             hair_style: HairStyle::Bun,
             garment: Garment::Skirt,
             sleeve: Sleeve::Short,
@@ -253,8 +327,17 @@ pub fn look(identity: usize) -> Look {
             hair: rgb(22, 18, 16),
             lip: rgb(120, 58, 56),
             iris: rgb(40, 28, 20),
-            top: Pattern::Checks { a: rgb(40, 110, 70), b: rgb(214, 200, 160), cell: 0.04 },
-            bottom: Pattern::Plaid { a: rgb(70, 70, 80), b: rgb(140, 140, 150), c: rgb(200, 60, 50), cell: 0.06 },
+            top: Pattern::Checks {
+                a: rgb(40, 110, 70),
+                b: rgb(214, 200, 160),
+                cell: 0.04,
+            },
+            bottom: Pattern::Plaid {
+                a: rgb(70, 70, 80),
+                b: rgb(140, 140, 150),
+                c: rgb(200, 60, 50),
+                cell: 0.06,
+            },
             hair_style: HairStyle::Ponytail,
             garment: Garment::JacketHem,
             sleeve: Sleeve::Cuffed,
@@ -268,9 +351,17 @@ pub fn look(identity: usize) -> Look {
                 a: rgb(240, 190, 40),
                 b: rgb(90, 40, 120),
                 period: 0.028,
-                dir: Vec3::new(0.7071, 0.7071, 0.0),
+                dir: Vec3::new(
+                    std::f32::consts::FRAC_1_SQRT_2,
+                    std::f32::consts::FRAC_1_SQRT_2,
+                    0.0,
+                ),
             },
-            bottom: Pattern::Checks { a: rgb(30, 30, 36), b: rgb(230, 230, 235), cell: 0.03 },
+            bottom: Pattern::Checks {
+                a: rgb(30, 30, 36),
+                b: rgb(230, 230, 235),
+                cell: 0.03,
+            },
             hair_style: HairStyle::Bun,
             garment: Garment::Skirt,
             sleeve: Sleeve::Loose,
@@ -279,15 +370,35 @@ pub fn look(identity: usize) -> Look {
     let mut l = looks[identity % 3];
     if identity >= 3 {
         let mut rng = SplitMix::new(0x100c_0000 + identity as u64);
-        let mut tint = |c: Vec3| (c * Vec3::new(rng.range(0.6, 1.3) as f32, rng.range(0.6, 1.3) as f32, rng.range(0.6, 1.3) as f32)).min(Vec3::ONE);
+        let mut tint = |c: Vec3| {
+            (c * Vec3::new(
+                rng.range(0.6, 1.3) as f32,
+                rng.range(0.6, 1.3) as f32,
+                rng.range(0.6, 1.3) as f32,
+            ))
+            .min(Vec3::ONE)
+        };
         l.skin = tint(l.skin);
         l.hair = tint(l.hair);
         l.top = match l.top {
-            Pattern::Stripes { a, b, period, dir } => Pattern::Stripes { a: tint(a), b: tint(b), period, dir },
-            Pattern::Checks { a, b, cell } => Pattern::Checks { a: tint(a), b: tint(b), cell },
+            Pattern::Stripes { a, b, period, dir } => Pattern::Stripes {
+                a: tint(a),
+                b: tint(b),
+                period,
+                dir,
+            },
+            Pattern::Checks { a, b, cell } => Pattern::Checks {
+                a: tint(a),
+                b: tint(b),
+                cell,
+            },
             other => other,
         };
-        l.hair_style = if identity % 2 == 0 { HairStyle::Ponytail } else { HairStyle::Bun };
+        l.hair_style = if identity.is_multiple_of(2) {
+            HairStyle::Ponytail
+        } else {
+            HairStyle::Bun
+        };
     }
     l
 }
@@ -301,7 +412,10 @@ pub enum Material {
     Lip,
     Eye,
     /// Eyelid skin with a dark lash line at its free edge (`edge_y`, `up` = upper lid).
-    Lid { edge_y: f32, up: bool },
+    Lid {
+        edge_y: f32,
+        up: bool,
+    },
     Brow,
     Hair,
     Top,
@@ -346,38 +460,153 @@ fn v(x: DVec3) -> Vec3 {
 }
 
 /// Builds the primitives of identity `look`/`prop` for one frame's expression and jaw.
-pub fn figure(skeleton: &Skeleton, prop: &Proportions, look: &Look, params: &FrameParams) -> Figure {
+pub fn figure(
+    skeleton: &Skeleton,
+    prop: &Proportions,
+    look: &Look,
+    params: &FrameParams,
+) -> Figure {
     let j = skeleton.rest_joints.map(v);
     let s = prop.height as f32;
     let mut prims = Vec::with_capacity(96);
     let mut add = |joint: usize, shape: Shape, blend: f32, material: Material, label: u8| {
-        prims.push(Prim { joint, shape, blend, material, label });
+        prims.push(Prim {
+            joint,
+            shape,
+            blend,
+            material,
+            label,
+        });
     };
     let rc = |a: Vec3, b: Vec3, ra: f32, rb: f32| Shape::RoundCone { a, b, ra, rb };
     let el = |c: Vec3, r: Vec3| Shape::Ellipsoid { c, r };
 
     // Torso and hips.
-    add(PELVIS, el(j[PELVIS] + Vec3::new(0.0, -0.02, 0.0), Vec3::new(0.16, 0.12, 0.11) * s), 0.0, Material::Bottom, label::BODY);
-    add(SPINE1, el(j[SPINE1] + Vec3::new(0.0, 0.05, 0.0), Vec3::new(0.14, 0.13, 0.1) * s), 0.05, Material::Top, label::BODY);
+    add(
+        PELVIS,
+        el(
+            j[PELVIS] + Vec3::new(0.0, -0.02, 0.0),
+            Vec3::new(0.16, 0.12, 0.11) * s,
+        ),
+        0.0,
+        Material::Bottom,
+        label::BODY,
+    );
+    add(
+        SPINE1,
+        el(
+            j[SPINE1] + Vec3::new(0.0, 0.05, 0.0),
+            Vec3::new(0.14, 0.13, 0.1) * s,
+        ),
+        0.05,
+        Material::Top,
+        label::BODY,
+    );
     let chest_w = 0.09 + prop.shoulder as f32 * 0.45;
-    add(SPINE3, el(j[SPINE3] + Vec3::new(0.0, 0.03, 0.012), Vec3::new(chest_w, 0.15 * s, 0.105 * s)), 0.06, Material::Top, label::BODY);
+    add(
+        SPINE3,
+        el(
+            j[SPINE3] + Vec3::new(0.0, 0.03, 0.012),
+            Vec3::new(chest_w, 0.15 * s, 0.105 * s),
+        ),
+        0.06,
+        Material::Top,
+        label::BODY,
+    );
     for side in 0..2 {
-        add(LEFT_COLLAR + side, rc(j[LEFT_COLLAR + side] + Vec3::new(0.0, 0.0, 0.0), j[LEFT_SHOULDER + side], 0.06 * s, 0.055 * s), 0.05, Material::Top, label::BODY);
-        add(LEFT_HIP + side, rc(j[LEFT_HIP + side], j[LEFT_KNEE + side], 0.085 * s, 0.058 * s), 0.03, Material::Bottom, label::BODY);
-        add(LEFT_KNEE + side, rc(j[LEFT_KNEE + side], j[LEFT_ANKLE + side], 0.056 * s, 0.04 * s), 0.01, Material::Skin, label::BODY);
-        add(LEFT_ANKLE + side, rc(j[LEFT_ANKLE + side], j[LEFT_FOOT + side], 0.042 * s, 0.038 * s), 0.01, Material::Shoe, label::BODY);
+        add(
+            LEFT_COLLAR + side,
+            rc(
+                j[LEFT_COLLAR + side] + Vec3::new(0.0, 0.0, 0.0),
+                j[LEFT_SHOULDER + side],
+                0.06 * s,
+                0.055 * s,
+            ),
+            0.05,
+            Material::Top,
+            label::BODY,
+        );
+        add(
+            LEFT_HIP + side,
+            rc(
+                j[LEFT_HIP + side],
+                j[LEFT_KNEE + side],
+                0.085 * s,
+                0.058 * s,
+            ),
+            0.03,
+            Material::Bottom,
+            label::BODY,
+        );
+        add(
+            LEFT_KNEE + side,
+            rc(
+                j[LEFT_KNEE + side],
+                j[LEFT_ANKLE + side],
+                0.056 * s,
+                0.04 * s,
+            ),
+            0.01,
+            Material::Skin,
+            label::BODY,
+        );
+        add(
+            LEFT_ANKLE + side,
+            rc(
+                j[LEFT_ANKLE + side],
+                j[LEFT_FOOT + side],
+                0.042 * s,
+                0.038 * s,
+            ),
+            0.01,
+            Material::Shoe,
+            label::BODY,
+        );
     }
-    add(NECK, rc(j[NECK] + Vec3::new(0.0, -0.04, 0.0), j[HEAD] + Vec3::new(0.0, 0.03, 0.0), 0.052 * s, 0.046 * s), 0.03, Material::Skin, label::BODY);
+    add(
+        NECK,
+        rc(
+            j[NECK] + Vec3::new(0.0, -0.04, 0.0),
+            j[HEAD] + Vec3::new(0.0, 0.03, 0.0),
+            0.052 * s,
+            0.046 * s,
+        ),
+        0.03,
+        Material::Skin,
+        label::BODY,
+    );
     match look.garment {
         Garment::Skirt => {
             let top = Vec3::new(0.0, j[PELVIS].y + 0.02, 0.0);
             let hem = Vec3::new(0.0, j[PELVIS].y - 0.42 * s, 0.02);
-            add(PELVIS, Shape::CappedCone { a: top, b: hem, ra: 0.165 * s, rb: 0.29 * s }, 0.03, Material::Bottom, label::BODY);
+            add(
+                PELVIS,
+                Shape::CappedCone {
+                    a: top,
+                    b: hem,
+                    ra: 0.165 * s,
+                    rb: 0.29 * s,
+                },
+                0.03,
+                Material::Bottom,
+                label::BODY,
+            );
         }
         Garment::JacketHem => {
             let top = Vec3::new(0.0, j[SPINE1].y + 0.03, 0.0);
             let hem = Vec3::new(0.0, j[PELVIS].y - 0.13 * s, 0.01);
-            add(SPINE1, Shape::CappedCone { a: top, b: hem, ra: 0.15 * s, rb: 0.215 * s }, 0.03, Material::Top, label::BODY);
+            add(
+                SPINE1,
+                Shape::CappedCone {
+                    a: top,
+                    b: hem,
+                    ra: 0.15 * s,
+                    rb: 0.215 * s,
+                },
+                0.03,
+                Material::Top,
+                label::BODY,
+            );
         }
     }
 
@@ -386,27 +615,106 @@ pub fn figure(skeleton: &Skeleton, prop: &Proportions, look: &Look, params: &Fra
         let sign = if side == 0 { 1.0 } else { -1.0 };
         let (sh, el_j, wr) = (LEFT_SHOULDER + side, LEFT_ELBOW + side, LEFT_WRIST + side);
         let along = Vec3::X * sign;
-        add(sh, rc(j[sh], j[el_j], 0.05 * s, 0.041 * s), 0.03, Material::Top, label::ARMS);
-        let forearm = if look.sleeve == Sleeve::Short { Material::Skin } else { Material::Top };
-        add(el_j, rc(j[el_j], j[wr], 0.04 * s, 0.029 * s), 0.02, forearm, label::ARMS);
+        add(
+            sh,
+            rc(j[sh], j[el_j], 0.05 * s, 0.041 * s),
+            0.03,
+            Material::Top,
+            label::ARMS,
+        );
+        let forearm = if look.sleeve == Sleeve::Short {
+            Material::Skin
+        } else {
+            Material::Top
+        };
+        add(
+            el_j,
+            rc(j[el_j], j[wr], 0.04 * s, 0.029 * s),
+            0.02,
+            forearm,
+            label::ARMS,
+        );
         let cone = |a: Vec3, b: Vec3, ra: f32, rb: f32| Shape::CappedCone { a, b, ra, rb };
         match look.sleeve {
-            Sleeve::Short => add(sh, cone(j[sh] + along * 0.07, j[sh] + along * 0.17, 0.056 * s, 0.066 * s), 0.01, Material::Top, label::ARMS),
-            Sleeve::Cuffed => add(el_j, cone(j[wr] - along * 0.08, j[wr] - along * 0.015, 0.036 * s, 0.052 * s), 0.01, Material::Top, label::ARMS),
-            Sleeve::Loose => add(el_j, cone(j[el_j] + along * 0.01, j[el_j] + along * 0.14, 0.047 * s, 0.074 * s), 0.01, Material::Top, label::ARMS),
+            Sleeve::Short => add(
+                sh,
+                cone(
+                    j[sh] + along * 0.07,
+                    j[sh] + along * 0.17,
+                    0.056 * s,
+                    0.066 * s,
+                ),
+                0.01,
+                Material::Top,
+                label::ARMS,
+            ),
+            Sleeve::Cuffed => add(
+                el_j,
+                cone(
+                    j[wr] - along * 0.08,
+                    j[wr] - along * 0.015,
+                    0.036 * s,
+                    0.052 * s,
+                ),
+                0.01,
+                Material::Top,
+                label::ARMS,
+            ),
+            Sleeve::Loose => add(
+                el_j,
+                cone(
+                    j[el_j] + along * 0.01,
+                    j[el_j] + along * 0.14,
+                    0.047 * s,
+                    0.074 * s,
+                ),
+                0.01,
+                Material::Top,
+                label::ARMS,
+            ),
         }
         // Palm, thenar, fingers (3 segments each plus the thumb).
         let h = prop.hand as f32;
         let first = LEFT_HAND_FIRST + 15 * side;
-        add(wr, el(j[wr] + along * 0.052 * h + Vec3::new(0.0, 0.0, -0.003), Vec3::new(0.05, 0.016, 0.042) * h), 0.012, Material::Skin, label::HANDS);
-        add(wr, rc(j[wr] + (along * 0.015 + Vec3::new(0.0, -0.004, 0.008)) * h, j[first + 12], 0.017 * h, 0.013 * h), 0.01, Material::Skin, label::HANDS);
+        add(
+            wr,
+            el(
+                j[wr] + along * 0.052 * h + Vec3::new(0.0, 0.0, -0.003),
+                Vec3::new(0.05, 0.016, 0.042) * h,
+            ),
+            0.012,
+            Material::Skin,
+            label::HANDS,
+        );
+        add(
+            wr,
+            rc(
+                j[wr] + (along * 0.015 + Vec3::new(0.0, -0.004, 0.008)) * h,
+                j[first + 12],
+                0.017 * h,
+                0.013 * h,
+            ),
+            0.01,
+            Material::Skin,
+            label::HANDS,
+        );
         let mut finger = |chain: usize, radius: f32| {
-            let joints = [first + 3 * chain, first + 3 * chain + 1, first + 3 * chain + 2];
+            let joints = [
+                first + 3 * chain,
+                first + 3 * chain + 1,
+                first + 3 * chain + 2,
+            ];
             let tip = j[joints[2]] + (j[joints[2]] - j[joints[1]]) * 0.9;
             let ends = [j[joints[1]], j[joints[2]], tip];
             for k in 0..3 {
                 let r0 = radius * 0.92f32.powi(k as i32) * h;
-                add(joints[k], rc(j[joints[k]], ends[k], r0, r0 * 0.92), if k == 0 { 0.008 } else { 0.002 }, Material::Skin, label::HANDS);
+                add(
+                    joints[k],
+                    rc(j[joints[k]], ends[k], r0, r0 * 0.92),
+                    if k == 0 { 0.008 } else { 0.002 },
+                    Material::Skin,
+                    label::HANDS,
+                );
             }
         };
         for (f, (_, _, radius)) in FINGERS.iter().enumerate() {
@@ -419,18 +727,66 @@ pub fn figure(skeleton: &Skeleton, prop: &Proportions, look: &Look, params: &Fra
     let head = HeadFrame::new(skeleton.rest_joints[HEAD], prop.head);
     let e = params.expression.map(|x| x.clamp(-3.0, 3.0) as f32);
     let hk = head.k;
-    add(HEAD, el(head.p(0.0, 0.0, 0.0) + HeadFrame::CENTRE * hk, HeadFrame::RADII * hk), 0.03, Material::Face, label::HEAD);
-    add(JAW, el(head.p(0.0, 0.012, 0.056), Vec3::new(0.046, 0.03, 0.04) * hk), 0.022, Material::Face, label::HEAD);
+    add(
+        HEAD,
+        el(
+            head.p(0.0, 0.0, 0.0) + HeadFrame::CENTRE * hk,
+            HeadFrame::RADII * hk,
+        ),
+        0.03,
+        Material::Face,
+        label::HEAD,
+    );
+    add(
+        JAW,
+        el(head.p(0.0, 0.012, 0.056), Vec3::new(0.046, 0.03, 0.04) * hk),
+        0.022,
+        Material::Face,
+        label::HEAD,
+    );
     let eye_y = HeadFrame::EYE_Y;
     // Nose and ears.
-    add(HEAD, rc(head.p(0.0, eye_y - 0.006, HeadFrame::front(0.0, eye_y) - 0.006), head.p(0.0, eye_y - 0.036, HeadFrame::front(0.0, eye_y - 0.036) + 0.016), 0.006 * hk, 0.0105 * hk), 0.012, Material::Face, label::HEAD);
+    add(
+        HEAD,
+        rc(
+            head.p(0.0, eye_y - 0.006, HeadFrame::front(0.0, eye_y) - 0.006),
+            head.p(
+                0.0,
+                eye_y - 0.036,
+                HeadFrame::front(0.0, eye_y - 0.036) + 0.016,
+            ),
+            0.006 * hk,
+            0.0105 * hk,
+        ),
+        0.012,
+        Material::Face,
+        label::HEAD,
+    );
     for sign in [1.0f32, -1.0] {
-        add(HEAD, el(head.p(sign * 0.077, eye_y - 0.012, 0.002), Vec3::new(0.011, 0.026, 0.016) * hk), 0.006, Material::Face, label::HEAD);
+        add(
+            HEAD,
+            el(
+                head.p(sign * 0.077, eye_y - 0.012, 0.002),
+                Vec3::new(0.011, 0.026, 0.016) * hk,
+            ),
+            0.006,
+            Material::Face,
+            label::HEAD,
+        );
         // Cheeks: smile (0) raises them, puff (6) grows them.
         let cy = HeadFrame::MOUTH_Y + 0.022 + 0.004 * e[0];
-        let cx = sign * 0.038;
-        let grow = (1.0 + 0.18 * e[6] + 0.06 * e[0]).clamp(0.6, 1.6);
-        add(HEAD, el(head.p(cx, cy, HeadFrame::front(cx, cy) - 0.014), Vec3::new(0.022, 0.018, 0.016) * hk * grow), 0.016, Material::Face, label::HEAD);
+        let cx = sign * 0.042;
+        let grow = (1.0 + 0.2 * e[6] + 0.06 * e[0]).clamp(0.6, 1.6);
+        add(
+            HEAD,
+            el(
+                head.p(cx, cy, HeadFrame::front(cx, cy) - 0.017),
+                Vec3::new(0.02, 0.017, 0.015) * hk * grow,
+            ),
+            0.014,
+            Material::Face,
+            label::HEAD,
+        );
     }
 
     // Eyes, lids (blink/squint 3), brows (raise 1, furrow 2, asymmetry 9).
@@ -438,19 +794,67 @@ pub fn figure(skeleton: &Skeleton, prop: &Proportions, look: &Look, params: &Fra
     for (eye, sign) in [(LEFT_EYE, 1.0f32), (RIGHT_EYE, -1.0)] {
         let c = j[eye];
         let r = HeadFrame::EYE_R * hk;
-        add(eye, Shape::Ellipsoid { c, r: Vec3::splat(r) }, 0.0, Material::Eye, label::HEAD);
+        add(
+            eye,
+            Shape::Ellipsoid {
+                c,
+                r: Vec3::splat(r),
+            },
+            0.0,
+            Material::Eye,
+            label::HEAD,
+        );
         let lid_r = Vec3::splat(r * 1.1);
         let upper = c.y + (-0.95 + 1.75 * open.min(1.0) + 0.2 * (open - 1.0).max(0.0)) * r;
         let lower = c.y - 0.72 * r;
-        add(HEAD, Shape::CutEllipsoid { c, r: lid_r, n: Vec3::NEG_Y, d: -upper }, 0.0, Material::Lid { edge_y: upper, up: true }, label::HEAD);
-        add(HEAD, Shape::CutEllipsoid { c, r: lid_r, n: Vec3::Y, d: lower }, 0.0, Material::Lid { edge_y: lower, up: false }, label::HEAD);
+        add(
+            HEAD,
+            Shape::CutEllipsoid {
+                c,
+                r: lid_r,
+                n: Vec3::NEG_Y,
+                d: -upper,
+            },
+            0.0,
+            Material::Lid {
+                edge_y: upper,
+                up: true,
+            },
+            label::HEAD,
+        );
+        add(
+            HEAD,
+            Shape::CutEllipsoid {
+                c,
+                r: lid_r,
+                n: Vec3::Y,
+                d: lower,
+            },
+            0.0,
+            Material::Lid {
+                edge_y: lower,
+                up: false,
+            },
+            label::HEAD,
+        );
         let raise = 0.008 * e[1] + 0.005 * sign * e[9];
         let inner_x = sign * (0.013 - 0.003 * e[2].max(0.0));
-        let inner_y = eye_y + 0.024 + raise - 0.005 * e[2];
+        let inner_y = eye_y + 0.027 + raise - 0.005 * e[2];
         let outer_x = sign * 0.048;
-        let outer_y = eye_y + 0.027 + raise * 0.8;
+        let outer_y = eye_y + 0.025 + raise * 0.8;
         let brow = |x: f32, y: f32| head.p(x, y, HeadFrame::front(x, y) + 0.0005);
-        add(HEAD, rc(brow(inner_x, inner_y), brow(outer_x, outer_y), 0.0048 * hk, 0.0036 * hk), 0.0, Material::Brow, label::HEAD);
+        add(
+            HEAD,
+            rc(
+                brow(inner_x, inner_y),
+                brow(outer_x, outer_y),
+                0.0048 * hk,
+                0.0036 * hk,
+            ),
+            0.0,
+            Material::Brow,
+            label::HEAD,
+        );
     }
 
     // Mouth: smile (0) and smirk (7) lift the corners, width (4) and pucker (5) move
@@ -467,8 +871,30 @@ pub fn figure(skeleton: &Skeleton, prop: &Proportions, look: &Look, params: &Fra
     for sign in [1.0f32, -1.0] {
         let cx = sign * half_w;
         let corner = head.p(cx, corner_y(sign), mz(cx, corner_y(sign)) - 0.004);
-        add(HEAD, rc(corner, head.p(0.0, upper_mid, mz(0.0, upper_mid) + 0.002), lip_r * 0.7, lip_r), 0.004, Material::Lip, label::HEAD);
-        add(JAW, rc(corner, head.p(0.0, lower_mid, mz(0.0, lower_mid) + 0.001), lip_r * 0.7, lip_r * 1.15), 0.004, Material::Lip, label::HEAD);
+        add(
+            HEAD,
+            rc(
+                corner,
+                head.p(0.0, upper_mid, mz(0.0, upper_mid) + 0.002),
+                lip_r * 0.7,
+                lip_r,
+            ),
+            0.004,
+            Material::Lip,
+            label::HEAD,
+        );
+        add(
+            JAW,
+            rc(
+                corner,
+                head.p(0.0, lower_mid, mz(0.0, lower_mid) + 0.001),
+                lip_r * 0.7,
+                lip_r * 1.15,
+            ),
+            0.004,
+            Material::Lip,
+            label::HEAD,
+        );
     }
     let face = FaceState {
         mouth_open: 0.1 * jaw_open.max(0.0).sin() + 0.002 * e[8].max(0.0),
@@ -479,14 +905,54 @@ pub fn figure(skeleton: &Skeleton, prop: &Proportions, look: &Look, params: &Fra
 
     // Hair: a cap cut off above the face, plus a bun or a ponytail.
     let c = HeadFrame::CENTRE;
-    let n = Vec3::new(0.0, -0.45, 1.0).normalize();
-    let cut_at = head.p(0.0, c.y + 0.045, c.z + 0.012);
-    add(HEAD, Shape::CutEllipsoid { c: head.p(c.x, c.y + 0.008, c.z - 0.006), r: (HeadFrame::RADII + Vec3::new(0.007, 0.008, 0.008)) * hk, n, d: n.dot(cut_at) }, 0.0, Material::Hair, label::HEAD);
+    let n = Vec3::new(0.0, -0.25, 1.0).normalize();
+    let cut_at = head.p(0.0, c.y + 0.05, c.z + 0.03);
+    let cap_r = (HeadFrame::RADII + Vec3::new(0.011, 0.01, 0.01)) * hk;
+    add(
+        HEAD,
+        Shape::CutEllipsoid {
+            c: head.p(c.x, c.y + 0.008, c.z - 0.008),
+            r: cap_r,
+            n,
+            d: n.dot(cut_at),
+        },
+        0.0,
+        Material::Hair,
+        label::HEAD,
+    );
     match look.hair_style {
-        HairStyle::Bun => add(HEAD, el(head.p(0.0, c.y + 0.07, c.z - 0.088), Vec3::new(0.043, 0.04, 0.04) * hk), 0.018, Material::Hair, label::HEAD),
-        HairStyle::Ponytail => add(HEAD, rc(head.p(0.0, c.y + 0.03, c.z - 0.095), head.p(0.0, c.y - 0.12, c.z - 0.15), 0.03 * hk, 0.017 * hk), 0.016, Material::Hair, label::HEAD),
+        // A bun on the crown: a bump on the silhouette.
+        HairStyle::Bun => add(
+            HEAD,
+            el(
+                head.p(0.0, c.y + 0.102, c.z - 0.045),
+                Vec3::new(0.048, 0.044, 0.046) * hk,
+            ),
+            0.02,
+            Material::Hair,
+            label::HEAD,
+        ),
+        // A side ponytail hanging behind the left ear, beside the neck.
+        HairStyle::Ponytail => add(
+            HEAD,
+            rc(
+                head.p(0.05, c.y + 0.01, c.z - 0.07),
+                head.p(0.1, c.y - 0.17, c.z - 0.045),
+                0.034 * hk,
+                0.017 * hk,
+            ),
+            0.02,
+            Material::Hair,
+            label::HEAD,
+        ),
     }
-    Figure { prims, face, look: *look, head_joint: head.joint, head_scale: hk }
+    Figure {
+        prims,
+        face,
+        look: *look,
+        head_joint: head.joint,
+        head_scale: hk,
+    }
 }
 
 /// The albedo of a material at rest-space point `p`.
@@ -503,7 +969,11 @@ pub fn albedo(fig: &Figure, material: Material, p: Vec3) -> Vec3 {
                 let dy = (q.y - (f.mouth_y - h)) / (h + 0.002);
                 let dx = q.x / f.mouth_half_width;
                 if dx * dx + dy * dy < 1.0 {
-                    return if dy > 0.55 && dx.abs() < 0.8 { Vec3::new(0.92, 0.9, 0.85) } else { Vec3::new(0.25, 0.05, 0.06) };
+                    return if dy > 0.55 && dx.abs() < 0.8 {
+                        Vec3::new(0.92, 0.9, 0.85)
+                    } else {
+                        Vec3::new(0.25, 0.05, 0.06)
+                    };
                 }
             }
             look.skin
@@ -511,12 +981,21 @@ pub fn albedo(fig: &Figure, material: Material, p: Vec3) -> Vec3 {
         Material::Lip => look.lip,
         Material::Eye => Vec3::new(0.95, 0.95, 0.93),
         Material::Lid { edge_y, up } => {
-            let near_edge = if up { p.y - edge_y < 0.0018 * fig.head_scale } else { edge_y - p.y < 0.0012 * fig.head_scale };
-            if near_edge { Vec3::new(0.12, 0.08, 0.07) } else { look.skin * 0.93 }
+            let near_edge = if up {
+                p.y - edge_y < 0.0018 * fig.head_scale
+            } else {
+                edge_y - p.y < 0.0012 * fig.head_scale
+            };
+            if near_edge {
+                Vec3::new(0.12, 0.08, 0.07)
+            } else {
+                look.skin * 0.93
+            }
         }
         Material::Brow => look.hair * 0.8,
         Material::Hair => {
-            let strand = ((p.x * 900.0).sin() * 0.5 + (p.x * 330.0 + p.z * 410.0).sin() * 0.5) * 0.08;
+            let strand =
+                ((p.x * 900.0).sin() * 0.5 + (p.x * 330.0 + p.z * 410.0).sin() * 0.5) * 0.08;
             look.hair * (1.0 + strand)
         }
         Material::Top => look.top.colour(p),

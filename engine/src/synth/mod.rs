@@ -61,7 +61,13 @@ pub struct SynthConfig {
 
 impl Default for SynthConfig {
     fn default() -> Self {
-        Self { identities: 3, frames: 48, size: 192, seed: 0, motion: None }
+        Self {
+            identities: 3,
+            frames: 48,
+            size: 192,
+            seed: 0,
+            motion: None,
+        }
     }
 }
 
@@ -100,7 +106,9 @@ pub enum SynthError {
 const NAMES: [&str; 3] = ["ada", "ben", "cleo"];
 
 fn subject_name(i: usize) -> String {
-    NAMES.get(i).map_or_else(|| format!("synth{i}"), |n| n.to_string())
+    NAMES
+        .get(i)
+        .map_or_else(|| format!("synth{i}"), |n| n.to_string())
 }
 
 /// One frame to render, before rendering.
@@ -117,7 +125,10 @@ fn mix(seed: u64, stream: u64) -> u64 {
 
 /// The motion style of identity `i`'s built-in clip.
 fn style_of(i: usize) -> Style {
-    Style { tempo: [1.0, 0.8, 1.25][i % 3], wide: false }
+    Style {
+        tempo: [1.0, 0.8, 1.25][i % 3],
+        wide: false,
+    }
 }
 
 /// Frames of one split per identity for `test_cross` and `test_ood`.
@@ -129,24 +140,59 @@ fn eval_count(frames: usize) -> usize {
 fn builtin_jobs(cfg: &SynthConfig, i: usize) -> Vec<Job> {
     let mut jobs = Vec::new();
     // Steps until `frames` of them are training steps (every 5th is held out).
-    let n = (cfg.frames..).find(|&n| n - (n + 1) / 5 >= cfg.frames).expect("unbounded");
-    for (s, params) in talking_clip(mix(cfg.seed, i as u64), n, style_of(i)).into_iter().enumerate() {
-        let split = if s % 5 == 4 { Split::TestSame } else { Split::Train };
-        jobs.push(Job { subject: i, split, time: s as f64 / FPS, params });
+    let n = (cfg.frames..)
+        .find(|&n| n - (n + 1) / 5 >= cfg.frames)
+        .expect("unbounded");
+    for (s, params) in talking_clip(mix(cfg.seed, i as u64), n, style_of(i))
+        .into_iter()
+        .enumerate()
+    {
+        let split = if s % 5 == 4 {
+            Split::TestSame
+        } else {
+            Split::Train
+        };
+        jobs.push(Job {
+            subject: i,
+            split,
+            time: s as f64 / FPS,
+            params,
+        });
     }
     let k = eval_count(cfg.frames);
     // Another identity's motion (or, alone, another clip).
-    let other = if cfg.identities > 1 { (i + 1) % cfg.identities } else { 1 };
+    let other = if cfg.identities > 1 {
+        (i + 1) % cfg.identities
+    } else {
+        1
+    };
     let other_clip = talking_clip(mix(cfg.seed, other as u64), n, style_of(other));
     for c in 0..k {
         let s = (c * n) / k + (n / k) / 2;
-        jobs.push(Job { subject: i, split: Split::TestCross, time: s as f64 / FPS, params: other_clip[s].clone() });
+        jobs.push(Job {
+            subject: i,
+            split: Split::TestCross,
+            time: s as f64 / FPS,
+            params: other_clip[s].clone(),
+        });
     }
     let ood_stride = 6;
-    let ood = talking_clip(mix(cfg.seed, 1000 + i as u64), k * ood_stride, Style { tempo: 1.0, wide: true });
+    let ood = talking_clip(
+        mix(cfg.seed, 1000 + i as u64),
+        k * ood_stride,
+        Style {
+            tempo: 1.0,
+            wide: true,
+        },
+    );
     for c in 0..k {
         let s = c * ood_stride + ood_stride / 2;
-        jobs.push(Job { subject: i, split: Split::TestOod, time: s as f64 / FPS, params: ood[s].clone() });
+        jobs.push(Job {
+            subject: i,
+            split: Split::TestOod,
+            time: s as f64 / FPS,
+            params: ood[s].clone(),
+        });
     }
     jobs
 }
@@ -165,13 +211,19 @@ fn keypoints(head_scale: f64, posed: &PosedSkeleton) -> Vec<DVec3> {
     ] {
         pts.push(head.transform_point3(off * head_scale));
     }
-    for j in [joint::LEFT_WRIST, joint::RIGHT_WRIST].into_iter().chain(joint::LEFT_HAND_FIRST..crate::body::N_JOINTS) {
+    for j in [joint::LEFT_WRIST, joint::RIGHT_WRIST]
+        .into_iter()
+        .chain(joint::LEFT_HAND_FIRST..crate::body::N_JOINTS)
+    {
         pts.push(posed.joint(j));
     }
     // Finger tips: one more segment past the last joint.
     for first in [joint::LEFT_HAND_FIRST, joint::RIGHT_HAND_FIRST] {
         for f in 0..5 {
-            let (a, b) = (posed.joint(first + 3 * f + 1), posed.joint(first + 3 * f + 2));
+            let (a, b) = (
+                posed.joint(first + 3 * f + 1),
+                posed.joint(first + 3 * f + 2),
+            );
             pts.push(b + (b - a) * 1.1);
         }
     }
@@ -180,7 +232,14 @@ fn keypoints(head_scale: f64, posed: &PosedSkeleton) -> Vec<DVec3> {
 
 /// A frontal camera for one identity, framed from mid-thigh up and widened so every
 /// keypoint of every frame lies at least `margin` pixels inside.
-fn frame_camera(skeleton: &Skeleton, head_scale: f64, width: u32, height: u32, posed: &[PosedSkeleton], aim: DVec3) -> Result<Camera, CameraError> {
+fn frame_camera(
+    skeleton: &Skeleton,
+    head_scale: f64,
+    width: u32,
+    height: u32,
+    posed: &[PosedSkeleton],
+    aim: DVec3,
+) -> Result<Camera, CameraError> {
     let r = &skeleton.rest_joints;
     let bottom = (r[joint::LEFT_HIP].y + r[joint::LEFT_KNEE].y) * 0.5;
     let top = r[joint::HEAD].y + 0.24 * head_scale;
@@ -196,7 +255,9 @@ fn frame_camera(skeleton: &Skeleton, head_scale: f64, width: u32, height: u32, p
         for k in keypoints(head_scale, p) {
             let c = probe.camera_from_world.transform_point3(k);
             if c.z > 0.1 {
-                focal = focal.min(half_w * c.z / c.x.abs().max(1e-9)).min(half_h * c.z / c.y.abs().max(1e-9));
+                focal = focal
+                    .min(half_w * c.z / c.x.abs().max(1e-9))
+                    .min(half_h * c.z / c.y.abs().max(1e-9));
             }
         }
     }
@@ -204,25 +265,41 @@ fn frame_camera(skeleton: &Skeleton, head_scale: f64, width: u32, height: u32, p
 }
 
 fn png_err(file: &Path) -> impl Fn(image::ImageError) -> SynthError + '_ {
-    move |e| SynthError::Png { file: file.to_path_buf(), message: e.to_string() }
+    move |e| SynthError::Png {
+        file: file.to_path_buf(),
+        message: e.to_string(),
+    }
 }
 
 /// Generates the dataset into `out` (created if missing) and writes `out/dataset.json`.
 /// `progress(done, total)` is called once before the first frame and after every frame.
 /// The output is byte-identical for the same config.
-pub fn generate(cfg: &SynthConfig, out: &Path, progress: &mut dyn FnMut(usize, usize)) -> Result<Dataset, SynthError> {
+pub fn generate(
+    cfg: &SynthConfig,
+    out: &Path,
+    progress: &mut dyn FnMut(usize, usize),
+) -> Result<Dataset, SynthError> {
     if cfg.identities == 0 {
         return Err(SynthError::Config("identities must be at least 1".into()));
     }
     if !(16..=4096).contains(&cfg.size) {
-        return Err(SynthError::Config(format!("size {} is not in 16..=4096 pixels", cfg.size)));
+        return Err(SynthError::Config(format!(
+            "size {} is not in 16..=4096 pixels",
+            cfg.size
+        )));
     }
     match &cfg.motion {
-        None if cfg.frames == 0 => return Err(SynthError::Config("frames must be at least 1".into())),
-        Some(m) if m.is_empty() => return Err(SynthError::Config("the motion has no frames".into())),
+        None if cfg.frames == 0 => {
+            return Err(SynthError::Config("frames must be at least 1".into()));
+        }
+        Some(m) if m.is_empty() => {
+            return Err(SynthError::Config("the motion has no frames".into()));
+        }
         Some(m) => {
             if let Some(i) = m.iter().position(|p| !p.is_finite()) {
-                return Err(SynthError::Config(format!("motion frame {i} has a non-finite number")));
+                return Err(SynthError::Config(format!(
+                    "motion frame {i} has a non-finite number"
+                )));
             }
         }
         None => {}
@@ -230,7 +307,10 @@ pub fn generate(cfg: &SynthConfig, out: &Path, progress: &mut dyn FnMut(usize, u
     let (width, height) = cfg.image_size();
     for dir in ["images", "masks", "segmentation", "depth"] {
         let d = out.join(dir);
-        std::fs::create_dir_all(&d).map_err(|source| SynthError::Io { file: d.clone(), source })?;
+        std::fs::create_dir_all(&d).map_err(|source| SynthError::Io {
+            file: d.clone(),
+            source,
+        })?;
     }
 
     let mut subjects = Vec::new();
@@ -243,7 +323,12 @@ pub fn generate(cfg: &SynthConfig, out: &Path, progress: &mut dyn FnMut(usize, u
             Some(m) => m
                 .iter()
                 .enumerate()
-                .map(|(k, p)| Job { subject: i, split: Split::Train, time: k as f64 / FPS, params: p.clone() })
+                .map(|(k, p)| Job {
+                    subject: i,
+                    split: Split::Train,
+                    time: k as f64 / FPS,
+                    params: p.clone(),
+                })
                 .collect(),
         };
         let aim = match &cfg.motion {
@@ -251,10 +336,18 @@ pub fn generate(cfg: &SynthConfig, out: &Path, progress: &mut dyn FnMut(usize, u
             Some(m) => m.iter().map(|p| p.transl).sum::<DVec3>() / m.len() as f64,
         };
         let posed: Vec<PosedSkeleton> = jobs.iter().map(|j| skeleton.pose(&j.params)).collect();
-        let camera = frame_camera(&skeleton, prop.head, width, height, &posed, aim)
-            .map_err(|source| SynthError::Camera { identity: i, source })?;
+        let camera =
+            frame_camera(&skeleton, prop.head, width, height, &posed, aim).map_err(|source| {
+                SynthError::Camera {
+                    identity: i,
+                    source,
+                }
+            })?;
         plan.extend(jobs.into_iter().map(|j| (j, camera)));
-        subjects.push(Subject { name: subject_name(i), skeleton });
+        subjects.push(Subject {
+            name: subject_name(i),
+            skeleton,
+        });
     }
 
     let total = plan.len();
@@ -263,7 +356,12 @@ pub fn generate(cfg: &SynthConfig, out: &Path, progress: &mut dyn FnMut(usize, u
     let mut frames = Vec::with_capacity(total);
     for (index, (job, camera)) in plan.into_iter().enumerate() {
         let skeleton = &subjects[job.subject].skeleton;
-        let fig = body::figure(skeleton, &proportions(job.subject), &look(job.subject), &job.params);
+        let fig = body::figure(
+            skeleton,
+            &proportions(job.subject),
+            &look(job.subject),
+            &job.params,
+        );
         let posed = skeleton.pose(&job.params);
         let scene = render::Scene::new(&fig, &posed, background);
         let img = scene.render(&camera);
@@ -276,10 +374,17 @@ pub fn generate(cfg: &SynthConfig, out: &Path, progress: &mut dyn FnMut(usize, u
             .save_with_format(&file, image::ImageFormat::Png)
             .map_err(png_err(&file))?;
         let file = out.join(rel("masks"));
-        image::GrayImage::from_raw(w, h, img.label.iter().map(|&l| if l > 0 { 255 } else { 0 }).collect())
-            .expect("buffer matches the camera")
-            .save_with_format(&file, image::ImageFormat::Png)
-            .map_err(png_err(&file))?;
+        image::GrayImage::from_raw(
+            w,
+            h,
+            img.label
+                .iter()
+                .map(|&l| if l > 0 { 255 } else { 0 })
+                .collect(),
+        )
+        .expect("buffer matches the camera")
+        .save_with_format(&file, image::ImageFormat::Png)
+        .map_err(png_err(&file))?;
         let file = out.join(rel("segmentation"));
         image::GrayImage::from_raw(w, h, img.label.clone())
             .expect("buffer matches the camera")
@@ -290,7 +395,13 @@ pub fn generate(cfg: &SynthConfig, out: &Path, progress: &mut dyn FnMut(usize, u
             .depth
             .iter()
             .zip(&img.label)
-            .map(|(&z, &l)| if l == 0 { 0 } else { (z as f64 / DEPTH_UNIT_M).round().clamp(1.0, 65535.0) as u16 })
+            .map(|(&z, &l)| {
+                if l == 0 {
+                    0
+                } else {
+                    (z as f64 / DEPTH_UNIT_M).round().clamp(1.0, 65535.0) as u16
+                }
+            })
             .collect();
         image::ImageBuffer::<image::Luma<u16>, Vec<u16>>::from_raw(w, h, depth)
             .expect("buffer matches the camera")
@@ -309,7 +420,12 @@ pub fn generate(cfg: &SynthConfig, out: &Path, progress: &mut dyn FnMut(usize, u
         });
         progress(index + 1, total);
     }
-    let dataset = Dataset { root: out.to_path_buf(), background: BACKGROUND, subjects, frames };
+    let dataset = Dataset {
+        root: out.to_path_buf(),
+        background: BACKGROUND,
+        subjects,
+        frames,
+    };
     dataset.save_index()?;
     Ok(dataset)
 }

@@ -42,6 +42,9 @@ pub struct Scene<'a> {
     background: Vec3,
 }
 
+/// A pixel's centre ray: what it hit, its shaded colour, its camera z.
+type CentreRay = (Option<Hit>, [f32; 3], f32);
+
 #[derive(Clone, Copy)]
 struct Hit {
     t: f32,
@@ -60,10 +63,19 @@ impl<'a> Scene<'a> {
             .map(|p| {
                 let (c, r) = p.shape.bounding_sphere();
                 let w = world_from_rest[p.joint];
-                Placed { rest_from_world: w.inverse(), centre: w.transform_point3(c), radius: r + p.blend }
+                Placed {
+                    rest_from_world: w.inverse(),
+                    centre: w.transform_point3(c),
+                    radius: r + p.blend,
+                }
             })
             .collect();
-        Self { fig, placed, light: Vec3::new(-0.45, 0.65, 0.62).normalize(), background }
+        Self {
+            fig,
+            placed,
+            light: Vec3::new(-0.45, 0.65, 0.62).normalize(),
+            background,
+        }
     }
 
     /// Scene SDF at `p` over the candidate primitives; returns (distance, nearest prim).
@@ -82,7 +94,11 @@ impl<'a> Scene<'a> {
             if di < nearest.0 {
                 nearest = (di, i);
             }
-            d = if d.is_finite() { super::sdf::smin(d, di, prim.blend) } else { di };
+            d = if d.is_finite() {
+                super::sdf::smin(d, di, prim.blend)
+            } else {
+                di
+            };
         }
         (d, nearest.1)
     }
@@ -128,8 +144,15 @@ impl<'a> Scene<'a> {
     fn shade(&self, o: Vec3, dir: Vec3, hit: Hit, cands: &[usize]) -> Vec3 {
         let p = o + dir * hit.t;
         let e = 4e-4;
-        let k = [Vec3::new(1.0, -1.0, -1.0), Vec3::new(-1.0, -1.0, 1.0), Vec3::new(-1.0, 1.0, -1.0), Vec3::new(1.0, 1.0, 1.0)];
-        let n = k.iter().fold(Vec3::ZERO, |acc, kk| acc + *kk * self.sdf(p + *kk * e, cands).0);
+        let k = [
+            Vec3::new(1.0, -1.0, -1.0),
+            Vec3::new(-1.0, -1.0, 1.0),
+            Vec3::new(-1.0, 1.0, -1.0),
+            Vec3::new(1.0, 1.0, 1.0),
+        ];
+        let n = k.iter().fold(Vec3::ZERO, |acc, kk| {
+            acc + *kk * self.sdf(p + *kk * e, cands).0
+        });
         let n = n.try_normalize().unwrap_or(-dir);
         let prim = &self.fig.prims[hit.prim];
         let p_rest = self.placed[hit.prim].rest_from_world.transform_point3(p);
@@ -156,7 +179,7 @@ impl<'a> Scene<'a> {
             (o.as_vec3(), d.as_vec3())
         };
         // Centre rays: hit, label, depth, colour.
-        let rows: Vec<Vec<(Option<Hit>, [f32; 3], f32)>> = (0..h)
+        let rows: Vec<Vec<CentreRay>> = (0..h)
             .into_par_iter()
             .map(|y| {
                 let mut cands = Vec::with_capacity(64);
@@ -190,7 +213,8 @@ impl<'a> Scene<'a> {
                             || (y + 1 < h && key(x, y + 1) != me);
                         let c = if edge {
                             let mut sum = Vec3::ZERO;
-                            for (dx, dy) in [(0.25, 0.25), (0.75, 0.25), (0.25, 0.75), (0.75, 0.75)] {
+                            for (dx, dy) in [(0.25, 0.25), (0.75, 0.25), (0.25, 0.75), (0.75, 0.75)]
+                            {
                                 let (o, d) = ray(x as f64 + dx, y as f64 + dy);
                                 sum += match self.trace(o, d, &mut cands) {
                                     Some(hit) => self.shade(o, d, hit, &cands),
@@ -201,16 +225,22 @@ impl<'a> Scene<'a> {
                         } else {
                             Vec3::from(rows[y][x].1)
                         };
-                        c.to_array().map(|v| (v.clamp(0.0, 1.0) * 255.0).round() as u8)
+                        c.to_array()
+                            .map(|v| (v.clamp(0.0, 1.0) * 255.0).round() as u8)
                     })
                     .collect()
             })
             .collect();
-        let mut out = Rendered { rgb: Vec::with_capacity(w * h), label: Vec::with_capacity(w * h), depth: Vec::with_capacity(w * h) };
+        let mut out = Rendered {
+            rgb: Vec::with_capacity(w * h),
+            label: Vec::with_capacity(w * h),
+            depth: Vec::with_capacity(w * h),
+        };
         for y in 0..h {
             out.rgb.extend_from_slice(&rgb_rows[y]);
             for (hit, _, z) in &rows[y] {
-                out.label.push(hit.map_or(0, |hit| self.fig.prims[hit.prim].label));
+                out.label
+                    .push(hit.map_or(0, |hit| self.fig.prims[hit.prim].label));
                 out.depth.push(*z);
             }
         }

@@ -33,7 +33,9 @@ impl Shape {
     /// A sphere (centre, radius) enclosing the shape, in rest space.
     pub fn bounding_sphere(&self) -> (Vec3, f32) {
         match *self {
-            Shape::RoundCone { a, b, ra, rb } => ((a + b) * 0.5, (b - a).length() * 0.5 + ra.max(rb)),
+            Shape::RoundCone { a, b, ra, rb } => {
+                ((a + b) * 0.5, (b - a).length() * 0.5 + ra.max(rb))
+            }
             Shape::CappedCone { a, b, ra, rb } => {
                 let half = (b - a).length() * 0.5;
                 ((a + b) * 0.5, (half * half + ra.max(rb).powi(2)).sqrt())
@@ -90,7 +92,9 @@ pub fn capped_cone(p: Vec3, a: Vec3, b: Vec3, ra: f32, rb: f32) -> f32 {
     let cbx = x - ra - f * rba;
     let cby = paba - f;
     let s = if cbx < 0.0 && cay < 0.0 { -1.0 } else { 1.0 };
-    s * (cax * cax + cay * cay * baba).min(cbx * cbx + cby * cby * baba).sqrt()
+    s * (cax * cax + cay * cay * baba)
+        .min(cbx * cbx + cby * cby * baba)
+        .sqrt()
 }
 
 /// Distance bound to an axis-aligned ellipsoid centred at the origin.
