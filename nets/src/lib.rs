@@ -7,6 +7,7 @@
 //! (`engine`): samples, candidate masks and per-frame transforms come in as plain slices.
 //! The backend is chosen at run time through burn's `Device` (`Device::flex()` on CPU,
 //! `.autodiff()` for training).
+pub mod loss;
 pub mod encoding;
 pub mod error;
 pub mod field;
