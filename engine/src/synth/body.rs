@@ -925,8 +925,8 @@ pub fn figure(
         HairStyle::Bun => add(
             HEAD,
             el(
-                head.p(0.0, c.y + 0.102, c.z - 0.045),
-                Vec3::new(0.048, 0.044, 0.046) * hk,
+                head.p(0.0, c.y + 0.095, c.z - 0.072),
+                Vec3::new(0.05, 0.047, 0.05) * hk,
             ),
             0.02,
             Material::Hair,
@@ -936,10 +936,10 @@ pub fn figure(
         HairStyle::Ponytail => add(
             HEAD,
             rc(
-                head.p(0.05, c.y + 0.01, c.z - 0.07),
-                head.p(0.1, c.y - 0.17, c.z - 0.045),
-                0.034 * hk,
-                0.017 * hk,
+                head.p(0.045, c.y + 0.01, c.z - 0.08),
+                head.p(0.095, c.y - 0.18, c.z - 0.13),
+                0.036 * hk,
+                0.02 * hk,
             ),
             0.02,
             Material::Hair,
@@ -1014,5 +1014,88 @@ pub fn eye_colour(look: &Look, p: Vec3, c: Vec3) -> Vec3 {
         look.iris
     } else {
         Vec3::new(0.95, 0.95, 0.93)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn identities_differ_and_hands_follow_the_smplx_convention() {
+        let a = default_rest_joints(0).rest_joints;
+        let b = default_rest_joints(1).rest_joints;
+        let height = |j: &[DVec3; N_JOINTS]| j[HEAD].y - j[LEFT_ANKLE].y;
+        let shoulders = |j: &[DVec3; N_JOINTS]| j[LEFT_SHOULDER].x - j[RIGHT_SHOULDER].x;
+        assert!(height(&b) > height(&a) + 0.05);
+        assert!(shoulders(&b) > shoulders(&a) + 0.04);
+        for j in [a, b, default_rest_joints(5).rest_joints] {
+            // +x is the subject's left; fingers point away from the body; the thumb sits on
+            // the front (+z) side of the palm in the T-pose with palms down.
+            assert!(j[LEFT_WRIST].x > j[LEFT_ELBOW].x && j[RIGHT_WRIST].x < j[RIGHT_ELBOW].x);
+            for (wrist, first, sign) in [
+                (LEFT_WRIST, LEFT_HAND_FIRST, 1.0),
+                (RIGHT_WRIST, RIGHT_HAND_FIRST, -1.0),
+            ] {
+                for f in 0..5 {
+                    for k in 0..3 {
+                        assert!((j[first + 3 * f + k].x - j[wrist].x) * sign > 0.0);
+                    }
+                }
+                let thumb = j[first + 12];
+                assert!(
+                    thumb.z > j[first + 3].z && thumb.z > j[first + 9].z,
+                    "thumb in front"
+                );
+                assert!(j[first].z > j[first + 6].z, "index in front of the pinky");
+            }
+            assert!(j[LEFT_EYE].x > 0.0 && j[LEFT_EYE].z > j[HEAD].z);
+        }
+    }
+
+    #[test]
+    fn hair_and_clothes_stick_out_of_the_capsules() {
+        for identity in 0..3 {
+            let skeleton = default_rest_joints(identity);
+            let fig = figure(
+                &skeleton,
+                &proportions(identity),
+                &look(identity),
+                &FrameParams::default(),
+            );
+            let caps =
+                crate::body::limb_capsules(&skeleton, &skeleton.pose(&FrameParams::default()));
+            // The farthest point inside the picked primitives from every capsule.
+            let outside = |pick: &dyn Fn(&Prim) -> bool| {
+                let mut farthest = 0.0f32;
+                for p in fig.prims.iter().filter(|p| pick(p)) {
+                    let (c, r) = p.shape.bounding_sphere();
+                    for k in 0..12 * 12 * 12 {
+                        let g = Vec3::new((k % 12) as f32, (k / 12 % 12) as f32, (k / 144) as f32);
+                        let q = c + (g / 11.0 * 2.0 - 1.0) * r;
+                        if p.shape.distance(q) > 0.0 {
+                            continue;
+                        }
+                        let d = caps
+                            .iter()
+                            .map(|cap| {
+                                let ab = cap.b - cap.a;
+                                let t = ((q - cap.a).dot(ab) / ab.length_squared()).clamp(0.0, 1.0);
+                                (q - (cap.a + ab * t)).length() - cap.radius
+                            })
+                            .fold(f32::MAX, f32::min);
+                        farthest = farthest.max(d);
+                    }
+                }
+                farthest
+            };
+            let hair = outside(&|p| p.material == Material::Hair);
+            // Skirts, hems, cuffs and loose sleeves are the capped cones.
+            let loose = outside(&|p| matches!(p.shape, Shape::CappedCone { .. }));
+            assert!(
+                hair > 0.03 && loose > 0.03,
+                "identity {identity}: hair {hair} m, clothing {loose} m outside"
+            );
+        }
     }
 }

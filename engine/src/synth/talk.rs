@@ -140,9 +140,9 @@ fn arm_key(rng: &mut SplitMix, wide: bool) -> [f64; 6] {
     match rng.unit() {
         // Hand in front of the chest.
         u if u < 0.4 => [
-            rng.range(d(50.0), d(65.0)),
-            rng.range(d(25.0), d(55.0)),
-            rng.range(d(95.0), d(125.0)),
+            rng.range(d(42.0), d(60.0)),
+            rng.range(d(35.0), d(60.0)),
+            rng.range(d(100.0), d(130.0)),
             roll,
             wrist[0],
             wrist[1],
