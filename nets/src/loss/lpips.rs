@@ -276,35 +276,53 @@ impl Lpips {
         let [n, c, _, _] = pred.dims();
         assert_eq!(pred.dims(), target.dims(), "lpips: shapes differ");
         assert_eq!(c, 3, "lpips: images must have 3 channels");
-        let device = pred.device();
-        // One backbone pass over both images.
-        let x = Tensor::cat(vec![pred, target], 0); // [2N, 3, H, W]
-        let shift = Tensor::<1>::from_floats(SHIFT, &device).reshape([1, 3, 1, 1]);
-        let scale = Tensor::<1>::from_floats(SCALE, &device).reshape([1, 3, 1, 1]);
-        let mut x = (x - shift) / scale;
-
+        let pairs: Vec<(Tensor<4>, Tensor<4>)> = if pred.is_tracked() && !target.is_tracked() {
+            // Training: a separate, untracked pass for the constant target keeps the
+            // backward pass to the N predictions.
+            self.taps(pred).into_iter().zip(self.taps(target)).collect()
+        } else {
+            // One backbone pass over both images.
+            self.taps(Tensor::cat(vec![pred, target], 0)) // [2N, C, h, w] per tap
+                .into_iter()
+                .map(|f| (f.clone().narrow(0, 0, n), f.narrow(0, n, n)))
+                .collect()
+        };
         let mut total: Option<Tensor<1>> = None;
-        let mut convs = self.convs.iter();
-        for (stage, (&count, &pool)) in self.stage_convs.iter().zip(&self.pool_before).enumerate() {
-            if pool {
-                x = self.pool.forward(x);
-            }
-            for conv in convs.by_ref().take(count) {
-                x = self.relu.forward(conv.forward(x));
-            }
-            let feat = normalize_channels(x.clone()); // [2N, C, h, w]
-            let [_, _, h, w] = feat.dims();
-            let f0 = feat.clone().narrow(0, 0, n);
-            let f1 = feat.narrow(0, n, n);
+        for ((f0, f1), head) in pairs.into_iter().zip(&self.heads) {
+            let [_, _, h, w] = f0.dims();
             let diff = f0 - f1;
-            let d = self.heads[stage].forward(diff.clone() * diff); // [N, 1, h, w]
+            let d = head.forward(diff.clone() * diff); // [N, 1, h, w]
             let d = d.reshape([n, h * w]).mean_dim(1).reshape([n]); // [N]
             total = Some(match total {
                 Some(t) => t + d,
                 None => d,
             });
         }
-        total.expect("a backbone has five stages")
+        total.expect("a backbone has five taps")
+    }
+
+    /// The five channel-normalised feature taps of images in `[-1, 1]`.
+    ///
+    /// # Shapes
+    /// - `x`: `[B, 3, H, W]`
+    /// - output: five `[B, C_k, h_k, w_k]`
+    fn taps(&self, x: Tensor<4>) -> Vec<Tensor<4>> {
+        let device = x.device();
+        let shift = Tensor::<1>::from_floats(SHIFT, &device).reshape([1, 3, 1, 1]);
+        let scale = Tensor::<1>::from_floats(SCALE, &device).reshape([1, 3, 1, 1]);
+        let mut x = (x - shift) / scale;
+        let mut out = Vec::with_capacity(self.stage_convs.len());
+        let mut convs = self.convs.iter();
+        for (&count, &pool) in self.stage_convs.iter().zip(&self.pool_before) {
+            if pool {
+                x = self.pool.forward(x);
+            }
+            for conv in convs.by_ref().take(count) {
+                x = self.relu.forward(conv.forward(x));
+            }
+            out.push(normalize_channels(x.clone()));
+        }
+        out
     }
 
     /// [`forward`](Self::forward) for images in `[0, 1]` (maps them to `[-1, 1]`).
