@@ -192,7 +192,10 @@ def fetch_package(tmp: Path) -> Path:
         for m in members:
             if not m.isfile() or ".." in Path(m.name).parts:
                 raise ScriptError(f"refusing suspicious archive member {m.name}")
-        tar.extractall(tmp / "pkg", members=members)
+        try:
+            tar.extractall(tmp / "pkg", members=members, filter="data")
+        except TypeError:  # Python < 3.11.4 has no extraction filters
+            tar.extractall(tmp / "pkg", members=members)
     return tmp / "pkg"
 
 
