@@ -74,6 +74,7 @@ pub mod sampler;
 pub mod sampler_accelerated;
 pub mod sampler_dense;
 pub mod samples;
+pub mod truncate;
 
 pub use bvh::CapsuleBvh;
 pub use capsule::{Capsule, Part};
@@ -88,6 +89,8 @@ pub use ray::Ray;
 pub use sampler::SamplerKind;
 pub use sampler_accelerated::{
     AcceleratedOpts, cull_with_grid, sample_accelerated, sample_in_capsules,
+    sample_in_capsules_before,
 };
 pub use sampler_dense::{DenseOpts, sample_dense};
 pub use samples::{ALL_BONES, ALL_PARTS, PackedSamples};
+pub use truncate::{first_core_entry, sample_in_front_of_cores, truncate_behind_cores};

@@ -49,7 +49,24 @@ pub fn sample_in_capsules(
     rays: &[Ray],
     opts: &AcceleratedOpts,
 ) -> Result<PackedSamples, GridError> {
+    sample_in_capsules_before(bvh, rays, None, opts)
+}
+
+/// [`sample_in_capsules`], but ray `i` is only sampled up to `t_stop[i]` (intervals are
+/// clipped there before they are cut into bins): the same as sampling everything and
+/// dropping what lies behind, without generating it first. `t_stop` may be infinite.
+pub fn sample_in_capsules_before(
+    bvh: &CapsuleBvh,
+    rays: &[Ray],
+    t_stop: Option<&[f32]>,
+    opts: &AcceleratedOpts,
+) -> Result<PackedSamples, GridError> {
     validate_rays(rays)?;
+    if let Some(stop) = t_stop
+        && stop.len() != rays.len()
+    {
+        return Err(GridError::LengthMismatch { what: "t_stop for the rays", expected: rays.len(), got: stop.len() });
+    }
     if !(opts.step.is_finite() && opts.step > 0.0) {
         return Err(GridError::BadOption {
             field: "step",
@@ -67,15 +84,20 @@ pub fn sample_in_capsules(
             bvh.for_each_hit(&rays[i], |h| hits.push(h));
             merge_hits(hits, capsules, intervals);
             let mut rng = SplitMix::new(opts.seed, i as u64);
+            let stop = t_stop.map_or(f32::INFINITY, |s| s[i]);
             for v in intervals.iter() {
-                let length = v.t_out - v.t_in;
+                if !(v.t_in < stop) {
+                    break;
+                }
+                let t_out = v.t_out.min(stop);
+                let length = t_out - v.t_in;
                 if !(length > 0.0) {
                     continue;
                 }
                 // The slack keeps 0.15 / 0.01 (= 15.000001 in f32) at 15 bins.
                 let n = (length / opts.step * (1.0 - 1e-5)).ceil().max(1.0) as u32;
                 let rng = opts.jitter.then_some(&mut rng);
-                stratified_bins(v.t_in, v.t_out, n, rng, |a, b| {
+                stratified_bins(v.t_in, t_out, n, rng, |a, b| {
                     let (mut parts, mut bones) = candidates_at(0.5 * (a + b), hits, capsules);
                     if parts == 0 {
                         // Float rounding at a capsule boundary: the interval's union is
