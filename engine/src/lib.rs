@@ -12,4 +12,5 @@ pub mod draw;
 pub mod inspect;
 pub mod json_shape;
 pub mod motion;
+pub mod sampling;
 pub mod synth;

@@ -1,0 +1,285 @@
+//! `talkin bench sampling`: the dense baseline against the accelerated sampler over every
+//! frame of a dataset, with what the speed costs: surface points the samples miss.
+
+use std::collections::BTreeMap;
+use std::time::Instant;
+
+use glam::Vec3;
+use serde::Serialize;
+use talkin_grids::{
+    AcceleratedOpts, CapsuleBvh, DenseOpts, MarginFitOpts, OccupancyGrid, PackedSamples, Part, Ray,
+    cull_with_grid, sample_dense, sample_in_capsules, sample_in_front_of_cores,
+};
+
+use super::canonical::{CanonicalGrid, PosedToCanonical};
+use super::frame::{capsule_bounds, foreground_rays};
+use super::margins::{SubjectMargins, fit_subject_margins, grid_error};
+use super::FrameScene;
+use crate::body::canonical_params;
+use crate::dataset::{Dataset, DatasetError, Split};
+
+/// Dense samples per ray (the HumanNeRF baseline).
+pub const DENSE_SAMPLES_PER_RAY: u32 = 128;
+/// Canonical grid cells along its longest axis.
+pub const GRID_RESOLUTION: u32 = 128;
+/// Timing repeats per frame and sampler; the median is kept.
+const REPEATS: usize = 3;
+
+/// Surface coverage of one part's foreground rays.
+#[derive(Clone, Debug, Serialize)]
+pub struct PartCoverage {
+    /// Foreground rays labelled with this part, over all frames.
+    pub rays: usize,
+    /// Margin fitted on the training masks, metres (maximum over subjects).
+    pub margin_m: f32,
+    /// Training rays covered by a capsule of their own part before / after the margin.
+    pub train_coverage_bare: f64,
+    pub train_coverage: f64,
+    /// Rays whose true surface point lies in no accelerated sample.
+    pub surface_misses: usize,
+}
+
+/// What the sampling benchmark measures. Rates are over the whole dataset; the per-frame
+/// speed ratios' median is given beside them because shared machines are noisy.
+#[derive(Clone, Debug, Serialize)]
+pub struct SamplingReport {
+    pub frames: usize,
+    pub foreground_rays: usize,
+    pub dense_samples_per_ray: f64,
+    /// After the BVH intervals and the occupancy-grid culling.
+    pub accelerated_samples_per_ray: f64,
+    /// After the BVH intervals, before core truncation and grid culling.
+    pub capsule_samples_per_ray: f64,
+    /// After the BVH intervals and core truncation, before grid culling.
+    pub truncated_samples_per_ray: f64,
+    pub dense_rays_per_s: f64,
+    pub accelerated_rays_per_s: f64,
+    /// Median over frames of (accelerated rays/s) / (dense rays/s).
+    pub median_speed_ratio: f64,
+    /// Foreground pixels whose true surface point (ground-truth depth, or for data
+    /// without depth: the ray itself) lies outside every accelerated sample.
+    pub surface_misses: usize,
+    /// Surface misses per split (train frames fitted the margins; the others test them).
+    pub surface_misses_by_split: BTreeMap<String, usize>,
+    /// Foreground rays that had ground-truth depth to check against.
+    pub surface_checked_rays: usize,
+    pub coverage_by_part: BTreeMap<String, PartCoverage>,
+    /// Median accelerated step (metres): the median dense step of each frame.
+    pub accelerated_step_m: f32,
+}
+
+/// Runs both samplers over every frame (after fitting margins and building each
+/// subject's canonical grid from its training frames).
+pub fn bench_sampling(dataset: &Dataset, progress: &mut dyn FnMut(usize, usize)) -> Result<SamplingReport, DatasetError> {
+    let mut subject_margins: Vec<SubjectMargins> = Vec::new();
+    let mut grids: Vec<OccupancyGrid> = Vec::new();
+    let train = dataset.split_indices(Split::Train);
+    for s in 0..dataset.subjects.len() {
+        let m = fit_subject_margins(dataset, s, &MarginFitOpts::default())?;
+        let poses = train.iter().filter(|&&i| dataset.frames[i].subject == s).map(|&i| &dataset.frames[i].params);
+        let grid = CanonicalGrid::initial(&dataset.subjects[s].skeleton, poses, &m.shells, GRID_RESOLUTION)
+            .map_err(|e| grid_error(dataset, 0, e))?;
+        subject_margins.push(m);
+        grids.push(grid);
+    }
+
+    let mut totals = Totals::default();
+    let mut ratios = Vec::new();
+    let mut steps = Vec::new();
+    let mut part_rays = [0usize; 4];
+    let mut part_misses = [0usize; 4];
+    let mut split_misses: BTreeMap<String, usize> = Split::ALL.iter().map(|s| (s.name().to_string(), 0)).collect();
+    for i in 0..dataset.frames.len() {
+        let frame = &dataset.frames[i];
+        let skeleton = &dataset.subjects[frame.subject].skeleton;
+        let canonical = skeleton.pose(&canonical_params());
+        let scene = FrameScene::new(skeleton, &canonical, &frame.params);
+        let images = dataset.images(i)?;
+        let depth = dataset.depth(i)?;
+        let (labelled, pixels) = foreground_rays(&frame.camera, &images).map_err(|e| grid_error(dataset, i, e))?;
+        let rays: Vec<Ray> = labelled.iter().map(|l| l.ray).collect();
+        let shells = &subject_margins[frame.subject].shells;
+        let inflated = shells.inflate(&scene.capsules);
+        let cores = shells.cores(&scene.capsules);
+        let (bbox_min, bbox_max) = capsule_bounds(&inflated, 0.02);
+        let step = median_dense_step(&rays, bbox_min, bbox_max);
+        steps.push(step);
+
+        let dense_opts = DenseOpts { samples_per_ray: DENSE_SAMPLES_PER_RAY, jitter: true, seed: i as u64 };
+        let (dense, dense_s) = median_time(|| sample_dense(&rays, bbox_min, bbox_max, &dense_opts));
+        let dense = dense.map_err(|e| grid_error(dataset, i, e))?;
+
+        let acc_opts = AcceleratedOpts { step, jitter: true, seed: i as u64 };
+        let map = PosedToCanonical::new(&scene);
+        let grid = &grids[frame.subject];
+        let (acc, acc_s) = median_time(|| {
+            let bvh = CapsuleBvh::build(&inflated)?;
+            let core_bvh = CapsuleBvh::build(&cores)?;
+            let truncated = sample_in_front_of_cores(&bvh, &core_bvh, &rays, step, &acc_opts)?;
+            let after_cores = truncated.num_samples();
+            let after = cull_with_grid(truncated, &rays, grid, |p, b| map.map(p, b))?;
+            Ok::<_, talkin_grids::GridError>((after_cores, after))
+        });
+        // Outside the timing: how many samples the grown capsules alone would give.
+        let before = CapsuleBvh::build(&inflated)
+            .and_then(|bvh| sample_in_capsules(&bvh, &rays, &acc_opts))
+            .map_err(|e| grid_error(dataset, i, e))?
+            .num_samples();
+        let ((truncated_samples, acc), capsule_samples) = (acc.map_err(|e| grid_error(dataset, i, e))?, before);
+
+        totals.rays += rays.len();
+        totals.dense_samples += dense.num_samples();
+        totals.acc_samples += acc.num_samples();
+        totals.capsule_samples += capsule_samples;
+        totals.truncated_samples += truncated_samples;
+        totals.dense_s += dense_s;
+        totals.acc_s += acc_s;
+        if !rays.is_empty() && dense_s > 0.0 && acc_s > 0.0 {
+            ratios.push(dense_s / acc_s);
+        }
+        for (r, l) in labelled.iter().enumerate() {
+            let k = Part::from_label(l.label).map(|p| p.label() as usize - 1).unwrap_or(0);
+            part_rays[k] += 1;
+            let covered = match &depth {
+                Some(d) => match d[pixels[r] as usize] {
+                    Some(z) => {
+                        totals.checked += 1;
+                        let t_surface = z / l.ray.direction.dot(frame.camera.forward_in_world().as_vec3());
+                        surface_sampled(&acc, r, t_surface)
+                    }
+                    // A person pixel without depth: at least one sample must exist.
+                    None => !acc.range(r).is_empty(),
+                },
+                None => !acc.range(r).is_empty(),
+            };
+            if !covered {
+                part_misses[k] += 1;
+                *split_misses.entry(frame.split.name().to_string()).or_default() += 1;
+            }
+        }
+        progress(i + 1, dataset.frames.len());
+    }
+
+    let mut coverage_by_part = BTreeMap::new();
+    for (k, part) in Part::ALL.into_iter().enumerate() {
+        let (rays, bare, fitted) = subject_margins.iter().fold((0, 0, 0), |acc, m| {
+            (acc.0 + m.coverage[k].0, acc.1 + m.coverage[k].1, acc.2 + m.coverage[k].2)
+        });
+        let frac = |n: usize| if rays == 0 { 1.0 } else { n as f64 / rays as f64 };
+        coverage_by_part.insert(
+            part.name().to_string(),
+            PartCoverage {
+                rays: part_rays[k],
+                margin_m: subject_margins.iter().map(|m| m.part_margins.get(part)).fold(0.0, f32::max),
+                train_coverage_bare: frac(bare),
+                train_coverage: frac(fitted),
+                surface_misses: part_misses[k],
+            },
+        );
+    }
+    let per_ray = |n: usize| n as f64 / totals.rays.max(1) as f64;
+    Ok(SamplingReport {
+        frames: dataset.frames.len(),
+        foreground_rays: totals.rays,
+        dense_samples_per_ray: per_ray(totals.dense_samples),
+        accelerated_samples_per_ray: per_ray(totals.acc_samples),
+        capsule_samples_per_ray: per_ray(totals.capsule_samples),
+        truncated_samples_per_ray: per_ray(totals.truncated_samples),
+        dense_rays_per_s: totals.rays as f64 / totals.dense_s.max(1e-12),
+        accelerated_rays_per_s: totals.rays as f64 / totals.acc_s.max(1e-12),
+        median_speed_ratio: median(&mut ratios),
+        surface_misses: part_misses.iter().sum(),
+        surface_misses_by_split: split_misses,
+        surface_checked_rays: totals.checked,
+        coverage_by_part,
+        accelerated_step_m: median(&mut steps.iter().map(|&s| s as f64).collect::<Vec<_>>()) as f32,
+    })
+}
+
+#[derive(Default)]
+struct Totals {
+    rays: usize,
+    checked: usize,
+    dense_samples: usize,
+    acc_samples: usize,
+    capsule_samples: usize,
+    truncated_samples: usize,
+    dense_s: f64,
+    acc_s: f64,
+}
+
+/// Whether some sample of ray `r` contains `t` (with 0.2 mm of slack for the 0.1 mm
+/// depth quantisation).
+fn surface_sampled(samples: &PackedSamples, r: usize, t: f32) -> bool {
+    samples.range(r).any(|s| samples.t_start[s] - 2e-4 <= t && t <= samples.t_end[s] + 2e-4)
+}
+
+/// The step the dense sampler takes on the median foreground ray: its chord through the
+/// box over the dense sample count. The accelerated sampler uses it, so both sample the
+/// body equally finely.
+fn median_dense_step(rays: &[Ray], lo: Vec3, hi: Vec3) -> f32 {
+    let mut chords: Vec<f64> = rays
+        .iter()
+        .filter_map(|r| talkin_grids::ray::clip_to_box(r, lo, hi))
+        .map(|(t0, t1)| (t1 - t0) as f64)
+        .collect();
+    let step = median(&mut chords) as f32 / DENSE_SAMPLES_PER_RAY as f32;
+    if step.is_finite() && step > 0.0 { step } else { 0.005 }
+}
+
+/// Runs `f` `REPEATS` times; returns the last result and the median seconds.
+fn median_time<T>(mut f: impl FnMut() -> T) -> (T, f64) {
+    let mut times = Vec::with_capacity(REPEATS);
+    let mut out = None;
+    for _ in 0..REPEATS {
+        let start = Instant::now();
+        out = Some(f());
+        times.push(start.elapsed().as_secs_f64());
+    }
+    (out.expect("REPEATS > 0"), median(&mut times))
+}
+
+fn median(v: &mut [f64]) -> f64 {
+    if v.is_empty() {
+        return f64::NAN;
+    }
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
+
+/// A human-readable table of a sampling report.
+pub fn format_report(r: &SamplingReport) -> String {
+    let mut s = String::new();
+    use std::fmt::Write;
+    let _ = writeln!(s, "{} frames, {} foreground rays, accelerated step {:.2} mm", r.frames, r.foreground_rays, 1e3 * r.accelerated_step_m);
+    let _ = writeln!(s, "{:<28} {:>14} {:>14}", "", "dense", "accelerated");
+    let _ = writeln!(s, "{:<28} {:>14.1} {:>14.2}", "samples per foreground ray", r.dense_samples_per_ray, r.accelerated_samples_per_ray);
+    let _ = writeln!(s, "{:<28} {:>14} {:>14.2}", "  in grown capsules", "", r.capsule_samples_per_ray);
+    let _ = writeln!(s, "{:<28} {:>14} {:>14.2}", "  after core truncation", "", r.truncated_samples_per_ray);
+    let _ = writeln!(s, "{:<28} {:>14.0} {:>14.0}", "rays per second", r.dense_rays_per_s, r.accelerated_rays_per_s);
+    let _ = writeln!(
+        s,
+        "accelerated samples = {:.1}% of dense; speed ratio (median over frames) {:.2}x",
+        100.0 * r.accelerated_samples_per_ray / r.dense_samples_per_ray.max(1e-12),
+        r.median_speed_ratio
+    );
+    let _ = writeln!(
+        s,
+        "surface misses: {} of {} rays checked against depth (by split: {:?})",
+        r.surface_misses, r.surface_checked_rays, r.surface_misses_by_split
+    );
+    let _ = writeln!(s, "{:<8} {:>8} {:>10} {:>12} {:>12} {:>8}", "part", "rays", "margin mm", "bare cover", "fit cover", "misses");
+    for (name, p) in &r.coverage_by_part {
+        let _ = writeln!(
+            s,
+            "{:<8} {:>8} {:>10.1} {:>11.2}% {:>11.2}% {:>8}",
+            name,
+            p.rays,
+            1e3 * p.margin_m,
+            100.0 * p.train_coverage_bare,
+            100.0 * p.train_coverage,
+            p.surface_misses
+        );
+    }
+    s
+}

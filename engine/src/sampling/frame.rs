@@ -1,0 +1,60 @@
+//! One frame's geometry in posed (world) space: skeleton, capsules, bounding box, rays.
+
+use glam::{Affine3A, Vec3};
+use talkin_grids::{Capsule, GridError, LabelledRay, Ray};
+
+use crate::body::{N_BODY_JOINTS, PosedSkeleton, Skeleton, canonical_from_posed, limb_capsules};
+use crate::camera::Camera;
+use crate::dataset::FrameImages;
+
+/// A posed frame: its skeleton, bare capsules and per-body-joint posed-to-canonical maps.
+#[derive(Clone, Debug)]
+pub struct FrameScene {
+    pub posed: PosedSkeleton,
+    /// Bare (uninflated) limb capsules in world space.
+    pub capsules: Vec<Capsule>,
+    /// Per body joint: posed (world) -> canonical, for points rigidly attached to it.
+    pub canonical_from_posed: [Affine3A; N_BODY_JOINTS],
+}
+
+impl FrameScene {
+    pub fn new(skeleton: &Skeleton, canonical: &PosedSkeleton, params: &crate::body::FrameParams) -> FrameScene {
+        let posed = skeleton.pose(params);
+        let capsules = limb_capsules(skeleton, &posed);
+        let maps = canonical_from_posed(&posed, canonical);
+        let canonical_from_posed = maps.map(|m| {
+            Affine3A::from_mat3_translation(glam::Mat3::from(m.matrix3.as_mat3()), m.translation.as_vec3())
+        });
+        FrameScene { posed, capsules, canonical_from_posed }
+    }
+}
+
+/// Axis-aligned box around capsules (each grown by its radius) plus `pad` metres: the
+/// dense sampler's "joints +/- margin" box, with the margin the data decided.
+pub fn capsule_bounds(capsules: &[Capsule], pad: f32) -> (Vec3, Vec3) {
+    let mut lo = Vec3::splat(f32::INFINITY);
+    let mut hi = Vec3::splat(f32::NEG_INFINITY);
+    for c in capsules {
+        lo = lo.min(c.a.min(c.b) - Vec3::splat(c.radius));
+        hi = hi.max(c.a.max(c.b) + Vec3::splat(c.radius));
+    }
+    (lo - Vec3::splat(pad), hi + Vec3::splat(pad))
+}
+
+/// Rays through the person's pixels (mask >= 128), labelled with their segmentation part
+/// (a person pixel labelled background counts as body). Also returns each ray's pixel
+/// index (`y * width + x`).
+pub fn foreground_rays(camera: &Camera, images: &FrameImages) -> Result<(Vec<LabelledRay>, Vec<u32>), GridError> {
+    let mut rays = Vec::new();
+    let mut pixels = Vec::new();
+    for (x, y, m) in images.mask.enumerate_pixels() {
+        if m.0[0] < 128 {
+            continue;
+        }
+        let (origin, dir) = camera.pixel_ray(x, y);
+        let label = images.segmentation.get_pixel(x, y).0[0].max(1);
+        rays.push(LabelledRay { ray: Ray::new(origin.as_vec3(), dir.as_vec3(), 0.0, f32::INFINITY)?, label });
+        pixels.push(y * camera.width + x);
+    }
+    Ok((rays, pixels))
+}

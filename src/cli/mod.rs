@@ -1,0 +1,38 @@
+//! Subcommands. Each file parses nothing itself: clap structs here, work in the engine.
+
+mod bench;
+mod demo;
+mod inspect;
+mod synth;
+
+use clap::{Parser, Subcommand};
+
+/// talkin: a grid-accelerated TalkinNeRF engine for animatable full-body talking humans.
+#[derive(Parser, Debug)]
+#[command(version, about)]
+pub struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand, Debug)]
+enum Command {
+    /// Generate the built-in synthetic talking-human dataset.
+    Synth(synth::SynthArgs),
+    /// Validate a dataset, print a summary, optionally write a contact sheet and joints.
+    Inspect(inspect::InspectArgs),
+    /// Benchmarks that report speed next to what it costs.
+    Bench(bench::BenchArgs),
+    /// The main job on the built-in synthetic scene: generate, inspect (and, as the engine
+    /// grows, train, render and evaluate).
+    Demo(demo::DemoArgs),
+}
+
+pub fn run(cli: Cli) -> anyhow::Result<()> {
+    match cli.command {
+        Command::Synth(a) => synth::run(a),
+        Command::Inspect(a) => inspect::run(a),
+        Command::Demo(a) => demo::run(a),
+        Command::Bench(a) => bench::run(a),
+    }
+}

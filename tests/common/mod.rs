@@ -1,0 +1,117 @@
+//! Test fixtures: a plausible T-pose skeleton and a tiny hand-made dataset, independent of
+//! the synthetic generator so that loader tests do not depend on it.
+#![allow(dead_code)]
+
+use std::path::Path;
+
+use glam::DVec3;
+use talkin::engine::body::{FrameParams, N_JOINTS, PARENTS, Skeleton};
+use talkin::engine::camera::Camera;
+use talkin::engine::dataset::{Dataset, Frame, Split, Subject};
+
+/// A 1.7 m adult-ish T-pose skeleton in SMPL-X conventions (y up, facing +z, +x left).
+pub fn t_pose_skeleton() -> Skeleton {
+    let mut offset = [DVec3::ZERO; N_JOINTS];
+    let v = DVec3::new;
+    offset[0] = v(0.0, 0.95, 0.0);
+    for side in [1.0, -1.0] {
+        let (hip, knee, ankle, foot, collar, shoulder, elbow, wrist) =
+            if side > 0.0 { (1, 4, 7, 10, 13, 16, 18, 20) } else { (2, 5, 8, 11, 14, 17, 19, 21) };
+        offset[hip] = v(0.09 * side, -0.08, 0.0);
+        offset[knee] = v(0.0, -0.4, 0.0);
+        offset[ankle] = v(0.0, -0.4, 0.0);
+        offset[foot] = v(0.0, -0.05, 0.12);
+        offset[collar] = v(0.07 * side, 0.15, 0.0);
+        offset[shoulder] = v(0.12 * side, 0.02, 0.0);
+        offset[elbow] = v(0.26 * side, 0.0, 0.0);
+        offset[wrist] = v(0.25 * side, 0.0, 0.0);
+        let first = if side > 0.0 { 25 } else { 40 };
+        // index, middle, pinky, ring, thumb knuckles relative to the wrist.
+        let knuckles = [v(0.09, 0.0, 0.03), v(0.095, 0.0, 0.01), v(0.08, 0.0, -0.03), v(0.09, 0.0, -0.01), v(0.03, -0.01, 0.04)];
+        for (f, k) in knuckles.iter().enumerate() {
+            offset[first + 3 * f] = v(k.x * side, k.y, k.z);
+            offset[first + 3 * f + 1] = v(0.03 * side, 0.0, 0.0);
+            offset[first + 3 * f + 2] = v(0.025 * side, 0.0, 0.0);
+        }
+    }
+    offset[3] = v(0.0, 0.1, 0.0);
+    offset[6] = v(0.0, 0.13, 0.0);
+    offset[9] = v(0.0, 0.05, 0.0);
+    offset[12] = v(0.0, 0.22, 0.0);
+    offset[15] = v(0.0, 0.1, 0.0);
+    offset[22] = v(0.0, -0.02, 0.05);
+    offset[23] = v(0.03, 0.05, 0.08);
+    offset[24] = v(-0.03, 0.05, 0.08);
+    let mut rest = [DVec3::ZERO; N_JOINTS];
+    for j in 0..N_JOINTS {
+        rest[j] = offset[j] + if j == 0 { DVec3::ZERO } else { rest[PARENTS[j] as usize] };
+    }
+    Skeleton { rest_joints: rest }
+}
+
+/// A frontal camera 3 m in front of the subject.
+pub fn frontal_camera(width: u32, height: u32) -> Camera {
+    Camera::look_at(width, height, 1.2 * height as f64, DVec3::new(0.0, 1.1, 3.0), DVec3::new(0.0, 1.1, 0.0), DVec3::Y)
+        .expect("a valid camera")
+}
+
+/// Writes a 2-frame dataset of 24x32 images into `dir`: a grey person-shaped block with
+/// segmentation labels and an exact mask.
+pub fn write_tiny_dataset(dir: &Path) -> Dataset {
+    let (w, h) = (24, 32);
+    for sub in ["images", "masks", "segmentation"] {
+        std::fs::create_dir_all(dir.join(sub)).unwrap();
+    }
+    let mut frames = Vec::new();
+    for i in 0..2 {
+        let mut rgb = image::RgbImage::from_pixel(w, h, image::Rgb([255, 255, 255]));
+        let mut mask = image::GrayImage::new(w, h);
+        let mut seg = image::GrayImage::new(w, h);
+        for y in 4..30 {
+            for x in 8..16 {
+                let label = if y < 9 { 4 } else if y < 20 { 1 } else { 1 };
+                rgb.put_pixel(x, y, image::Rgb([120, 100 + 10 * i as u8, 90]));
+                mask.put_pixel(x, y, image::Luma([255]));
+                seg.put_pixel(x, y, image::Luma([label]));
+            }
+        }
+        for (x, y) in [(5, 14), (18, 14)] {
+            seg.put_pixel(x, y, image::Luma([3]));
+            mask.put_pixel(x, y, image::Luma([255]));
+        }
+        let name = format!("{i:05}.png");
+        rgb.save(dir.join("images").join(&name)).unwrap();
+        mask.save(dir.join("masks").join(&name)).unwrap();
+        seg.save(dir.join("segmentation").join(&name)).unwrap();
+        let mut params = FrameParams::default();
+        params.jaw_pose.x = 0.1 * i as f64;
+        params.expression[0] = 0.5;
+        frames.push(Frame {
+            subject: 0,
+            split: if i == 0 { Split::Train } else { Split::TestSame },
+            time: i as f64 / 25.0,
+            image: format!("images/{name}").into(),
+            mask: format!("masks/{name}").into(),
+            segmentation: format!("segmentation/{name}").into(),
+            depth: None,
+            camera: frontal_camera(w, h),
+            params,
+        });
+    }
+    let dataset = Dataset {
+        root: dir.to_path_buf(),
+        background: [1.0, 1.0, 1.0],
+        subjects: vec![Subject { name: "tiny".into(), skeleton: t_pose_skeleton() }],
+        frames,
+    };
+    dataset.save_index().unwrap();
+    dataset
+}
+
+/// A fresh empty directory under the target dir's tmp, unique per test name.
+pub fn temp_dir(name: &str) -> std::path::PathBuf {
+    let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join(name);
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
