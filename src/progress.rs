@@ -37,7 +37,11 @@ impl Progress {
         }
         let elapsed = self.start.elapsed().as_secs_f64();
         let rate = done as f64 / elapsed.max(1e-9);
-        let eta = if done > 0 { (self.total.saturating_sub(done)) as f64 / rate } else { f64::NAN };
+        let eta = if done > 0 {
+            (self.total.saturating_sub(done)) as f64 / rate
+        } else {
+            f64::NAN
+        };
         let mut err = std::io::stderr().lock();
         let _ = write!(
             err,

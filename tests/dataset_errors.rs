@@ -10,15 +10,23 @@ use talkin::engine::dataset::{Dataset, DatasetError};
 
 fn edit_json(dir: &Path, edit: impl FnOnce(&mut serde_json::Value)) {
     let file = dir.join("dataset.json");
-    let mut v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&file).unwrap()).unwrap();
+    let mut v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&file).unwrap()).unwrap();
     edit(&mut v);
     std::fs::write(&file, serde_json::to_string(&v).unwrap()).unwrap();
 }
 
 /// Runs `talkin inspect dir`; returns (exit code, stderr).
 fn inspect(dir: &Path) -> (i32, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_talkin")).arg("inspect").arg(dir).output().unwrap();
-    (out.status.code().unwrap_or(-1), String::from_utf8_lossy(&out.stderr).into_owned())
+    let out = Command::new(env!("CARGO_BIN_EXE_talkin"))
+        .arg("inspect")
+        .arg(dir)
+        .output()
+        .unwrap();
+    (
+        out.status.code().unwrap_or(-1),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
 }
 
 /// Damages a fresh tiny dataset with `damage`, then checks the library error and the CLI.
@@ -29,17 +37,25 @@ fn check(name: &str, damage: impl FnOnce(&Path), expect_in_message: &[&str]) -> 
     let err = match Dataset::load(&dir) {
         Err(e) => e,
         // Pixel-level damage is found when the pixels are decoded.
-        Ok(d) => (0..d.frames.len()).find_map(|i| d.images(i).err()).expect("damage must be detected"),
+        Ok(d) => (0..d.frames.len())
+            .find_map(|i| d.images(i).err())
+            .expect("damage must be detected"),
     };
     let message = err.to_string();
     for needle in expect_in_message {
-        assert!(message.contains(needle), "{name}: {message:?} lacks {needle:?}");
+        assert!(
+            message.contains(needle),
+            "{name}: {message:?} lacks {needle:?}"
+        );
     }
     let (code, stderr) = inspect(&dir);
     assert_eq!(code, 1, "{name}: {stderr}");
     assert!(!stderr.contains("panicked"), "{name}: {stderr}");
     for needle in expect_in_message {
-        assert!(stderr.contains(needle), "{name}: stderr {stderr:?} lacks {needle:?}");
+        assert!(
+            stderr.contains(needle),
+            "{name}: stderr {stderr:?} lacks {needle:?}"
+        );
     }
     err
 }
@@ -64,9 +80,13 @@ fn the_undamaged_dataset_round_trips_and_inspects() {
     // The block is not where the skeleton projects, so inspect may complain about
     // alignment; it must not fail on validity.
     let stdout = String::from_utf8_lossy(&out.stdout);
-    assert!(stdout.contains("valid talkin dataset, 2 frames"), "{stdout}");
+    assert!(
+        stdout.contains("valid talkin dataset, 2 frames"),
+        "{stdout}"
+    );
     assert!(dir.join("sheet.png").exists());
-    let joints: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.join("joints.json")).unwrap()).unwrap();
+    let joints: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("joints.json")).unwrap()).unwrap();
     assert_eq!(joints[0]["joints_3d"].as_array().unwrap().len(), 55);
 }
 
@@ -85,7 +105,11 @@ fn truncated_png() {
 
 #[test]
 fn not_a_png() {
-    check("not_a_png", |d| std::fs::write(d.join("masks/00000.png"), b"hello").unwrap(), &["masks/00000.png"]);
+    check(
+        "not_a_png",
+        |d| std::fs::write(d.join("masks/00000.png"), b"hello").unwrap(),
+        &["masks/00000.png"],
+    );
 }
 
 #[test]
@@ -114,12 +138,20 @@ fn nan_parameter() {
 fn wrong_shaped_parameter() {
     check(
         "wrong_shape",
-        |d| edit_json(d, |v| v["frames"][1]["params"]["body_pose"] = serde_json::json!([[0.0, 0.0, 0.0]; 20])),
+        |d| {
+            edit_json(d, |v| {
+                v["frames"][1]["params"]["body_pose"] = serde_json::json!([[0.0, 0.0, 0.0]; 20])
+            })
+        },
         &["frames[1].params.body_pose", "21 x 3"],
     );
     check(
         "wrong_joints",
-        |d| edit_json(d, |v| v["subjects"][0]["rest_joints"] = serde_json::json!([[0.0, 0.0]; 55])),
+        |d| {
+            edit_json(d, |v| {
+                v["subjects"][0]["rest_joints"] = serde_json::json!([[0.0, 0.0]; 55])
+            })
+        },
         &["subjects[0].rest_joints", "55 x 3"],
     );
 }
@@ -131,7 +163,11 @@ fn missing_file() {
         |d| std::fs::remove_file(d.join("segmentation/00001.png")).unwrap(),
         &["segmentation/00001.png"],
     );
-    check("missing_index", |d| std::fs::remove_file(d.join("dataset.json")).unwrap(), &["dataset.json"]);
+    check(
+        "missing_index",
+        |d| std::fs::remove_file(d.join("dataset.json")).unwrap(),
+        &["dataset.json"],
+    );
 }
 
 #[test]
@@ -160,7 +196,11 @@ fn malformed_json() {
 fn singular_intrinsics() {
     check(
         "singular_intrinsics",
-        |d| edit_json(d, |v| v["frames"][1]["camera"]["intrinsics"][1][1] = 0.0.into()),
+        |d| {
+            edit_json(d, |v| {
+                v["frames"][1]["camera"]["intrinsics"][1][1] = 0.0.into()
+            })
+        },
         &["frames[1].camera", "intrinsics", "singular"],
     );
 }
@@ -169,12 +209,20 @@ fn singular_intrinsics() {
 fn wrong_image_size_and_labels() {
     check(
         "wrong_size",
-        |d| image::GrayImage::new(10, 10).save(d.join("masks/00001.png")).unwrap(),
+        |d| {
+            image::GrayImage::new(10, 10)
+                .save(d.join("masks/00001.png"))
+                .unwrap()
+        },
         &["masks/00001.png", "10x10"],
     );
     check(
         "bad_label",
-        |d| image::GrayImage::from_pixel(24, 32, image::Luma([7])).save(d.join("segmentation/00000.png")).unwrap(),
+        |d| {
+            image::GrayImage::from_pixel(24, 32, image::Luma([7]))
+                .save(d.join("segmentation/00000.png"))
+                .unwrap()
+        },
         &["segmentation/00000.png", "label 7"],
     );
 }
@@ -190,5 +238,9 @@ fn paths_may_not_escape_the_dataset() {
 
 #[test]
 fn wrong_format_or_version() {
-    check("wrong_version", |d| edit_json(d, |v| v["version"] = 2.into()), &["version", "found 2"]);
+    check(
+        "wrong_version",
+        |d| edit_json(d, |v| v["version"] = 2.into()),
+        &["version", "found 2"],
+    );
 }

@@ -16,7 +16,10 @@ pub struct CameraError {
 }
 
 fn bad(field: &'static str, problem: impl Into<String>) -> CameraError {
-    CameraError { field, problem: problem.into() }
+    CameraError {
+        field,
+        problem: problem.into(),
+    }
 }
 
 /// A validated pinhole camera.
@@ -67,7 +70,10 @@ impl Camera {
             return Err(bad("extrinsics", "contains a non-finite number"));
         }
         if extrinsics[3] != [0.0, 0.0, 0.0, 1.0] {
-            return Err(bad("extrinsics", format!("last row must be [0, 0, 0, 1], got {:?}", extrinsics[3])));
+            return Err(bad(
+                "extrinsics",
+                format!("last row must be [0, 0, 0, 1], got {:?}", extrinsics[3]),
+            ));
         }
         let col = |c: usize| DVec3::new(extrinsics[0][c], extrinsics[1][c], extrinsics[2][c]);
         let rotation = DMat3::from_cols(col(0), col(1), col(2));
@@ -110,8 +116,13 @@ impl Camera {
         target: DVec3,
         up: DVec3,
     ) -> Result<Camera, CameraError> {
-        let forward = (target - eye).try_normalize().ok_or_else(|| bad("extrinsics", "eye == target"))?;
-        let right = forward.cross(up).try_normalize().ok_or_else(|| bad("extrinsics", "up is parallel to the view direction"))?;
+        let forward = (target - eye)
+            .try_normalize()
+            .ok_or_else(|| bad("extrinsics", "eye == target"))?;
+        let right = forward
+            .cross(up)
+            .try_normalize()
+            .ok_or_else(|| bad("extrinsics", "up is parallel to the view direction"))?;
         let down = forward.cross(right);
         // Rows of the rotation are the camera axes in world coordinates.
         let r = [right, down, forward];
@@ -187,8 +198,15 @@ mod tests {
     use super::*;
 
     fn frontal() -> Camera {
-        Camera::look_at(256, 320, 400.0, DVec3::new(0.1, 0.3, 3.0), DVec3::new(0.0, 0.2, 0.0), DVec3::Y)
-            .unwrap()
+        Camera::look_at(
+            256,
+            320,
+            400.0,
+            DVec3::new(0.1, 0.3, 3.0),
+            DVec3::new(0.0, 0.2, 0.0),
+            DVec3::Y,
+        )
+        .unwrap()
     }
 
     #[test]
@@ -216,10 +234,19 @@ mod tests {
         // image's right.
         let left = cam.project(DVec3::new(0.5, 0.0, 0.0)).unwrap();
         assert!(left.x > cam.intrinsics.z_axis.x);
-        let again = Camera::new(cam.width, cam.height, cam.intrinsics_rows(), cam.extrinsics_rows()).unwrap();
+        let again = Camera::new(
+            cam.width,
+            cam.height,
+            cam.intrinsics_rows(),
+            cam.extrinsics_rows(),
+        )
+        .unwrap();
         assert!((again.center_in_world() - cam.center_in_world()).length() < 1e-12);
         assert!(cam.project(cam.center_in_world()).is_none());
-        assert!(cam.project(DVec3::new(0.0, 0.0, 10.0)).is_none(), "behind the camera");
+        assert!(
+            cam.project(DVec3::new(0.0, 0.0, 10.0)).is_none(),
+            "behind the camera"
+        );
     }
 
     #[test]
@@ -228,20 +255,32 @@ mod tests {
         let (k, e) = (good.intrinsics_rows(), good.extrinsics_rows());
         let mut singular = k;
         singular[1][1] = 0.0;
-        assert_eq!(Camera::new(256, 320, singular, e).unwrap_err().field, "intrinsics");
+        assert_eq!(
+            Camera::new(256, 320, singular, e).unwrap_err().field,
+            "intrinsics"
+        );
         let mut nan = k;
         nan[0][2] = f64::NAN;
-        assert_eq!(Camera::new(256, 320, nan, e).unwrap_err().field, "intrinsics");
+        assert_eq!(
+            Camera::new(256, 320, nan, e).unwrap_err().field,
+            "intrinsics"
+        );
         let mut scaled = e;
         for row in scaled.iter_mut().take(3) {
             row[0] *= 2.0;
         }
-        assert_eq!(Camera::new(256, 320, k, scaled).unwrap_err().field, "extrinsics");
+        assert_eq!(
+            Camera::new(256, 320, k, scaled).unwrap_err().field,
+            "extrinsics"
+        );
         let mut mirrored = e;
         for row in mirrored.iter_mut().take(3) {
             row[0] = -row[0];
         }
-        assert_eq!(Camera::new(256, 320, k, mirrored).unwrap_err().field, "extrinsics");
+        assert_eq!(
+            Camera::new(256, 320, k, mirrored).unwrap_err().field,
+            "extrinsics"
+        );
         assert_eq!(Camera::new(0, 320, k, e).unwrap_err().field, "width");
         assert!(Camera::look_at(8, 8, 10.0, DVec3::ZERO, DVec3::ZERO, DVec3::Y).is_err());
         assert!(Camera::look_at(8, 8, 10.0, DVec3::ZERO, DVec3::Y, DVec3::Y).is_err());

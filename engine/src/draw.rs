@@ -3,7 +3,13 @@
 use image::{Rgb, RgbImage};
 
 /// Colour per segmentation label (background, body, arms, hands, head).
-pub const LABEL_COLOURS: [[u8; 3]; 5] = [[0, 0, 0], [60, 120, 255], [60, 200, 60], [255, 60, 200], [255, 200, 0]];
+pub const LABEL_COLOURS: [[u8; 3]; 5] = [
+    [0, 0, 0],
+    [60, 120, 255],
+    [60, 200, 60],
+    [255, 60, 200],
+    [255, 200, 0],
+];
 
 /// Blends `colour` over pixel (x, y) with opacity `alpha`; ignores pixels outside.
 pub fn blend(img: &mut RgbImage, x: i64, y: i64, colour: [u8; 3], alpha: f32) {
@@ -46,7 +52,10 @@ pub fn dot(img: &mut RgbImage, p: (f64, f64), colour: [u8; 3], r: i64) {
 /// Arranges equally sized tiles in a grid with `columns` columns and a `gap` px border.
 pub fn tile(tiles: &[RgbImage], columns: usize, gap: u32, background: [u8; 3]) -> RgbImage {
     let columns = columns.max(1);
-    let (w, h) = tiles.first().map(|t| (t.width(), t.height())).unwrap_or((1, 1));
+    let (w, h) = tiles
+        .first()
+        .map(|t| (t.width(), t.height()))
+        .unwrap_or((1, 1));
     let rows = tiles.len().div_ceil(columns).max(1);
     let mut sheet = RgbImage::from_pixel(
         columns as u32 * (w + gap) + gap,
@@ -55,14 +64,23 @@ pub fn tile(tiles: &[RgbImage], columns: usize, gap: u32, background: [u8; 3]) -
     );
     for (i, t) in tiles.iter().enumerate() {
         let (col, row) = ((i % columns) as u32, (i / columns) as u32);
-        image::imageops::overlay(&mut sheet, t, (gap + col * (w + gap)) as i64, (gap + row * (h + gap)) as i64);
+        image::imageops::overlay(
+            &mut sheet,
+            t,
+            (gap + col * (w + gap)) as i64,
+            (gap + row * (h + gap)) as i64,
+        );
     }
     sheet
 }
 
 /// A colour map for error heat maps: 0 -> black, 1 -> white through red and yellow.
 pub fn heat(v: f32) -> [u8; 3] {
-    let v = if v.is_finite() { v.clamp(0.0, 1.0) } else { 1.0 };
+    let v = if v.is_finite() {
+        v.clamp(0.0, 1.0)
+    } else {
+        1.0
+    };
     let r = (v * 3.0).min(1.0);
     let g = (v * 3.0 - 1.0).clamp(0.0, 1.0);
     let b = (v * 3.0 - 2.0).clamp(0.0, 1.0);

@@ -26,14 +26,24 @@ fn describe(v: &Value) -> String {
 }
 
 fn err(field: &str, expected: impl Into<String>, found: String) -> ShapeError {
-    ShapeError { field: field.to_string(), expected: expected.into(), found }
+    ShapeError {
+        field: field.to_string(),
+        expected: expected.into(),
+        found,
+    }
 }
 
 /// The member `key` of object `v` (at `path`), or an error naming `path.key`.
 pub fn member<'a>(v: &'a Value, path: &str, key: &str) -> Result<&'a Value, ShapeError> {
-    let field = if path.is_empty() { key.to_string() } else { format!("{path}.{key}") };
+    let field = if path.is_empty() {
+        key.to_string()
+    } else {
+        format!("{path}.{key}")
+    };
     match v {
-        Value::Object(map) => map.get(key).ok_or_else(|| err(&field, "a value", "nothing (missing)".into())),
+        Value::Object(map) => map
+            .get(key)
+            .ok_or_else(|| err(&field, "a value", "nothing (missing)".into())),
         other => Err(err(path, "an object", describe(other))),
     }
 }
@@ -56,7 +66,8 @@ pub fn index(v: &Value, field: &str) -> Result<usize, ShapeError> {
 
 /// A string.
 pub fn string<'a>(v: &'a Value, field: &str) -> Result<&'a str, ShapeError> {
-    v.as_str().ok_or_else(|| err(field, "a string", describe(v)))
+    v.as_str()
+        .ok_or_else(|| err(field, "a string", describe(v)))
 }
 
 /// An array of exactly `n` finite numbers.
@@ -79,10 +90,18 @@ pub fn vector(v: &Value, field: &str, n: usize) -> Result<Vec<f64>, ShapeError> 
 /// trailing coefficients are allowed and ignored by the caller).
 pub fn vector_at_least(v: &Value, field: &str, min: usize) -> Result<Vec<f64>, ShapeError> {
     let Value::Array(items) = v else {
-        return Err(err(field, format!("an array of at least {min} numbers"), describe(v)));
+        return Err(err(
+            field,
+            format!("an array of at least {min} numbers"),
+            describe(v),
+        ));
     };
     if items.len() < min {
-        return Err(err(field, format!("an array of at least {min} numbers"), describe(v)));
+        return Err(err(
+            field,
+            format!("an array of at least {min} numbers"),
+            describe(v),
+        ));
     }
     vector(v, field, items.len())
 }
@@ -106,7 +125,11 @@ pub fn matrix(v: &Value, field: &str, rows: usize, cols: usize) -> Result<Vec<f6
         match vector(row, &row_field, cols) {
             Ok(vals) => out.extend(vals),
             Err(e) if e.field == row_field => {
-                return Err(err(field, expected, format!("row {r} is {}", describe(row))));
+                return Err(err(
+                    field,
+                    expected,
+                    format!("row {r} is {}", describe(row)),
+                ));
             }
             Err(e) => return Err(e),
         }
@@ -122,8 +145,13 @@ mod tests {
     #[test]
     fn errors_name_the_field_and_shape() {
         let v = json!({"body_pose": [[0, 0, 0], [1, 2]]});
-        let e = matrix(member(&v, "frames[3].params", "body_pose").unwrap(), "frames[3].params.body_pose", 2, 3)
-            .unwrap_err();
+        let e = matrix(
+            member(&v, "frames[3].params", "body_pose").unwrap(),
+            "frames[3].params.body_pose",
+            2,
+            3,
+        )
+        .unwrap_err();
         assert_eq!(e.field, "frames[3].params.body_pose");
         assert!(e.expected.contains("2 x 3"), "{e}");
         assert!(e.found.contains("row 1"), "{e}");

@@ -65,7 +65,11 @@ pub fn sample_in_capsules_before(
     if let Some(stop) = t_stop
         && stop.len() != rays.len()
     {
-        return Err(GridError::LengthMismatch { what: "t_stop for the rays", expected: rays.len(), got: stop.len() });
+        return Err(GridError::LengthMismatch {
+            what: "t_stop for the rays",
+            expected: rays.len(),
+            got: stop.len(),
+        });
     }
     if !(opts.step.is_finite() && opts.step > 0.0) {
         return Err(GridError::BadOption {

@@ -33,7 +33,11 @@ pub fn truncate_behind_cores(
     tail: f32,
 ) -> Result<PackedSamples, GridError> {
     if rays.len() != samples.num_rays() {
-        return Err(GridError::LengthMismatch { what: "rays for the samples", expected: samples.num_rays(), got: rays.len() });
+        return Err(GridError::LengthMismatch {
+            what: "rays for the samples",
+            expected: samples.num_rays(),
+            got: rays.len(),
+        });
     }
     let entry = first_core_entry(cores, rays)?;
     let mut keep = vec![true; samples.num_samples()];
@@ -56,7 +60,10 @@ pub fn sample_in_front_of_cores(
     tail: f32,
     opts: &crate::AcceleratedOpts,
 ) -> Result<PackedSamples, GridError> {
-    let stop: Vec<f32> = first_core_entry(cores, rays)?.into_iter().map(|t| t + tail).collect();
+    let stop: Vec<f32> = first_core_entry(cores, rays)?
+        .into_iter()
+        .map(|t| t + tail)
+        .collect();
     crate::sampler_accelerated::sample_in_capsules_before(bvh, rays, Some(&stop), opts)
 }
 
@@ -70,8 +77,17 @@ mod tests {
 
     #[test]
     fn samples_stop_one_tail_behind_the_core() {
-        let limb = Capsule { a: vec3(0.0, -1.0, 0.0), b: vec3(0.0, 1.0, 0.0), radius: 0.2, part: Part::Arms, bone: 18 };
-        let core = Capsule { radius: 0.1, ..limb };
+        let limb = Capsule {
+            a: vec3(0.0, -1.0, 0.0),
+            b: vec3(0.0, 1.0, 0.0),
+            radius: 0.2,
+            part: Part::Arms,
+            bone: 18,
+        };
+        let core = Capsule {
+            radius: 0.1,
+            ..limb
+        };
         let bvh = CapsuleBvh::build(&[limb]).unwrap();
         let cores = CapsuleBvh::build(&[core]).unwrap();
         let rays = [
@@ -79,7 +95,11 @@ mod tests {
             // Passes through the shell but misses the core: untouched.
             Ray::new(vec3(0.15, 0.0, -2.0), Vec3::Z, 0.0, f32::INFINITY).unwrap(),
         ];
-        let opts = AcceleratedOpts { step: 0.01, jitter: false, seed: 0 };
+        let opts = AcceleratedOpts {
+            step: 0.01,
+            jitter: false,
+            seed: 0,
+        };
         let all = sample_in_capsules(&bvh, &rays, &opts).unwrap();
         let cut = truncate_behind_cores(all.clone(), &rays, &cores, 0.01).unwrap();
         cut.check_layout().unwrap();
@@ -88,7 +108,16 @@ mod tests {
         assert!(cut.range(0).all(|s| cut.t_start[s] <= 1.91 + 1e-5));
         assert_eq!(cut.range(0).len(), 12);
         assert_eq!(cut.range(1).len(), all.range(1).len());
-        assert!(first_core_entry(&cores, &[Ray { origin: Vec3::NAN, ..rays[0] }]).is_err());
+        assert!(
+            first_core_entry(
+                &cores,
+                &[Ray {
+                    origin: Vec3::NAN,
+                    ..rays[0]
+                }]
+            )
+            .is_err()
+        );
         // Generating only what survives gives the same samples as generating and cutting,
         // up to the one bin that straddles the stop.
         let direct = sample_in_front_of_cores(&bvh, &cores, &rays, 0.01, &opts).unwrap();

@@ -40,7 +40,9 @@ fn sampling_bench(args: SamplingArgs) -> anyhow::Result<()> {
     let dataset = Dataset::load(&args.data)?;
     let mut progress: Option<Progress> = None;
     let report = sampling::bench_sampling(&dataset, &mut |done, total| {
-        progress.get_or_insert_with(|| Progress::new("sampling frames", total)).update(done, "")
+        progress
+            .get_or_insert_with(|| Progress::new("sampling frames", total))
+            .update(done, "")
     })?;
     println!("{}", sampling::format_report(&report));
     if let Some(path) = &args.json {

@@ -16,7 +16,8 @@ pub struct DemoArgs {
 }
 
 pub fn run(args: DemoArgs) -> anyhow::Result<()> {
-    std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("creating {}", args.out.display()))?;
     let data = args.out.join("data");
     let defaults = talkin_engine::synth::SynthConfig::default();
     println!("== 1/2 generate the synthetic scene -> {}", data.display());

@@ -28,15 +28,23 @@ pub fn run(args: InspectArgs) -> anyhow::Result<()> {
     let dataset = Dataset::load(&args.dir)?;
     let progress = Progress::new("decoding frames", dataset.frames.len());
     let summary = inspect::summarize(&dataset, &|done| progress.update(done, ""))?;
-    println!("{}: valid talkin dataset, {} frames", args.dir.display(), dataset.frames.len());
+    println!(
+        "{}: valid talkin dataset, {} frames",
+        args.dir.display(),
+        dataset.frames.len()
+    );
     println!("{summary}");
     if let Some(path) = &args.sheet {
         let (sheet, frames) = inspect::contact_sheet(&dataset, args.sheet_frames)?;
-        sheet.save(path).with_context(|| format!("writing contact sheet {}", path.display()))?;
+        sheet
+            .save(path)
+            .with_context(|| format!("writing contact sheet {}", path.display()))?;
         println!("contact sheet: {} (frames {:?})", path.display(), frames);
     }
     if let Some(path) = &args.joints_json {
-        let joints: Vec<_> = (0..dataset.frames.len()).map(|i| inspect::frame_joints(&dataset, i)).collect();
+        let joints: Vec<_> = (0..dataset.frames.len())
+            .map(|i| inspect::frame_joints(&dataset, i))
+            .collect();
         let text = serde_json::to_string(&joints)?;
         std::fs::write(path, text).with_context(|| format!("writing {}", path.display()))?;
         println!("joints: {}", path.display());

@@ -30,7 +30,12 @@ pub struct SynthArgs {
 
 pub fn run(args: SynthArgs) -> anyhow::Result<()> {
     let dataset = generate(&args)?;
-    println!("wrote {} frames of {} subjects to {}", dataset.frames.len(), dataset.subjects.len(), args.out.display());
+    println!(
+        "wrote {} frames of {} subjects to {}",
+        dataset.frames.len(),
+        dataset.subjects.len(),
+        args.out.display()
+    );
     Ok(())
 }
 
@@ -46,7 +51,9 @@ pub fn generate(args: &SynthArgs) -> anyhow::Result<Dataset> {
     };
     let mut progress: Option<Progress> = None;
     let dataset = synth::generate(&cfg, &args.out, &mut |done, total| {
-        progress.get_or_insert_with(|| Progress::new("synth frames", total)).update(done, "")
+        progress
+            .get_or_insert_with(|| Progress::new("synth frames", total))
+            .update(done, "")
     })?;
     Ok(dataset)
 }

@@ -15,8 +15,11 @@ pub fn t_pose_skeleton() -> Skeleton {
     let v = DVec3::new;
     offset[0] = v(0.0, 0.95, 0.0);
     for side in [1.0, -1.0] {
-        let (hip, knee, ankle, foot, collar, shoulder, elbow, wrist) =
-            if side > 0.0 { (1, 4, 7, 10, 13, 16, 18, 20) } else { (2, 5, 8, 11, 14, 17, 19, 21) };
+        let (hip, knee, ankle, foot, collar, shoulder, elbow, wrist) = if side > 0.0 {
+            (1, 4, 7, 10, 13, 16, 18, 20)
+        } else {
+            (2, 5, 8, 11, 14, 17, 19, 21)
+        };
         offset[hip] = v(0.09 * side, -0.08, 0.0);
         offset[knee] = v(0.0, -0.4, 0.0);
         offset[ankle] = v(0.0, -0.4, 0.0);
@@ -27,7 +30,13 @@ pub fn t_pose_skeleton() -> Skeleton {
         offset[wrist] = v(0.25 * side, 0.0, 0.0);
         let first = if side > 0.0 { 25 } else { 40 };
         // index, middle, pinky, ring, thumb knuckles relative to the wrist.
-        let knuckles = [v(0.09, 0.0, 0.03), v(0.095, 0.0, 0.01), v(0.08, 0.0, -0.03), v(0.09, 0.0, -0.01), v(0.03, -0.01, 0.04)];
+        let knuckles = [
+            v(0.09, 0.0, 0.03),
+            v(0.095, 0.0, 0.01),
+            v(0.08, 0.0, -0.03),
+            v(0.09, 0.0, -0.01),
+            v(0.03, -0.01, 0.04),
+        ];
         for (f, k) in knuckles.iter().enumerate() {
             offset[first + 3 * f] = v(k.x * side, k.y, k.z);
             offset[first + 3 * f + 1] = v(0.03 * side, 0.0, 0.0);
@@ -44,15 +53,27 @@ pub fn t_pose_skeleton() -> Skeleton {
     offset[24] = v(-0.03, 0.05, 0.08);
     let mut rest = [DVec3::ZERO; N_JOINTS];
     for j in 0..N_JOINTS {
-        rest[j] = offset[j] + if j == 0 { DVec3::ZERO } else { rest[PARENTS[j] as usize] };
+        rest[j] = offset[j]
+            + if j == 0 {
+                DVec3::ZERO
+            } else {
+                rest[PARENTS[j] as usize]
+            };
     }
     Skeleton { rest_joints: rest }
 }
 
 /// A frontal camera 3 m in front of the subject.
 pub fn frontal_camera(width: u32, height: u32) -> Camera {
-    Camera::look_at(width, height, 1.2 * height as f64, DVec3::new(0.0, 1.1, 3.0), DVec3::new(0.0, 1.1, 0.0), DVec3::Y)
-        .expect("a valid camera")
+    Camera::look_at(
+        width,
+        height,
+        1.2 * height as f64,
+        DVec3::new(0.0, 1.1, 3.0),
+        DVec3::new(0.0, 1.1, 0.0),
+        DVec3::Y,
+    )
+    .expect("a valid camera")
 }
 
 /// Writes a 2-frame dataset of 24x32 images into `dir`: a grey person-shaped block with
@@ -69,7 +90,13 @@ pub fn write_tiny_dataset(dir: &Path) -> Dataset {
         let mut seg = image::GrayImage::new(w, h);
         for y in 4..30 {
             for x in 8..16 {
-                let label = if y < 9 { 4 } else if y < 20 { 1 } else { 1 };
+                let label = if y < 9 {
+                    4
+                } else if y < 20 {
+                    1
+                } else {
+                    1
+                };
                 rgb.put_pixel(x, y, image::Rgb([120, 100 + 10 * i as u8, 90]));
                 mask.put_pixel(x, y, image::Luma([255]));
                 seg.put_pixel(x, y, image::Luma([label]));
@@ -88,7 +115,11 @@ pub fn write_tiny_dataset(dir: &Path) -> Dataset {
         params.expression[0] = 0.5;
         frames.push(Frame {
             subject: 0,
-            split: if i == 0 { Split::Train } else { Split::TestSame },
+            split: if i == 0 {
+                Split::Train
+            } else {
+                Split::TestSame
+            },
             time: i as f64 / 25.0,
             image: format!("images/{name}").into(),
             mask: format!("masks/{name}").into(),
@@ -101,7 +132,10 @@ pub fn write_tiny_dataset(dir: &Path) -> Dataset {
     let dataset = Dataset {
         root: dir.to_path_buf(),
         background: [1.0, 1.0, 1.0],
-        subjects: vec![Subject { name: "tiny".into(), skeleton: t_pose_skeleton() }],
+        subjects: vec![Subject {
+            name: "tiny".into(),
+            skeleton: t_pose_skeleton(),
+        }],
         frames,
     };
     dataset.save_index().unwrap();

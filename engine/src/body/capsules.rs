@@ -17,7 +17,11 @@ use super::skeleton::joint::*;
 enum End {
     Joint(usize),
     /// Past the last joint of a chain (finger tips): `to + (to - from) * k`.
-    Extrapolate { from: usize, to: usize, k: f64 },
+    Extrapolate {
+        from: usize,
+        to: usize,
+        k: f64,
+    },
     /// Along the joint's own +y axis (up in the T-pose), `len` x scale from the joint.
     Up(f64),
 }
@@ -30,7 +34,12 @@ struct Bone {
 }
 
 const fn b(from: usize, to: usize, radius: f64, part: Part) -> Bone {
-    Bone { from, to: End::Joint(to), radius, part }
+    Bone {
+        from,
+        to: End::Joint(to),
+        radius,
+        part,
+    }
 }
 
 /// The bone table. Radii in units of [`Skeleton::scale`] (metres for an adult).
@@ -53,13 +62,21 @@ fn bones() -> Vec<Bone> {
         b(LEFT_ANKLE, LEFT_FOOT, 0.045, Part::Body),
         b(RIGHT_ANKLE, RIGHT_FOOT, 0.045, Part::Body),
         b(NECK, HEAD, 0.055, Part::Body),
-        Bone { from: HEAD, to: End::Up(0.17), radius: 0.10, part: Part::Head },
+        Bone {
+            from: HEAD,
+            to: End::Up(0.17),
+            radius: 0.10,
+            part: Part::Head,
+        },
         b(LEFT_SHOULDER, LEFT_ELBOW, 0.045, Part::Arms),
         b(RIGHT_SHOULDER, RIGHT_ELBOW, 0.045, Part::Arms),
         b(LEFT_ELBOW, LEFT_WRIST, 0.038, Part::Arms),
         b(RIGHT_ELBOW, RIGHT_WRIST, 0.038, Part::Arms),
     ];
-    for (wrist, first) in [(LEFT_WRIST, LEFT_HAND_FIRST), (RIGHT_WRIST, RIGHT_HAND_FIRST)] {
+    for (wrist, first) in [
+        (LEFT_WRIST, LEFT_HAND_FIRST),
+        (RIGHT_WRIST, RIGHT_HAND_FIRST),
+    ] {
         // Palm: wrist to the knuckles of index, middle and pinky covers its width.
         for finger in [0, 1, 2] {
             v.push(b(wrist, first + 3 * finger, 0.022, Part::Hands));
@@ -69,8 +86,17 @@ fn bones() -> Vec<Bone> {
             let radius = if finger == 4 { 0.011 } else { 0.009 };
             v.push(b(j1, j1 + 1, radius, Part::Hands));
             v.push(b(j1 + 1, j1 + 2, radius, Part::Hands));
-            let tip = End::Extrapolate { from: j1 + 1, to: j1 + 2, k: 0.9 };
-            v.push(Bone { from: j1 + 2, to: tip, radius: radius * 0.9, part: Part::Hands });
+            let tip = End::Extrapolate {
+                from: j1 + 1,
+                to: j1 + 2,
+                k: 0.9,
+            };
+            v.push(Bone {
+                from: j1 + 2,
+                to: tip,
+                radius: radius * 0.9,
+                part: Part::Hands,
+            });
         }
     }
     v
@@ -121,8 +147,14 @@ mod tests {
             assert!(caps.iter().any(|c| c.part == part), "{part:?}");
         }
         // 3 segments per finger, 10 fingers.
-        let finger_segments = caps.iter().filter(|c| c.bone >= LEFT_HAND_FIRST as u16).count();
+        let finger_segments = caps
+            .iter()
+            .filter(|c| c.bone >= LEFT_HAND_FIRST as u16)
+            .count();
         assert_eq!(finger_segments, 30);
-        assert!(caps.iter().all(|c| c.a.is_finite() && c.b.is_finite() && c.radius > 0.0));
+        assert!(
+            caps.iter()
+                .all(|c| c.a.is_finite() && c.b.is_finite() && c.radius > 0.0)
+        );
     }
 }

@@ -1,6 +1,6 @@
 //! Forward kinematics and the skinning transforms of a posed skeleton, in f64.
 
-use glam::{DAffine3, DMat3, DVec3};
+use glam::{DAffine3, DVec3};
 
 use super::params::FrameParams;
 use super::rotation::rotation_from_axis_angle;
@@ -44,7 +44,9 @@ impl Skeleton {
         for j in 0..N_JOINTS {
             let rotation = rotation_from_axis_angle(local[j]);
             world_from_joint[j] = match usize::try_from(PARENTS[j]) {
-                Err(_) => DAffine3::from_mat3_translation(rotation, params.transl + self.rest_joints[0]),
+                Err(_) => {
+                    DAffine3::from_mat3_translation(rotation, params.transl + self.rest_joints[0])
+                }
                 Ok(p) => {
                     let offset = self.rest_joints[j] - self.rest_joints[p];
                     world_from_joint[p] * DAffine3::from_mat3_translation(rotation, offset)
@@ -54,7 +56,10 @@ impl Skeleton {
         let world_from_rest = std::array::from_fn(|j| {
             world_from_joint[j] * DAffine3::from_translation(-self.rest_joints[j])
         });
-        PosedSkeleton { world_from_joint, world_from_rest }
+        PosedSkeleton {
+            world_from_joint,
+            world_from_rest,
+        }
     }
 
     /// Distance pelvis -> neck relative to an adult's (0.55 m): the size unit that capsule
@@ -90,11 +95,6 @@ pub fn canonical_from_posed(
     std::array::from_fn(|j| canonical.world_from_rest[j] * posed.world_from_rest[j].inverse())
 }
 
-/// Rotation part of an affine as a matrix (convenience for callers).
-pub fn rotation_of(a: &DAffine3) -> DMat3 {
-    DMat3::from(a.matrix3)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -125,10 +125,12 @@ mod tests {
     fn hand_computed_chain() {
         // pelvis -> spine1 -> spine2: rotate pelvis 90 deg about z, spine1 90 deg about x.
         let s = chain_skeleton();
-        let mut p = FrameParams::default();
-        p.global_orient = DVec3::new(0.0, 0.0, std::f64::consts::FRAC_PI_2);
+        let mut p = FrameParams {
+            global_orient: DVec3::new(0.0, 0.0, std::f64::consts::FRAC_PI_2),
+            transl: DVec3::new(1.0, 2.0, 3.0),
+            ..Default::default()
+        };
         p.body_pose[joint::SPINE1 - 1] = DVec3::new(std::f64::consts::FRAC_PI_2, 0.0, 0.0);
-        p.transl = DVec3::new(1.0, 2.0, 3.0);
         let posed = s.pose(&p);
         let r = |j: usize| s.rest_joints[j];
         // Rz(90) maps (x, y, z) -> (-y, x, z).
@@ -140,17 +142,23 @@ mod tests {
         let spine2 = spine1 + rz(rx(r(6) - r(3)));
         assert!((posed.joint(0) - pelvis).length() < 1e-14);
         assert!((posed.joint(joint::SPINE1) - spine1).length() < 1e-14);
-        assert!((posed.joint(joint::SPINE2) - spine2).length() < 1e-14, "{:?} vs {spine2:?}", posed.joint(6));
+        assert!(
+            (posed.joint(joint::SPINE2) - spine2).length() < 1e-14,
+            "{:?} vs {spine2:?}",
+            posed.joint(6)
+        );
     }
 
     #[test]
     fn canonical_from_posed_maps_attached_points_back() {
         let s = chain_skeleton();
         let canonical = s.pose(&canonical_params());
-        let mut p = FrameParams::default();
-        p.global_orient = DVec3::new(0.2, -0.4, 0.1);
+        let mut p = FrameParams {
+            global_orient: DVec3::new(0.2, -0.4, 0.1),
+            transl: DVec3::new(0.1, 0.0, 2.0),
+            ..Default::default()
+        };
         p.body_pose[joint::LEFT_ELBOW - 1] = DVec3::new(0.0, 1.2, 0.0);
-        p.transl = DVec3::new(0.1, 0.0, 2.0);
         let posed = s.pose(&p);
         let maps = canonical_from_posed(&posed, &canonical);
         for j in 0..N_BODY_JOINTS {

@@ -66,8 +66,10 @@ impl FrameParams {
         self.jaw_pose = r[joint::JAW];
         self.leye_pose = r[joint::LEFT_EYE];
         self.reye_pose = r[joint::RIGHT_EYE];
-        self.left_hand_pose.copy_from_slice(&r[joint::LEFT_HAND_FIRST..joint::RIGHT_HAND_FIRST]);
-        self.right_hand_pose.copy_from_slice(&r[joint::RIGHT_HAND_FIRST..N_JOINTS]);
+        self.left_hand_pose
+            .copy_from_slice(&r[joint::LEFT_HAND_FIRST..joint::RIGHT_HAND_FIRST]);
+        self.right_hand_pose
+            .copy_from_slice(&r[joint::RIGHT_HAND_FIRST..N_JOINTS]);
     }
 
     /// The paper's facial condition e = [psi; jaw] (13 numbers).
@@ -83,7 +85,12 @@ impl FrameParams {
     /// The paper's hand condition: left then right hand pose, flattened (90 numbers).
     pub fn hand_condition(&self) -> [f32; 2 * N_HAND_JOINTS * 3] {
         let mut h = [0.0f32; 2 * N_HAND_JOINTS * 3];
-        for (i, r) in self.left_hand_pose.iter().chain(&self.right_hand_pose).enumerate() {
+        for (i, r) in self
+            .left_hand_pose
+            .iter()
+            .chain(&self.right_hand_pose)
+            .enumerate()
+        {
             h[3 * i..3 * i + 3].copy_from_slice(&r.as_vec3().to_array());
         }
         h
@@ -156,7 +163,11 @@ impl FrameParams {
             transl: [f64; 3],
         }
         let rows = |r: &[DVec3]| r.iter().map(|v| round6(v.to_array())).collect::<Vec<_>>();
-        let expression: Vec<f64> = self.expression.iter().map(|x| round6([*x, 0.0, 0.0])[0]).collect();
+        let expression: Vec<f64> = self
+            .expression
+            .iter()
+            .map(|x| round6([*x, 0.0, 0.0])[0])
+            .collect();
         serde_json::to_value(Wire {
             global_orient: round6(self.global_orient.to_array()),
             body_pose: rows(&self.body_pose),

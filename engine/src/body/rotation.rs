@@ -15,7 +15,10 @@ pub fn rotation_from_axis_angle(r: DVec3) -> DMat3 {
     let t = t2.sqrt();
     // a = sin(t)/t, b = (1 - cos t)/t^2
     let (a, b) = if t < SMALL_ANGLE {
-        (1.0 - t2 / 6.0 + t2 * t2 / 120.0, 0.5 - t2 / 24.0 + t2 * t2 / 720.0)
+        (
+            1.0 - t2 / 6.0 + t2 * t2 / 120.0,
+            0.5 - t2 / 24.0 + t2 * t2 / 720.0,
+        )
     } else {
         (t.sin() / t, (1.0 - t.cos()) / t2)
     };
@@ -38,7 +41,11 @@ pub fn axis_angle_from_rotation(m: DMat3) -> DVec3 {
     let t = sin_t.atan2(cos_t);
     if cos_t > -0.5 {
         // t < 2pi/3: the antisymmetric part is well conditioned.
-        let scale = if t < SMALL_ANGLE { 1.0 + t * t / 6.0 } else { t / sin_t };
+        let scale = if t < SMALL_ANGLE {
+            1.0 + t * t / 6.0
+        } else {
+            t / sin_t
+        };
         return w * scale;
     }
     // Near pi: (R + R^T)/2 - cos(t) I = (1 - cos t) a a^T. Take the best-conditioned column.
@@ -89,7 +96,10 @@ mod tests {
     }
 
     fn max_abs_diff(a: DMat3, b: DMat3) -> f64 {
-        (a - b).to_cols_array().iter().fold(0.0, |m, x| m.max(x.abs()))
+        (a - b)
+            .to_cols_array()
+            .iter()
+            .fold(0.0, |m, x| m.max(x.abs()))
     }
 
     /// Rotation distance that does not care about the r / -r ambiguity at pi.
@@ -150,10 +160,16 @@ mod tests {
             assert_same_rotation(r, back, 1e-12);
             // Below pi the vector itself comes back, not just the rotation.
             if r.length() < std::f64::consts::PI - 1e-3 {
-                assert!((back - r).length() < 1e-12 * (1.0 + r.length()), "{r:?} -> {back:?}");
+                assert!(
+                    (back - r).length() < 1e-12 * (1.0 + r.length()),
+                    "{r:?} -> {back:?}"
+                );
             }
             // Near (not at) pi the angle is resolved to ~1e-8 relative to what acos could.
-            assert!((back.length() - r.length()).abs() < 1e-9, "{r:?} -> {back:?}");
+            assert!(
+                (back.length() - r.length()).abs() < 1e-9,
+                "{r:?} -> {back:?}"
+            );
         }
     }
 
@@ -169,7 +185,9 @@ mod tests {
         // Seeded LCG: the same vectors every run.
         let mut s: u64 = 0x9E37_79B9_7F4A_7C15;
         let mut next = || {
-            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            s = s
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
             (s >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
         };
         for _ in 0..1000 {

@@ -74,8 +74,8 @@ pub const JOINT_NAMES: [&str; N_JOINTS] = [
 /// Parent of each joint; `-1` for the root (pelvis). Parents always precede children.
 pub const PARENTS: [i32; N_JOINTS] = [
     -1, 0, 0, 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 9, 9, 12, 13, 14, 16, 17, 18, 19, 15, 15, 15, 20, 25,
-    26, 20, 28, 29, 20, 31, 32, 20, 34, 35, 20, 37, 38, 21, 40, 41, 21, 43, 44, 21, 46, 47, 21,
-    49, 50, 21, 52, 53,
+    26, 20, 28, 29, 20, 31, 32, 20, 34, 35, 20, 37, 38, 21, 40, 41, 21, 43, 44, 21, 46, 47, 21, 49,
+    50, 21, 52, 53,
 ];
 
 /// Named joint indices used by the body model, the generator and the crops.
@@ -177,7 +177,11 @@ mod tests {
         }
         for j in 25..N_JOINTS {
             assert_eq!(part_of_joint(j), Part::Hands);
-            let wrist = if j < 40 { joint::LEFT_WRIST } else { joint::RIGHT_WRIST };
+            let wrist = if j < 40 {
+                joint::LEFT_WRIST
+            } else {
+                joint::RIGHT_WRIST
+            };
             assert_eq!(body_ancestor(j), wrist);
         }
         assert_eq!(children(joint::NECK).collect::<Vec<_>>(), vec![joint::HEAD]);

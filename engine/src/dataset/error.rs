@@ -14,7 +14,12 @@ pub enum DatasetError {
         source: std::io::Error,
     },
     #[error("{}: malformed JSON at line {line}, column {column}: {message}", file.display())]
-    Json { file: PathBuf, line: usize, column: usize, message: String },
+    Json {
+        file: PathBuf,
+        line: usize,
+        column: usize,
+        message: String,
+    },
     #[error("{}: {source}", file.display())]
     Shape {
         file: PathBuf,
@@ -22,7 +27,11 @@ pub enum DatasetError {
         source: ShapeError,
     },
     #[error("{}: field `{field}`: {problem}", file.display())]
-    Invalid { file: PathBuf, field: String, problem: String },
+    Invalid {
+        file: PathBuf,
+        field: String,
+        problem: String,
+    },
     #[error("{}: field `{field}`: {source}", file.display())]
     Camera {
         file: PathBuf,

@@ -27,15 +27,27 @@ impl Dataset {
         let open = |rel: &std::path::Path| -> Result<image::DynamicImage, DatasetError> {
             let file = self.root.join(rel);
             let img = image::ImageReader::open(&file)
-                .map_err(|source| DatasetError::Io { file: file.clone(), source })?
+                .map_err(|source| DatasetError::Io {
+                    file: file.clone(),
+                    source,
+                })?
                 .with_guessed_format()
-                .map_err(|source| DatasetError::Io { file: file.clone(), source })?
+                .map_err(|source| DatasetError::Io {
+                    file: file.clone(),
+                    source,
+                })?
                 .decode()
-                .map_err(|e| DatasetError::Image { file: file.clone(), problem: format!("cannot decode PNG: {e}") })?;
+                .map_err(|e| DatasetError::Image {
+                    file: file.clone(),
+                    problem: format!("cannot decode PNG: {e}"),
+                })?;
             if img.dimensions_tuple() != size {
                 return Err(DatasetError::Image {
                     file,
-                    problem: format!("is {:?} but the frame's camera is {size:?}", img.dimensions_tuple()),
+                    problem: format!(
+                        "is {:?} but the frame's camera is {size:?}",
+                        img.dimensions_tuple()
+                    ),
                 });
             }
             Ok(img)
@@ -46,10 +58,19 @@ impl Dataset {
         if let Some(bad) = segmentation.pixels().find(|p| p.0[0] as usize >= N_LABELS) {
             return Err(DatasetError::Image {
                 file: self.root.join(&frame.segmentation),
-                problem: format!("label {} is not one of 0..={} ({})", bad.0[0], N_LABELS - 1, LABEL_NAMES.join(", ")),
+                problem: format!(
+                    "label {} is not one of 0..={} ({})",
+                    bad.0[0],
+                    N_LABELS - 1,
+                    LABEL_NAMES.join(", ")
+                ),
             });
         }
-        Ok(FrameImages { rgb, mask, segmentation })
+        Ok(FrameImages {
+            rgb,
+            mask,
+            segmentation,
+        })
     }
 }
 
@@ -68,14 +89,25 @@ impl Dataset {
     /// `None` where there is no surface), if the frame has a depth file.
     pub fn depth(&self, index: usize) -> Result<Option<Vec<Option<f32>>>, DatasetError> {
         let frame = &self.frames[index];
-        let Some(rel) = &frame.depth else { return Ok(None) };
+        let Some(rel) = &frame.depth else {
+            return Ok(None);
+        };
         let file = self.root.join(rel);
         let img = image::ImageReader::open(&file)
-            .map_err(|source| DatasetError::Io { file: file.clone(), source })?
+            .map_err(|source| DatasetError::Io {
+                file: file.clone(),
+                source,
+            })?
             .decode()
-            .map_err(|e| DatasetError::Image { file: file.clone(), problem: format!("cannot decode PNG: {e}") })?;
+            .map_err(|e| DatasetError::Image {
+                file: file.clone(),
+                problem: format!("cannot decode PNG: {e}"),
+            })?;
         if img.dimensions_tuple() != (frame.camera.width, frame.camera.height) {
-            return Err(DatasetError::Image { file, problem: "depth size differs from the camera's".into() });
+            return Err(DatasetError::Image {
+                file,
+                problem: "depth size differs from the camera's".into(),
+            });
         }
         let depth = img
             .into_luma16()

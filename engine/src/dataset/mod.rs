@@ -41,7 +41,12 @@ pub enum Split {
 }
 
 impl Split {
-    pub const ALL: [Split; 4] = [Split::Train, Split::TestSame, Split::TestCross, Split::TestOod];
+    pub const ALL: [Split; 4] = [
+        Split::Train,
+        Split::TestSame,
+        Split::TestCross,
+        Split::TestOod,
+    ];
 
     pub const fn name(self) -> &'static str {
         match self {
@@ -112,7 +117,9 @@ pub struct Dataset {
 impl Dataset {
     /// Indices of the frames of a split.
     pub fn split_indices(&self, split: Split) -> Vec<usize> {
-        (0..self.frames.len()).filter(|&i| self.frames[i].split == split).collect()
+        (0..self.frames.len())
+            .filter(|&i| self.frames[i].split == split)
+            .collect()
     }
 
     /// Index of a subject by name.

@@ -13,8 +13,12 @@ impl Dataset {
             .subjects
             .iter()
             .map(|s| {
-                let joints: Vec<[f64; 3]> =
-                    s.skeleton.rest_joints.iter().map(|j| j.to_array().map(round9)).collect();
+                let joints: Vec<[f64; 3]> = s
+                    .skeleton
+                    .rest_joints
+                    .iter()
+                    .map(|j| j.to_array().map(round9))
+                    .collect();
                 json!({"name": s.name, "rest_joints": joints})
             })
             .collect();
@@ -55,7 +59,8 @@ impl Dataset {
     /// Writes `root/dataset.json` atomically (temp file + rename): a crash never leaves a
     /// half-written index.
     pub fn save_index(&self) -> Result<(), DatasetError> {
-        let text = serde_json::to_string_pretty(&self.to_json()).expect("a JSON value always serialises");
+        let text =
+            serde_json::to_string_pretty(&self.to_json()).expect("a JSON value always serialises");
         write_atomic(&self.root.join(INDEX_FILE), text.as_bytes())
     }
 }
@@ -63,14 +68,20 @@ impl Dataset {
 /// Writes `bytes` to `path` through a temp file in the same directory and a rename.
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), DatasetError> {
     let tmp = path.with_extension("tmp");
-    let io = |source| DatasetError::Io { file: path.to_path_buf(), source };
+    let io = |source| DatasetError::Io {
+        file: path.to_path_buf(),
+        source,
+    };
     std::fs::write(&tmp, bytes).map_err(io)?;
     std::fs::rename(&tmp, path).map_err(io)
 }
 
 fn path_string(p: &Path) -> String {
     // Forward slashes on every platform: the file is shared between machines.
-    p.components().map(|c| c.as_os_str().to_string_lossy()).collect::<Vec<_>>().join("/")
+    p.components()
+        .map(|c| c.as_os_str().to_string_lossy())
+        .collect::<Vec<_>>()
+        .join("/")
 }
 
 fn round9(x: f64) -> f64 {

@@ -27,6 +27,8 @@ pub fn frame_joints(dataset: &Dataset, index: usize) -> FrameJoints {
         subject: subject.name.clone(),
         split: frame.split.name().to_string(),
         joints_3d: joints.iter().map(|j| j.to_array()).collect(),
-        joints_2d: (0..N_JOINTS).map(|j| frame.camera.project(joints[j]).map(|p| [p.x, p.y])).collect(),
+        joints_2d: (0..N_JOINTS)
+            .map(|j| frame.camera.project(joints[j]).map(|p| [p.x, p.y]))
+            .collect(),
     }
 }

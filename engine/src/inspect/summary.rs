@@ -25,7 +25,10 @@ pub struct Summary {
 }
 
 /// Decodes every frame (in parallel) and summarises; the first broken file is the error.
-pub fn summarize(dataset: &Dataset, progress: &(dyn Fn(usize) + Sync)) -> Result<Summary, DatasetError> {
+pub fn summarize(
+    dataset: &Dataset,
+    progress: &(dyn Fn(usize) + Sync),
+) -> Result<Summary, DatasetError> {
     struct PerFrame {
         labels: [u64; N_LABELS],
         disagree: u64,
@@ -49,25 +52,45 @@ pub fn summarize(dataset: &Dataset, progress: &(dyn Fn(usize) + Sync)) -> Result
             let posed = dataset.subjects[frame.subject].skeleton.pose(&frame.params);
             let (mut joints_in_image, mut joints_on_person) = (0, 0);
             for j in 0..N_BODY_JOINTS.min(N_JOINTS) {
-                let Some(p) = frame.camera.project(posed.joint(j)) else { continue };
+                let Some(p) = frame.camera.project(posed.joint(j)) else {
+                    continue;
+                };
                 let (x, y) = (p.x.floor(), p.y.floor());
-                if x < 0.0 || y < 0.0 || x >= frame.camera.width as f64 || y >= frame.camera.height as f64 {
+                if x < 0.0
+                    || y < 0.0
+                    || x >= frame.camera.width as f64
+                    || y >= frame.camera.height as f64
+                {
                     continue;
                 }
                 joints_in_image += 1;
-                joints_on_person += u32::from(images.mask.get_pixel(x as u32, y as u32).0[0] >= 128);
+                joints_on_person +=
+                    u32::from(images.mask.get_pixel(x as u32, y as u32).0[0] >= 128);
             }
             progress(done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1);
-            Ok(PerFrame { labels, disagree, pixels: images.mask.len() as u64, joints_in_image, joints_on_person })
+            Ok(PerFrame {
+                labels,
+                disagree,
+                pixels: images.mask.len() as u64,
+                joints_in_image,
+                joints_on_person,
+            })
         })
         .collect::<Result<_, DatasetError>>()?;
 
     let mut frames_per_split = vec![[0usize; 4]; dataset.subjects.len()];
     for f in &dataset.frames {
-        let s = Split::ALL.iter().position(|s| *s == f.split).expect("every split is in ALL");
+        let s = Split::ALL
+            .iter()
+            .position(|s| *s == f.split)
+            .expect("every split is in ALL");
         frames_per_split[f.subject][s] += 1;
     }
-    let mut image_sizes: Vec<(u32, u32)> = dataset.frames.iter().map(|f| (f.camera.width, f.camera.height)).collect();
+    let mut image_sizes: Vec<(u32, u32)> = dataset
+        .frames
+        .iter()
+        .map(|f| (f.camera.width, f.camera.height))
+        .collect();
     image_sizes.sort_unstable();
     image_sizes.dedup();
     let total_pixels: u64 = per_frame.iter().map(|f| f.pixels).sum();
@@ -87,8 +110,13 @@ pub fn summarize(dataset: &Dataset, progress: &(dyn Fn(usize) + Sync)) -> Result
         image_sizes,
         label_fractions,
         frames_without_label,
-        mask_seg_disagreement: per_frame.iter().map(|f| f.disagree).sum::<u64>() as f64 / total_pixels as f64,
-        joints_on_person: if in_image == 0 { 0.0 } else { on_person as f64 / in_image as f64 },
+        mask_seg_disagreement: per_frame.iter().map(|f| f.disagree).sum::<u64>() as f64
+            / total_pixels as f64,
+        joints_on_person: if in_image == 0 {
+            0.0
+        } else {
+            on_person as f64 / in_image as f64
+        },
         frames_with_depth: dataset.frames.iter().filter(|f| f.depth.is_some()).count(),
     })
 }
@@ -96,15 +124,32 @@ pub fn summarize(dataset: &Dataset, progress: &(dyn Fn(usize) + Sync)) -> Result
 impl std::fmt::Display for Summary {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         writeln!(f, "subjects: {}", self.subjects.len())?;
-        writeln!(f, "  {:<16} {:>6} {:>10} {:>11} {:>9}", "name", "train", "test_same", "test_cross", "test_ood")?;
+        writeln!(
+            f,
+            "  {:<16} {:>6} {:>10} {:>11} {:>9}",
+            "name", "train", "test_same", "test_cross", "test_ood"
+        )?;
         for (name, n) in self.subjects.iter().zip(&self.frames_per_split) {
-            writeln!(f, "  {name:<16} {:>6} {:>10} {:>11} {:>9}", n[0], n[1], n[2], n[3])?;
+            writeln!(
+                f,
+                "  {name:<16} {:>6} {:>10} {:>11} {:>9}",
+                n[0], n[1], n[2], n[3]
+            )?;
         }
-        let sizes: Vec<String> = self.image_sizes.iter().map(|(w, h)| format!("{w}x{h}")).collect();
+        let sizes: Vec<String> = self
+            .image_sizes
+            .iter()
+            .map(|(w, h)| format!("{w}x{h}"))
+            .collect();
         writeln!(f, "image sizes: {}", sizes.join(", "))?;
         write!(f, "pixels by label:")?;
         for l in 0..N_LABELS {
-            write!(f, " {} {:.2}%", LABEL_NAMES[l], 100.0 * self.label_fractions[l])?;
+            write!(
+                f,
+                " {} {:.2}%",
+                LABEL_NAMES[l],
+                100.0 * self.label_fractions[l]
+            )?;
         }
         writeln!(f)?;
         write!(f, "frames missing a label:")?;
@@ -112,8 +157,20 @@ impl std::fmt::Display for Summary {
             write!(f, " {} {}", LABEL_NAMES[l], self.frames_without_label[l])?;
         }
         writeln!(f)?;
-        writeln!(f, "mask vs segmentation disagreement: {:.3}% of pixels", 100.0 * self.mask_seg_disagreement)?;
-        writeln!(f, "projected body joints on the person mask: {:.1}%", 100.0 * self.joints_on_person)?;
-        write!(f, "frames with ground-truth depth: {}", self.frames_with_depth)
+        writeln!(
+            f,
+            "mask vs segmentation disagreement: {:.3}% of pixels",
+            100.0 * self.mask_seg_disagreement
+        )?;
+        writeln!(
+            f,
+            "projected body joints on the person mask: {:.1}%",
+            100.0 * self.joints_on_person
+        )?;
+        write!(
+            f,
+            "frames with ground-truth depth: {}",
+            self.frames_with_depth
+        )
     }
 }

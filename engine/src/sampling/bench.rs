@@ -11,10 +11,10 @@ use talkin_grids::{
     cull_with_grid, sample_dense, sample_in_capsules, sample_in_front_of_cores,
 };
 
+use super::FrameScene;
 use super::canonical::{CanonicalGrid, PosedToCanonical};
 use super::frame::{capsule_bounds, foreground_rays};
 use super::margins::{SubjectMargins, fit_subject_margins, grid_error};
-use super::FrameScene;
 use crate::body::canonical_params;
 use crate::dataset::{Dataset, DatasetError, Split};
 
@@ -70,15 +70,26 @@ pub struct SamplingReport {
 
 /// Runs both samplers over every frame (after fitting margins and building each
 /// subject's canonical grid from its training frames).
-pub fn bench_sampling(dataset: &Dataset, progress: &mut dyn FnMut(usize, usize)) -> Result<SamplingReport, DatasetError> {
+pub fn bench_sampling(
+    dataset: &Dataset,
+    progress: &mut dyn FnMut(usize, usize),
+) -> Result<SamplingReport, DatasetError> {
     let mut subject_margins: Vec<SubjectMargins> = Vec::new();
     let mut grids: Vec<OccupancyGrid> = Vec::new();
     let train = dataset.split_indices(Split::Train);
     for s in 0..dataset.subjects.len() {
         let m = fit_subject_margins(dataset, s, &MarginFitOpts::default())?;
-        let poses = train.iter().filter(|&&i| dataset.frames[i].subject == s).map(|&i| &dataset.frames[i].params);
-        let grid = CanonicalGrid::initial(&dataset.subjects[s].skeleton, poses, &m.shells, GRID_RESOLUTION)
-            .map_err(|e| grid_error(dataset, 0, e))?;
+        let poses = train
+            .iter()
+            .filter(|&&i| dataset.frames[i].subject == s)
+            .map(|&i| &dataset.frames[i].params);
+        let grid = CanonicalGrid::initial(
+            &dataset.subjects[s].skeleton,
+            poses,
+            &m.shells,
+            GRID_RESOLUTION,
+        )
+        .map_err(|e| grid_error(dataset, 0, e))?;
         subject_margins.push(m);
         grids.push(grid);
     }
@@ -88,7 +99,10 @@ pub fn bench_sampling(dataset: &Dataset, progress: &mut dyn FnMut(usize, usize))
     let mut steps = Vec::new();
     let mut part_rays = [0usize; 4];
     let mut part_misses = [0usize; 4];
-    let mut split_misses: BTreeMap<String, usize> = Split::ALL.iter().map(|s| (s.name().to_string(), 0)).collect();
+    let mut split_misses: BTreeMap<String, usize> = Split::ALL
+        .iter()
+        .map(|s| (s.name().to_string(), 0))
+        .collect();
     for i in 0..dataset.frames.len() {
         let frame = &dataset.frames[i];
         let skeleton = &dataset.subjects[frame.subject].skeleton;
@@ -96,7 +110,8 @@ pub fn bench_sampling(dataset: &Dataset, progress: &mut dyn FnMut(usize, usize))
         let scene = FrameScene::new(skeleton, &canonical, &frame.params);
         let images = dataset.images(i)?;
         let depth = dataset.depth(i)?;
-        let (labelled, pixels) = foreground_rays(&frame.camera, &images).map_err(|e| grid_error(dataset, i, e))?;
+        let (labelled, pixels) =
+            foreground_rays(&frame.camera, &images).map_err(|e| grid_error(dataset, i, e))?;
         let rays: Vec<Ray> = labelled.iter().map(|l| l.ray).collect();
         let shells = &subject_margins[frame.subject].shells;
         let inflated = shells.inflate(&scene.capsules);
@@ -105,11 +120,19 @@ pub fn bench_sampling(dataset: &Dataset, progress: &mut dyn FnMut(usize, usize))
         let step = median_dense_step(&rays, bbox_min, bbox_max);
         steps.push(step);
 
-        let dense_opts = DenseOpts { samples_per_ray: DENSE_SAMPLES_PER_RAY, jitter: true, seed: i as u64 };
+        let dense_opts = DenseOpts {
+            samples_per_ray: DENSE_SAMPLES_PER_RAY,
+            jitter: true,
+            seed: i as u64,
+        };
         let (dense, dense_s) = median_time(|| sample_dense(&rays, bbox_min, bbox_max, &dense_opts));
         let dense = dense.map_err(|e| grid_error(dataset, i, e))?;
 
-        let acc_opts = AcceleratedOpts { step, jitter: true, seed: i as u64 };
+        let acc_opts = AcceleratedOpts {
+            step,
+            jitter: true,
+            seed: i as u64,
+        };
         let map = PosedToCanonical::new(&scene);
         let grid = &grids[frame.subject];
         let (acc, acc_s) = median_time(|| {
@@ -125,7 +148,8 @@ pub fn bench_sampling(dataset: &Dataset, progress: &mut dyn FnMut(usize, usize))
             .and_then(|bvh| sample_in_capsules(&bvh, &rays, &acc_opts))
             .map_err(|e| grid_error(dataset, i, e))?
             .num_samples();
-        let ((truncated_samples, acc), capsule_samples) = (acc.map_err(|e| grid_error(dataset, i, e))?, before);
+        let ((truncated_samples, acc), capsule_samples) =
+            (acc.map_err(|e| grid_error(dataset, i, e))?, before);
 
         totals.rays += rays.len();
         totals.dense_samples += dense.num_samples();
@@ -138,13 +162,18 @@ pub fn bench_sampling(dataset: &Dataset, progress: &mut dyn FnMut(usize, usize))
             ratios.push(dense_s / acc_s);
         }
         for (r, l) in labelled.iter().enumerate() {
-            let k = Part::from_label(l.label).map(|p| p.label() as usize - 1).unwrap_or(0);
+            let k = Part::from_label(l.label)
+                .map(|p| p.label() as usize - 1)
+                .unwrap_or(0);
             part_rays[k] += 1;
             let covered = match &depth {
                 Some(d) => match d[pixels[r] as usize] {
                     Some(z) => {
                         totals.checked += 1;
-                        let t_surface = z / l.ray.direction.dot(frame.camera.forward_in_world().as_vec3());
+                        let t_surface = z / l
+                            .ray
+                            .direction
+                            .dot(frame.camera.forward_in_world().as_vec3());
                         surface_sampled(&acc, r, t_surface)
                     }
                     // A person pixel without depth: at least one sample must exist.
@@ -154,7 +183,9 @@ pub fn bench_sampling(dataset: &Dataset, progress: &mut dyn FnMut(usize, usize))
             };
             if !covered {
                 part_misses[k] += 1;
-                *split_misses.entry(frame.split.name().to_string()).or_default() += 1;
+                *split_misses
+                    .entry(frame.split.name().to_string())
+                    .or_default() += 1;
             }
         }
         progress(i + 1, dataset.frames.len());
@@ -163,14 +194,27 @@ pub fn bench_sampling(dataset: &Dataset, progress: &mut dyn FnMut(usize, usize))
     let mut coverage_by_part = BTreeMap::new();
     for (k, part) in Part::ALL.into_iter().enumerate() {
         let (rays, bare, fitted) = subject_margins.iter().fold((0, 0, 0), |acc, m| {
-            (acc.0 + m.coverage[k].0, acc.1 + m.coverage[k].1, acc.2 + m.coverage[k].2)
+            (
+                acc.0 + m.coverage[k].0,
+                acc.1 + m.coverage[k].1,
+                acc.2 + m.coverage[k].2,
+            )
         });
-        let frac = |n: usize| if rays == 0 { 1.0 } else { n as f64 / rays as f64 };
+        let frac = |n: usize| {
+            if rays == 0 {
+                1.0
+            } else {
+                n as f64 / rays as f64
+            }
+        };
         coverage_by_part.insert(
             part.name().to_string(),
             PartCoverage {
                 rays: part_rays[k],
-                margin_m: subject_margins.iter().map(|m| m.part_margins.get(part)).fold(0.0, f32::max),
+                margin_m: subject_margins
+                    .iter()
+                    .map(|m| m.part_margins.get(part))
+                    .fold(0.0, f32::max),
                 train_coverage_bare: frac(bare),
                 train_coverage: frac(fitted),
                 surface_misses: part_misses[k],
@@ -211,7 +255,9 @@ struct Totals {
 /// Whether some sample of ray `r` contains `t` (with 0.2 mm of slack for the 0.1 mm
 /// depth quantisation).
 fn surface_sampled(samples: &PackedSamples, r: usize, t: f32) -> bool {
-    samples.range(r).any(|s| samples.t_start[s] - 2e-4 <= t && t <= samples.t_end[s] + 2e-4)
+    samples
+        .range(r)
+        .any(|s| samples.t_start[s] - 2e-4 <= t && t <= samples.t_end[s] + 2e-4)
 }
 
 /// The step the dense sampler takes on the median foreground ray: its chord through the
@@ -224,7 +270,11 @@ fn median_dense_step(rays: &[Ray], lo: Vec3, hi: Vec3) -> f32 {
         .map(|(t0, t1)| (t1 - t0) as f64)
         .collect();
     let step = median(&mut chords) as f32 / DENSE_SAMPLES_PER_RAY as f32;
-    if step.is_finite() && step > 0.0 { step } else { 0.005 }
+    if step.is_finite() && step > 0.0 {
+        step
+    } else {
+        0.005
+    }
 }
 
 /// Runs `f` `REPEATS` times; returns the last result and the median seconds.
@@ -251,12 +301,34 @@ fn median(v: &mut [f64]) -> f64 {
 pub fn format_report(r: &SamplingReport) -> String {
     let mut s = String::new();
     use std::fmt::Write;
-    let _ = writeln!(s, "{} frames, {} foreground rays, accelerated step {:.2} mm", r.frames, r.foreground_rays, 1e3 * r.accelerated_step_m);
+    let _ = writeln!(
+        s,
+        "{} frames, {} foreground rays, accelerated step {:.2} mm",
+        r.frames,
+        r.foreground_rays,
+        1e3 * r.accelerated_step_m
+    );
     let _ = writeln!(s, "{:<28} {:>14} {:>14}", "", "dense", "accelerated");
-    let _ = writeln!(s, "{:<28} {:>14.1} {:>14.2}", "samples per foreground ray", r.dense_samples_per_ray, r.accelerated_samples_per_ray);
-    let _ = writeln!(s, "{:<28} {:>14} {:>14.2}", "  in grown capsules", "", r.capsule_samples_per_ray);
-    let _ = writeln!(s, "{:<28} {:>14} {:>14.2}", "  after core truncation", "", r.truncated_samples_per_ray);
-    let _ = writeln!(s, "{:<28} {:>14.0} {:>14.0}", "rays per second", r.dense_rays_per_s, r.accelerated_rays_per_s);
+    let _ = writeln!(
+        s,
+        "{:<28} {:>14.1} {:>14.2}",
+        "samples per foreground ray", r.dense_samples_per_ray, r.accelerated_samples_per_ray
+    );
+    let _ = writeln!(
+        s,
+        "{:<28} {:>14} {:>14.2}",
+        "  in grown capsules", "", r.capsule_samples_per_ray
+    );
+    let _ = writeln!(
+        s,
+        "{:<28} {:>14} {:>14.2}",
+        "  after core truncation", "", r.truncated_samples_per_ray
+    );
+    let _ = writeln!(
+        s,
+        "{:<28} {:>14.0} {:>14.0}",
+        "rays per second", r.dense_rays_per_s, r.accelerated_rays_per_s
+    );
     let _ = writeln!(
         s,
         "accelerated samples = {:.1}% of dense; speed ratio (median over frames) {:.2}x",
@@ -268,7 +340,11 @@ pub fn format_report(r: &SamplingReport) -> String {
         "surface misses: {} of {} rays checked against depth (by split: {:?})",
         r.surface_misses, r.surface_checked_rays, r.surface_misses_by_split
     );
-    let _ = writeln!(s, "{:<8} {:>8} {:>10} {:>12} {:>12} {:>8}", "part", "rays", "margin mm", "bare cover", "fit cover", "misses");
+    let _ = writeln!(
+        s,
+        "{:<8} {:>8} {:>10} {:>12} {:>12} {:>8}",
+        "part", "rays", "margin mm", "bare cover", "fit cover", "misses"
+    );
     for (name, p) in &r.coverage_by_part {
         let _ = writeln!(
             s,

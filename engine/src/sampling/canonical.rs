@@ -37,12 +37,21 @@ impl CanonicalGrid {
             capsule_sets.push(canonical_capsules(skeleton, &p, shells));
         }
         let reach = wrist_reach(&capsule_sets[0]);
-        let all: Vec<Capsule> = capsule_sets.iter().flatten().chain(&reach).copied().collect();
+        let all: Vec<Capsule> = capsule_sets
+            .iter()
+            .flatten()
+            .chain(&reach)
+            .copied()
+            .collect();
         let (lo, hi) = capsule_bounds(&all, 0.0);
         let extent = hi - lo;
         let cell = extent.max_element() / resolution.max(8) as f32;
         let (lo, hi) = (lo - Vec3::splat(2.0 * cell), hi + Vec3::splat(2.0 * cell));
-        let res = ((hi - lo) / cell).ceil().as_uvec3().max(glam::UVec3::ONE).to_array();
+        let res = ((hi - lo) / cell)
+            .ceil()
+            .as_uvec3()
+            .max(glam::UVec3::ONE)
+            .to_array();
         let mut grid = OccupancyGrid::new(lo, hi, res)?;
         let grow = cell * 3f32.sqrt();
         for set in capsule_sets.iter().chain(std::iter::once(&reach)) {
@@ -52,7 +61,11 @@ impl CanonicalGrid {
     }
 }
 
-fn canonical_capsules(skeleton: &Skeleton, params: &FrameParams, shells: &CapsuleShells) -> Vec<Capsule> {
+fn canonical_capsules(
+    skeleton: &Skeleton,
+    params: &FrameParams,
+    shells: &CapsuleShells,
+) -> Vec<Capsule> {
     shells.inflate(&limb_capsules(skeleton, &skeleton.pose(params)))
 }
 
@@ -67,7 +80,13 @@ fn wrist_reach(capsules: &[Capsule]) -> Vec<Capsule> {
                 .filter(|c| c.part == Part::Hands && body_ancestor(c.bone as usize) == wrist)
                 .map(|c| (c.a - centre).length().max((c.b - centre).length()) + c.radius)
                 .fold(0.0f32, f32::max);
-            Some(Capsule { a: centre, b: centre, radius: reach, part: Part::Hands, bone: wrist as u16 })
+            Some(Capsule {
+                a: centre,
+                b: centre,
+                radius: reach,
+                part: Part::Hands,
+                bone: wrist as u16,
+            })
         })
         .collect()
 }
@@ -88,7 +107,10 @@ impl<'a> PosedToCanonical<'a> {
         for (i, c) in scene.capsules.iter().enumerate() {
             capsules_of_bone[c.bone as usize].push(i as u16);
         }
-        PosedToCanonical { scene, capsules_of_bone }
+        PosedToCanonical {
+            scene,
+            capsules_of_bone,
+        }
     }
 
     /// Canonical position of every posed sample (NaN input stays NaN, which the grid

@@ -18,14 +18,21 @@ pub struct FrameScene {
 }
 
 impl FrameScene {
-    pub fn new(skeleton: &Skeleton, canonical: &PosedSkeleton, params: &crate::body::FrameParams) -> FrameScene {
+    pub fn new(
+        skeleton: &Skeleton,
+        canonical: &PosedSkeleton,
+        params: &crate::body::FrameParams,
+    ) -> FrameScene {
         let posed = skeleton.pose(params);
         let capsules = limb_capsules(skeleton, &posed);
         let maps = canonical_from_posed(&posed, canonical);
-        let canonical_from_posed = maps.map(|m| {
-            Affine3A::from_mat3_translation(glam::Mat3::from(m.matrix3.as_mat3()), m.translation.as_vec3())
-        });
-        FrameScene { posed, capsules, canonical_from_posed }
+        let canonical_from_posed = maps
+            .map(|m| Affine3A::from_mat3_translation(m.matrix3.as_mat3(), m.translation.as_vec3()));
+        FrameScene {
+            posed,
+            capsules,
+            canonical_from_posed,
+        }
     }
 }
 
@@ -44,7 +51,10 @@ pub fn capsule_bounds(capsules: &[Capsule], pad: f32) -> (Vec3, Vec3) {
 /// Rays through the person's pixels (mask >= 128), labelled with their segmentation part
 /// (a person pixel labelled background counts as body). Also returns each ray's pixel
 /// index (`y * width + x`).
-pub fn foreground_rays(camera: &Camera, images: &FrameImages) -> Result<(Vec<LabelledRay>, Vec<u32>), GridError> {
+pub fn foreground_rays(
+    camera: &Camera,
+    images: &FrameImages,
+) -> Result<(Vec<LabelledRay>, Vec<u32>), GridError> {
     let mut rays = Vec::new();
     let mut pixels = Vec::new();
     for (x, y, m) in images.mask.enumerate_pixels() {
@@ -53,7 +63,10 @@ pub fn foreground_rays(camera: &Camera, images: &FrameImages) -> Result<(Vec<Lab
         }
         let (origin, dir) = camera.pixel_ray(x, y);
         let label = images.segmentation.get_pixel(x, y).0[0].max(1);
-        rays.push(LabelledRay { ray: Ray::new(origin.as_vec3(), dir.as_vec3(), 0.0, f32::INFINITY)?, label });
+        rays.push(LabelledRay {
+            ray: Ray::new(origin.as_vec3(), dir.as_vec3(), 0.0, f32::INFINITY)?,
+            label,
+        });
         pixels.push(y * camera.width + x);
     }
     Ok((rays, pixels))

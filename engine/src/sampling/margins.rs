@@ -12,7 +12,10 @@
 use glam::Vec3;
 use rayon::prelude::*;
 use talkin_grids::intersect::distance_to_segment;
-use talkin_grids::{Capsule, GridError, LabelledRay, MarginFitOpts, MarginReport, Part, PartMargins, fit_part_margins};
+use talkin_grids::{
+    Capsule, GridError, LabelledRay, MarginFitOpts, MarginReport, Part, PartMargins,
+    fit_part_margins,
+};
 
 use super::frame::{FrameScene, foreground_rays};
 use crate::body::{PosedSkeleton, canonical_params};
@@ -47,7 +50,13 @@ pub struct CapsuleShells {
 impl CapsuleShells {
     /// The capsules grown by their margins.
     pub fn inflate(&self, bare: &[Capsule]) -> Vec<Capsule> {
-        bare.iter().zip(&self.margin).map(|(c, m)| Capsule { radius: c.radius + m, ..*c }).collect()
+        bare.iter()
+            .zip(&self.margin)
+            .map(|(c, m)| Capsule {
+                radius: c.radius + m,
+                ..*c
+            })
+            .collect()
     }
 
     /// The solid cores (capsules with their core radius; zero-radius cores dropped).
@@ -57,7 +66,12 @@ impl CapsuleShells {
             .filter(|(_, (r, _))| **r > 0.0)
             .map(|(c, (r, f))| {
                 let axis = c.b - c.a;
-                Capsule { a: c.a + axis * *f, b: c.b - axis * *f, radius: *r, ..*c }
+                Capsule {
+                    a: c.a + axis * *f,
+                    b: c.b - axis * *f,
+                    radius: *r,
+                    ..*c
+                }
             })
             .collect()
     }
@@ -111,7 +125,10 @@ pub fn fit_subject_margins(
     let mut coverage = [(0, 0, 0); 4];
     for f in &fits {
         for (k, part) in Part::ALL.into_iter().enumerate() {
-            part_margins.set(part, part_margins.get(part).max(f.ray_fit.margins.get(part)));
+            part_margins.set(
+                part,
+                part_margins.get(part).max(f.ray_fit.margins.get(part)),
+            );
             coverage[k].0 += f.ray_fit.parts[k].rays;
             coverage[k].1 += f.ray_fit.parts[k].covered_before;
         }
@@ -125,7 +142,13 @@ pub fn fit_subject_margins(
     let from_depth = !fits.is_empty() && fits.iter().all(|f| f.has_depth);
     let bare = crate::body::limb_capsules(skeleton, &canonical);
     let margin: Vec<f32> = (0..n_caps)
-        .map(|c| if from_depth { need[c].max(0.0) + MARGIN_SAFETY_M } else { part_margins.get(bare[c].part) })
+        .map(|c| {
+            if from_depth {
+                need[c].max(0.0) + MARGIN_SAFETY_M
+            } else {
+                part_margins.get(bare[c].part)
+            }
+        })
         .collect();
     // Per capsule: (core radius, shrink) of the largest-volume candidate.
     let cores: Vec<(f32, f32)> = (0..n_caps)
@@ -144,7 +167,9 @@ pub fn fit_subject_margins(
                     let r = (CORE_SAFETY * closest[c][k]).min(CORE_SAFETY * grown);
                     (r, f, r * r * (length * (1.0 - 2.0 * f) + 4.0 / 3.0 * r))
                 })
-                .fold((0.0f32, 0.0f32, -1.0f32), |best, cand| if cand.2 > best.2 { cand } else { best })
+                .fold((0.0f32, 0.0f32, -1.0f32), |best, cand| {
+                    if cand.2 > best.2 { cand } else { best }
+                })
         })
         .map(|(r, f, _)| (r, f))
         .collect();
@@ -156,12 +181,16 @@ pub fn fit_subject_margins(
     };
 
     // Coverage after: every training frame re-checked with the grown capsules.
-    let check_opts = MarginFitOpts { coverage_target: 1.0, max_margin: 0.0 };
+    let check_opts = MarginFitOpts {
+        coverage_target: 1.0,
+        max_margin: 0.0,
+    };
     let checks: Vec<MarginReport> = frames
         .par_iter()
         .map(|&i| {
             let (scene, rays, _) = frame_scene_and_rays(dataset, &canonical, i)?;
-            fit_part_margins(&shells.inflate(&scene.capsules), &rays, &check_opts).map_err(|e| grid_error(dataset, i, e))
+            fit_part_margins(&shells.inflate(&scene.capsules), &rays, &check_opts)
+                .map_err(|e| grid_error(dataset, i, e))
         })
         .collect::<Result<_, _>>()?;
     let mut uncovered_any = 0;
@@ -171,12 +200,23 @@ pub fn fit_subject_margins(
         }
         uncovered_any += check.rays - check.any_part_before;
     }
-    Ok(SubjectMargins { part_margins, shells, coverage, uncovered_any })
+    Ok(SubjectMargins {
+        part_margins,
+        shells,
+        coverage,
+        uncovered_any,
+    })
 }
 
-fn fit_frame(dataset: &Dataset, canonical: &PosedSkeleton, i: usize, opts: &MarginFitOpts) -> Result<FrameFit, DatasetError> {
+fn fit_frame(
+    dataset: &Dataset,
+    canonical: &PosedSkeleton,
+    i: usize,
+    opts: &MarginFitOpts,
+) -> Result<FrameFit, DatasetError> {
     let (scene, rays, pixels) = frame_scene_and_rays(dataset, canonical, i)?;
-    let ray_fit = fit_part_margins(&scene.capsules, &rays, opts).map_err(|e| grid_error(dataset, i, e))?;
+    let ray_fit =
+        fit_part_margins(&scene.capsules, &rays, opts).map_err(|e| grid_error(dataset, i, e))?;
     let caps = &scene.capsules;
     let mut need = vec![f32::NEG_INFINITY; caps.len()];
     let mut closest = vec![[f32::INFINITY; 3]; caps.len()];
@@ -184,7 +224,9 @@ fn fit_frame(dataset: &Dataset, canonical: &PosedSkeleton, i: usize, opts: &Marg
     if let Some(depth) = &depth {
         let forward = dataset.frames[i].camera.forward_in_world().as_vec3();
         for (l, &px) in rays.iter().zip(&pixels) {
-            let Some(z) = depth[px as usize] else { continue };
+            let Some(z) = depth[px as usize] else {
+                continue;
+            };
             let p: Vec3 = l.ray.at(z / l.ray.direction.dot(forward));
             let mut nearest = (f32::INFINITY, usize::MAX);
             for (c, cap) in caps.iter().enumerate() {
@@ -193,7 +235,8 @@ fn fit_frame(dataset: &Dataset, canonical: &PosedSkeleton, i: usize, opts: &Marg
                 // The ray is free space up to its surface point: a core may not reach
                 // the segment camera -> surface (this also keeps the surface point out).
                 for (k, f) in CORE_SHRINK.iter().enumerate() {
-                    let free = segment_distance(l.ray.origin, p, cap.a + axis * *f, cap.b - axis * *f);
+                    let free =
+                        segment_distance(l.ray.origin, p, cap.a + axis * *f, cap.b - axis * *f);
                     closest[c][k] = closest[c][k].min(free);
                 }
                 if cap.part.label() == l.label && d - cap.radius < nearest.0 {
@@ -205,40 +248,12 @@ fn fit_frame(dataset: &Dataset, canonical: &PosedSkeleton, i: usize, opts: &Marg
             }
         }
     }
-    Ok(FrameFit { ray_fit, need, closest, has_depth: depth.is_some() })
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    /// Brute force: the minimum over a fine grid of parameter pairs.
-    fn reference(p0: Vec3, p1: Vec3, q0: Vec3, q1: Vec3) -> f32 {
-        let n = 400;
-        let mut best = f32::INFINITY;
-        for i in 0..=n {
-            let a = p0 + (p1 - p0) * (i as f32 / n as f32);
-            best = best.min(distance_to_segment(a, q0, q1));
-        }
-        best
-    }
-
-    #[test]
-    fn segment_distance_matches_brute_force() {
-        let v = Vec3::new;
-        let cases = [
-            (v(0.0, 0.0, 0.0), v(1.0, 0.0, 0.0), v(0.5, 1.0, -1.0), v(0.5, 1.0, 1.0)),
-            (v(0.0, 0.0, 0.0), v(1.0, 0.0, 0.0), v(2.0, 0.5, 0.0), v(3.0, 0.5, 0.0)),
-            (v(0.0, 0.0, 0.0), v(1.0, 0.0, 0.0), v(0.0, 0.2, 0.0), v(1.0, 0.2, 0.0)),
-            (v(0.3, 0.3, 0.3), v(0.3, 0.3, 0.3), v(0.0, 0.0, 0.0), v(0.0, 1.0, 0.0)),
-            (v(0.0, 0.0, 0.0), v(0.0, 0.0, 0.0), v(1.0, 1.0, 1.0), v(1.0, 1.0, 1.0)),
-            (v(-1.0, 2.0, 0.5), v(1.0, -2.0, 0.1), v(0.2, 0.1, -0.3), v(-0.4, 0.8, 0.9)),
-        ];
-        for (p0, p1, q0, q1) in cases {
-            let d = segment_distance(p0, p1, q0, q1);
-            assert!((d - reference(p0, p1, q0, q1)).abs() < 2e-3, "{p0} {p1} {q0} {q1}: {d}");
-        }
-    }
+    Ok(FrameFit {
+        ray_fit,
+        need,
+        closest,
+        has_depth: depth.is_some(),
+    })
 }
 
 /// Distance between segments `p0-p1` and `q0-q1` (closest points, clamped; robust to
@@ -258,7 +273,11 @@ pub fn segment_distance(p0: Vec3, p1: Vec3, q0: Vec3, q1: Vec3) -> f32 {
         } else {
             let b = d1.dot(d2);
             let denom = a * e - b * b;
-            let mut s = if denom > eps { ((b * f - c * e) / denom).clamp(0.0, 1.0) } else { 0.0 };
+            let mut s = if denom > eps {
+                ((b * f - c * e) / denom).clamp(0.0, 1.0)
+            } else {
+                0.0
+            };
             let mut t = (b * s + f) / e;
             if t < 0.0 {
                 t = 0.0;
@@ -281,8 +300,13 @@ pub(crate) fn frame_scene_and_rays(
 ) -> Result<(FrameScene, Vec<LabelledRay>, Vec<u32>), DatasetError> {
     let frame = &dataset.frames[i];
     let images = dataset.images(i)?;
-    let scene = FrameScene::new(&dataset.subjects[frame.subject].skeleton, canonical, &frame.params);
-    let (rays, pixels) = foreground_rays(&frame.camera, &images).map_err(|e| grid_error(dataset, i, e))?;
+    let scene = FrameScene::new(
+        &dataset.subjects[frame.subject].skeleton,
+        canonical,
+        &frame.params,
+    );
+    let (rays, pixels) =
+        foreground_rays(&frame.camera, &images).map_err(|e| grid_error(dataset, i, e))?;
     Ok((scene, rays, pixels))
 }
 
@@ -292,5 +316,71 @@ pub(crate) fn grid_error(dataset: &Dataset, i: usize, e: GridError) -> DatasetEr
         file: dataset.root.join(crate::dataset::INDEX_FILE),
         field: format!("frames[{i}]"),
         problem: e.to_string(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Brute force: the minimum over a fine grid of parameter pairs.
+    fn reference(p0: Vec3, p1: Vec3, q0: Vec3, q1: Vec3) -> f32 {
+        let n = 400;
+        let mut best = f32::INFINITY;
+        for i in 0..=n {
+            let a = p0 + (p1 - p0) * (i as f32 / n as f32);
+            best = best.min(distance_to_segment(a, q0, q1));
+        }
+        best
+    }
+
+    #[test]
+    fn segment_distance_matches_brute_force() {
+        let v = Vec3::new;
+        let cases = [
+            (
+                v(0.0, 0.0, 0.0),
+                v(1.0, 0.0, 0.0),
+                v(0.5, 1.0, -1.0),
+                v(0.5, 1.0, 1.0),
+            ),
+            (
+                v(0.0, 0.0, 0.0),
+                v(1.0, 0.0, 0.0),
+                v(2.0, 0.5, 0.0),
+                v(3.0, 0.5, 0.0),
+            ),
+            (
+                v(0.0, 0.0, 0.0),
+                v(1.0, 0.0, 0.0),
+                v(0.0, 0.2, 0.0),
+                v(1.0, 0.2, 0.0),
+            ),
+            (
+                v(0.3, 0.3, 0.3),
+                v(0.3, 0.3, 0.3),
+                v(0.0, 0.0, 0.0),
+                v(0.0, 1.0, 0.0),
+            ),
+            (
+                v(0.0, 0.0, 0.0),
+                v(0.0, 0.0, 0.0),
+                v(1.0, 1.0, 1.0),
+                v(1.0, 1.0, 1.0),
+            ),
+            (
+                v(-1.0, 2.0, 0.5),
+                v(1.0, -2.0, 0.1),
+                v(0.2, 0.1, -0.3),
+                v(-0.4, 0.8, 0.9),
+            ),
+        ];
+        for (p0, p1, q0, q1) in cases {
+            let d = segment_distance(p0, p1, q0, q1);
+            assert!(
+                (d - reference(p0, p1, q0, q1)).abs() < 2e-3,
+                "{p0} {p1} {q0} {q1}: {d}"
+            );
+        }
     }
 }
