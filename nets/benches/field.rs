@@ -3,7 +3,8 @@
 //!
 //! `cargo bench -p talkin-nets --bench field` (env: `RAYS`, default 4096; `SAMPLES`
 //! per ray, default 32; `ITERS`, default 3). With `--features wgpu` it also runs on the
-//! default wgpu adapter when one exists, and skips it otherwise.
+//! default wgpu adapter when one exists, and skips it otherwise. Run with
+//! `MIMALLOC_PURGE_DELAY=-1` so mimalloc keeps freed pages instead of re-faulting them.
 
 use std::time::Instant;
 
@@ -109,6 +110,8 @@ fn frame() -> FrameConditions {
 fn run(device: &Device, device_name: &str, preset: &str, b: &Batch, iters: usize) {
     let n = b.points.len();
     let cfg = FieldConfig::preset(preset, 1).expect("preset");
+    // Same initialisation (hence the same routing) in every run.
+    device.seed(17);
     let f = frame();
     // Past D_nr's start, so every module runs.
     let input = FieldInput {
@@ -130,6 +133,7 @@ fn run(device: &Device, device_name: &str, preset: &str, b: &Batch, iters: usize
     let fwd = start.elapsed().as_secs_f64() / iters as f64;
 
     let ad = device.clone().autodiff();
+    ad.seed(17);
     let mut field = cfg.init(&prior(), &ad).expect("field");
     let mut optim = AdamConfig::new().init();
     let r = b.samples.offsets.len() - 1;
@@ -158,12 +162,28 @@ fn run(device: &Device, device_name: &str, preset: &str, b: &Batch, iters: usize
     );
 }
 
+/// Raw matmul rate of this machine (GFLOP/s), the ceiling for the MLP-bound paper preset.
+fn gemm_probe(device: &Device) -> f64 {
+    let a = Tensor::<2>::ones([65_536, 256], device);
+    let b = Tensor::<2>::ones([256, 256], device);
+    let _ = a.clone().matmul(b.clone()).into_data();
+    let start = Instant::now();
+    for _ in 0..5 {
+        let _ = a.clone().matmul(b.clone()).into_data();
+    }
+    5.0 * 2.0 * 65_536.0 * 256.0 * 256.0 / start.elapsed().as_secs_f64() / 1e9
+}
+
 fn main() {
     let rays = env("RAYS", 4096);
     let per_ray = env("SAMPLES", 32);
     let iters = env("ITERS", 3).max(1);
     let b = batch(rays, per_ray);
     println!("field throughput, {rays} rays x {per_ray} samples, mean of {iters} iterations");
+    println!(
+        "flex matmul [65536,256]x[256,256]: {:.1} GFLOP/s",
+        gemm_probe(&Device::flex())
+    );
     println!(
         "| device | preset | samples | face/hand rows | fwd samples/s | train samples/s | train s/step |"
     );

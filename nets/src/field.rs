@@ -820,6 +820,30 @@ mod tests {
     }
 
     #[test]
+    fn empty_batch_renders_empty_rays() {
+        let device = Device::flex().autodiff();
+        let field = tiny_fast().init(&prior(), &device).unwrap();
+        let frame = frame();
+        let input = FieldInput {
+            points: &[],
+            bone_masks: &[],
+            part_masks: &[],
+            frame: &frame,
+            step: 50,
+        };
+        let out = field.forward(&input).unwrap();
+        let rays = OwnedRaySamples {
+            offsets: vec![0, 0, 0],
+            ..Default::default()
+        };
+        let rendered = out.render(&rays.view()).unwrap();
+        assert_eq!(
+            host(&rendered.rgb_over([0.2, 0.4, 0.6])),
+            vec![0.2, 0.4, 0.6, 0.2, 0.4, 0.6]
+        );
+    }
+
+    #[test]
     fn non_rigid_switches_on_at_its_step() {
         let device = Device::flex();
         let field = tiny_fast().init(&prior(), &device).unwrap();

@@ -7,10 +7,29 @@
 //! (`engine`): samples, candidate masks and per-frame transforms come in as plain slices.
 //! The backend is chosen at run time through burn's `Device` (`Device::flex()` on CPU,
 //! `.autodiff()` for training).
-pub mod loss;
+//!
+//! ```
+//! use burn::prelude::*;
+//! use talkin_nets::render::{OwnedRaySamples, render_packed};
+//!
+//! let device = Device::flex();
+//! // Two rays: one with two samples, one empty (packed: flat arrays + offsets).
+//! let rays = OwnedRaySamples {
+//!     offsets: vec![0, 2, 2],
+//!     t_start: vec![0.0, 0.5],
+//!     t_end: vec![0.5, 1.0],
+//! };
+//! let sigma = Tensor::<1>::from_floats([2.0, 1e6], &device); // [n]
+//! let rgb = Tensor::<2>::from_floats([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]], &device); // [n, 3]
+//! let seg = Tensor::<2>::zeros([2, 5], &device); // [n, 5]
+//! let out = render_packed(sigma, rgb, seg, &rays.view()).unwrap();
+//! let opacity = out.opacity.try_to_vec_as::<f32>().unwrap();
+//! assert!((opacity[0] - 1.0).abs() < 1e-6 && opacity[1] == 0.0);
+//! ```
 pub mod encoding;
 pub mod error;
 pub mod field;
+pub mod loss;
 pub mod mlp;
 pub mod render;
 pub mod skinning;

@@ -293,6 +293,22 @@ impl RenderedRays {
     }
 }
 
+impl RenderedRays {
+    /// Colour over per-ray backgrounds: `C + (1 - opacity) * bg`.
+    ///
+    /// # Shapes
+    /// - `background`: `[r, 3]` or `[1, 3]`; output `[r, 3]`
+    pub fn rgb_over_tensor(&self, background: Tensor<2>) -> Tensor<2> {
+        let clear = self
+            .opacity
+            .clone()
+            .neg()
+            .add_scalar(1.0)
+            .unsqueeze_dim::<2>(1); // [r, 1]
+        self.rgb.clone() + clear * background
+    }
+}
+
 fn midpoints(samples: &RaySamples, device: &Device) -> Tensor<2> {
     let mid: Vec<f32> = samples
         .t_start
