@@ -392,7 +392,7 @@ fn replace_rows<const D: usize>(base: Tensor<D>, idx: &[usize], values: Tensor<D
     let mut keep_shape = [1usize; D];
     keep_shape[0] = n;
     let keep = floats(keep, keep_shape, &device);
-    let idx = ints(idx.iter().map(|&i| i as i64).collect(), &device);
+    let idx = ints(idx.iter().map(|&i| i as i32).collect(), &device);
     let scattered = Tensor::<D>::zeros(base.shape(), &device).select_assign(
         0,
         idx,
@@ -503,7 +503,7 @@ impl TalkinField {
         let identity = self
             .identity
             .val()
-            .select(0, ints(vec![frame.identity as i64], &device)); // [1, id]
+            .select(0, ints(vec![frame.identity as i32], &device)); // [1, id]
         let raw = self.body.forward(
             self.to_unit(x.clone()),
             vec![identity.clone().repeat_dim(0, n)],
@@ -525,7 +525,7 @@ impl TalkinField {
                 let h = head.len();
                 let xh = x
                     .clone()
-                    .select(0, ints(head.iter().map(|&i| i as i64).collect(), &device)); // [h, 3]
+                    .select(0, ints(head.iter().map(|&i| i as i32).collect(), &device)); // [h, 3]
                 let mut e = frame.expression.to_vec();
                 if self.settings.face_uses_jaw {
                     e.extend(frame.jaw);
@@ -550,7 +550,7 @@ impl TalkinField {
                 let h = idx.len();
                 let mut xh = x
                     .clone()
-                    .select(0, ints(idx.iter().map(|&i| i as i64).collect(), &device));
+                    .select(0, ints(idx.iter().map(|&i| i as i32).collect(), &device));
                 if let Some(dh) = &self.hand_deform {
                     let pose = floats(frame.hand_pose.clone(), [1, HAND_POSE_DIM], &device)
                         .repeat_dim(0, h);

@@ -78,10 +78,10 @@ impl RaySamples<'_> {
     }
 
     /// Ray index of every sample. `[n]`
-    pub fn ray_indices(&self) -> Vec<i64> {
+    pub fn ray_indices(&self) -> Vec<i32> {
         let mut out = Vec::with_capacity(self.n_samples());
         for (k, w) in self.offsets.windows(2).enumerate() {
-            out.extend(std::iter::repeat_n(k as i64, w[1] - w[0]));
+            out.extend(std::iter::repeat_n(k as i32, w[1] - w[0]));
         }
         out
     }

@@ -163,12 +163,12 @@ pub struct BlendWeightVolume {
 
 /// Host-side (sample, bone) pairs with their canonical points and volume corners.
 pub(crate) struct Pairs {
-    pub sample: Vec<i64>,
+    pub sample: Vec<i32>,
     pub bone: Vec<usize>,
     /// `[m * 3]`
     pub x: Vec<f32>,
     /// `[m * 8]`
-    pub rows: Vec<i64>,
+    pub rows: Vec<i32>,
     /// `[m * 8]`
     pub weights: Vec<f32>,
 }
@@ -222,10 +222,10 @@ impl BlendWeightVolume {
                         w *= if d[a] == 1 { frac[a] } else { 1.0 - frac[a] };
                     }
                     let (x, y, z) = (cell[0] + d[0], cell[1] + d[1], cell[2] + d[2]);
-                    p.rows.push((((b * r + z) * r + y) * r + x) as i64);
+                    p.rows.push((((b * r + z) * r + y) * r + x) as i32);
                     p.weights.push(w);
                 }
-                p.sample.push(s as i64);
+                p.sample.push(s as i32);
                 p.bone.push(b);
                 p.x.extend(xc);
             }
@@ -402,7 +402,7 @@ mod tests {
             let mut out = 0.0;
             for s in 0..pts.len() {
                 let idx: Vec<usize> = (0..pairs.sample.len())
-                    .filter(|&i| pairs.sample[i] == s as i64)
+                    .filter(|&i| pairs.sample[i] == s as i32)
                     .collect();
                 let l: Vec<f64> = idx
                     .iter()

@@ -13,8 +13,9 @@ pub(crate) fn floats<const D: usize>(
     Tensor::from_data(TensorData::new(values, shape), device)
 }
 
-/// A 1-D int tensor from host indices.
-pub(crate) fn ints(values: Vec<i64>, device: &Device) -> Tensor<1, Int> {
+/// A 1-D int tensor from host indices. Build big index lists as `i32`, the int dtype of
+/// Flex and wgpu, so the upload is a copy and not a conversion.
+pub(crate) fn ints<E: burn::tensor::Element>(values: Vec<E>, device: &Device) -> Tensor<1, Int> {
     let n = values.len();
     Tensor::from_data(TensorData::new(values, [n]), device)
 }

@@ -107,7 +107,7 @@ impl HashGrid {
 
     /// Host-side lower cell corners `[n, L, 3]` and the 8 vertex rows `[n, L, 8]` of each
     /// point (points already clamped to [0, 1]). Corner `k` is `(k & 1, k >> 1 & 1, k >> 2)`.
-    fn corners(&self, points: &[f32]) -> (Vec<f32>, Vec<i64>) {
+    fn corners(&self, points: &[f32]) -> (Vec<f32>, Vec<i32>) {
         let n = points.len() / 3;
         let l = self.resolutions.len();
         let mut lower = Vec::with_capacity(n * l * 3);
@@ -124,7 +124,7 @@ impl HashGrid {
                 }
                 for k in 0..8u32 {
                     let v = [c[0] + (k & 1), c[1] + ((k >> 1) & 1), c[2] + (k >> 2)];
-                    rows.push(self.vertex_index(level, v) as i64);
+                    rows.push(self.vertex_index(level, v) as i32);
                 }
             }
         }
