@@ -61,6 +61,9 @@ pub struct SamplingReport {
     pub surface_misses: usize,
     /// Surface misses per split (train frames fitted the margins; the others test them).
     pub surface_misses_by_split: BTreeMap<String, usize>,
+    /// Surface misses by the stage that lost them: `outside_grown_capsules`,
+    /// `behind_a_core`, `culled_by_grid`.
+    pub surface_misses_by_stage: BTreeMap<String, usize>,
     /// Foreground rays that had ground-truth depth to check against.
     pub surface_checked_rays: usize,
     pub coverage_by_part: BTreeMap<String, PartCoverage>,
@@ -99,6 +102,7 @@ pub fn bench_sampling(
     let mut steps = Vec::new();
     let mut part_rays = [0usize; 4];
     let mut part_misses = [0usize; 4];
+    let mut stage_misses: BTreeMap<String, usize> = BTreeMap::new();
     let mut split_misses: BTreeMap<String, usize> = Split::ALL
         .iter()
         .map(|s| (s.name().to_string(), 0))
@@ -143,13 +147,20 @@ pub fn bench_sampling(
             let after = cull_with_grid(truncated, &rays, grid, |p, b| map.map(p, b))?;
             Ok::<_, talkin_grids::GridError>((after_cores, after))
         });
-        // Outside the timing: how many samples the grown capsules alone would give.
-        let before = CapsuleBvh::build(&inflated)
-            .and_then(|bvh| sample_in_capsules(&bvh, &rays, &acc_opts))
-            .map_err(|e| grid_error(dataset, i, e))?
-            .num_samples();
-        let ((truncated_samples, acc), capsule_samples) =
-            (acc.map_err(|e| grid_error(dataset, i, e))?, before);
+        let (truncated_samples, acc) = acc.map_err(|e| grid_error(dataset, i, e))?;
+        // Outside the timing, for the counts and to tell which stage loses a surface
+        // point: the grown capsules alone, and with the cores (deterministic, so the same
+        // samples as inside the timed pipeline).
+        let stages = CapsuleBvh::build(&inflated)
+            .and_then(|bvh| {
+                let core_bvh = CapsuleBvh::build(&cores)?;
+                Ok((
+                    sample_in_capsules(&bvh, &rays, &acc_opts)?,
+                    sample_in_front_of_cores(&bvh, &core_bvh, &rays, step, &acc_opts)?,
+                ))
+            })
+            .map_err(|e| grid_error(dataset, i, e))?;
+        let capsule_samples = stages.0.num_samples();
 
         totals.rays += rays.len();
         totals.dense_samples += dense.num_samples();
@@ -174,7 +185,18 @@ pub fn bench_sampling(
                             .ray
                             .direction
                             .dot(frame.camera.forward_in_world().as_vec3());
-                        surface_sampled(&acc, r, t_surface)
+                        let found = surface_sampled(&acc, r, t_surface);
+                        if !found {
+                            let stage = if !surface_sampled(&stages.0, r, t_surface) {
+                                "outside_grown_capsules"
+                            } else if !surface_sampled(&stages.1, r, t_surface) {
+                                "behind_a_core"
+                            } else {
+                                "culled_by_grid"
+                            };
+                            *stage_misses.entry(stage.to_string()).or_default() += 1;
+                        }
+                        found
                     }
                     // A person pixel without depth: at least one sample must exist.
                     None => !acc.range(r).is_empty(),
@@ -234,6 +256,7 @@ pub fn bench_sampling(
         median_speed_ratio: median(&mut ratios),
         surface_misses: part_misses.iter().sum(),
         surface_misses_by_split: split_misses,
+        surface_misses_by_stage: stage_misses,
         surface_checked_rays: totals.checked,
         coverage_by_part,
         accelerated_step_m: median(&mut steps.iter().map(|&s| s as f64).collect::<Vec<_>>()) as f32,
@@ -337,8 +360,11 @@ pub fn format_report(r: &SamplingReport) -> String {
     );
     let _ = writeln!(
         s,
-        "surface misses: {} of {} rays checked against depth (by split: {:?})",
-        r.surface_misses, r.surface_checked_rays, r.surface_misses_by_split
+        "surface misses: {} of {} rays checked against depth\n  by split: {:?}\n  by stage: {:?}",
+        r.surface_misses,
+        r.surface_checked_rays,
+        r.surface_misses_by_split,
+        r.surface_misses_by_stage
     );
     let _ = writeln!(
         s,

@@ -5,10 +5,11 @@ use glam::Vec3;
 use rayon::prelude::*;
 use talkin_grids::{Capsule, GridError, OccupancyGrid, Part};
 
+use super::frame::shell_capsules;
 use super::frame::{FrameScene, capsule_bounds};
 use super::margins::CapsuleShells;
 use crate::body::skeleton::body_ancestor;
-use crate::body::{FrameParams, Skeleton, canonical_params, joint, limb_capsules};
+use crate::body::{FrameParams, Skeleton, canonical_params, joint};
 
 /// A subject's canonical occupancy grid, initialised from its skeleton.
 pub struct CanonicalGrid;
@@ -66,7 +67,7 @@ fn canonical_capsules(
     params: &FrameParams,
     shells: &CapsuleShells,
 ) -> Vec<Capsule> {
-    shells.inflate(&limb_capsules(skeleton, &skeleton.pose(params)))
+    shells.inflate(&shell_capsules(skeleton, &skeleton.pose(params)))
 }
 
 /// A sphere per wrist, reaching its farthest finger capsule.

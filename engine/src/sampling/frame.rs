@@ -24,7 +24,7 @@ impl FrameScene {
         params: &crate::body::FrameParams,
     ) -> FrameScene {
         let posed = skeleton.pose(params);
-        let capsules = limb_capsules(skeleton, &posed);
+        let capsules = shell_capsules(skeleton, &posed);
         let maps = canonical_from_posed(&posed, canonical);
         let canonical_from_posed = maps
             .map(|m| Affine3A::from_mat3_translation(m.matrix3.as_mat3(), m.translation.as_vec3()));
@@ -34,6 +34,39 @@ impl FrameScene {
             canonical_from_posed,
         }
     }
+}
+
+/// Capsules longer than this (metres, in units of the skeleton's size) are cut in two for
+/// the sampler, so each half fits its own shell: a skirt flares at the knee, not the hip;
+/// a sleeve at the cuff, not the shoulder.
+pub const SPLIT_LENGTH: f32 = 0.08;
+
+/// The sampler's capsules of a posed skeleton: the limb capsules with every long one cut
+/// into equal pieces of at most [`SPLIT_LENGTH`] (same part, bone and radius), in a fixed
+/// order, so per-capsule shells fitted on one frame apply to every frame and to the
+/// canonical pose.
+pub fn shell_capsules(skeleton: &Skeleton, posed: &PosedSkeleton) -> Vec<Capsule> {
+    let max_len = SPLIT_LENGTH * skeleton.scale() as f32;
+    let rest = limb_capsules(
+        skeleton,
+        &skeleton.pose(&crate::body::FrameParams::default()),
+    );
+    limb_capsules(skeleton, posed)
+        .into_iter()
+        .zip(rest)
+        .flat_map(|(c, r)| {
+            // The piece count comes from the rest pose so it never changes between frames.
+            let pieces = ((r.b - r.a).length() / max_len).ceil().max(1.0) as usize;
+            (0..pieces).map(move |k| {
+                let (t0, t1) = (k as f32 / pieces as f32, (k + 1) as f32 / pieces as f32);
+                Capsule {
+                    a: c.a.lerp(c.b, t0),
+                    b: c.a.lerp(c.b, t1),
+                    ..c
+                }
+            })
+        })
+        .collect()
 }
 
 /// Axis-aligned box around capsules (each grown by its radius) plus `pad` metres: the

@@ -35,7 +35,7 @@ pub const CORE_SAFETY: f32 = 0.85;
 /// candidate with the largest volume wins.
 pub const CORE_SHRINK: [f32; 3] = [0.0, 0.15, 0.3];
 
-/// Per capsule (in `limb_capsules` order): how far it grows and the radius of its
+/// Per capsule (in `shell_capsules` order): how far it grows and the radius of its
 /// solid core.
 #[derive(Clone, Debug, PartialEq)]
 pub struct CapsuleShells {
@@ -140,7 +140,7 @@ pub fn fit_subject_margins(
         }
     }
     let from_depth = !fits.is_empty() && fits.iter().all(|f| f.has_depth);
-    let bare = crate::body::limb_capsules(skeleton, &canonical);
+    let bare = super::frame::shell_capsules(skeleton, &canonical);
     let margin: Vec<f32> = (0..n_caps)
         .map(|c| {
             if from_depth {

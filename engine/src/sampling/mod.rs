@@ -9,5 +9,5 @@ mod margins;
 
 pub use bench::{PartCoverage, SamplingReport, bench_sampling, format_report};
 pub use canonical::{CanonicalGrid, PosedToCanonical};
-pub use frame::{FrameScene, foreground_rays};
+pub use frame::{FrameScene, foreground_rays, shell_capsules};
 pub use margins::{CapsuleShells, SubjectMargins, fit_subject_margins};
