@@ -90,13 +90,7 @@ pub fn write_tiny_dataset(dir: &Path) -> Dataset {
         let mut seg = image::GrayImage::new(w, h);
         for y in 4..30 {
             for x in 8..16 {
-                let label = if y < 9 {
-                    4
-                } else if y < 20 {
-                    1
-                } else {
-                    1
-                };
+                let label = if y < 9 { 4 } else { 1 };
                 rgb.put_pixel(x, y, image::Rgb([120, 100 + 10 * i as u8, 90]));
                 mask.put_pixel(x, y, image::Luma([255]));
                 seg.put_pixel(x, y, image::Luma([label]));

@@ -130,6 +130,10 @@ impl<'a> PosedToCanonical<'a> {
     /// The bone among `mask`'s (all bones if the mask names none) whose capsule surface is
     /// nearest to `p`.
     pub fn nearest_bone(&self, p: Vec3, mask: u64) -> usize {
+        if mask.count_ones() == 1 {
+            // The common case: inside one bone's capsules only.
+            return mask.trailing_zeros() as usize;
+        }
         let mut best = (f32::INFINITY, 0usize);
         for pass_mask in [mask, u64::MAX] {
             let mut bits = pass_mask;
