@@ -1,6 +1,10 @@
 //! Lazily decoded per-frame images: RGB, person mask and part segmentation.
 
-use image::{GrayImage, RgbImage};
+use std::fs::File;
+use std::io::BufReader;
+use std::path::Path;
+
+use image::{DynamicImage, GrayImage, ImageFormat, ImageReader, RgbImage};
 
 use super::{Dataset, DatasetError};
 
@@ -19,42 +23,56 @@ pub struct FrameImages {
     pub segmentation: GrayImage,
 }
 
+/// Opens `file` as a PNG (by content, not extension): a clear error for a missing file,
+/// an unreadable one or another format.
+pub(crate) fn open_png(file: &Path) -> Result<ImageReader<BufReader<File>>, DatasetError> {
+    let io = |source| DatasetError::Io {
+        file: file.to_path_buf(),
+        source,
+    };
+    let reader = ImageReader::open(file)
+        .map_err(io)?
+        .with_guessed_format()
+        .map_err(io)?;
+    if reader.format() != Some(ImageFormat::Png) {
+        return Err(DatasetError::Image {
+            file: file.to_path_buf(),
+            problem: "not a PNG file".into(),
+        });
+    }
+    Ok(reader)
+}
+
+/// Decodes the PNG at `root/rel` and checks it is `size` (width, height).
+fn decode_png(root: &Path, rel: &Path, size: (u32, u32)) -> Result<DynamicImage, DatasetError> {
+    let file = root.join(rel);
+    let img = open_png(&file)?.decode().map_err(|e| DatasetError::Image {
+        file: file.clone(),
+        problem: format!("cannot decode PNG: {e}"),
+    })?;
+    if (img.width(), img.height()) != size {
+        return Err(DatasetError::Image {
+            file,
+            problem: format!(
+                "is {}x{} but the frame's camera is {}x{}",
+                img.width(),
+                img.height(),
+                size.0,
+                size.1
+            ),
+        });
+    }
+    Ok(img)
+}
+
 impl Dataset {
     /// Decodes frame `index`'s image, mask and segmentation, checking sizes and labels.
     pub fn images(&self, index: usize) -> Result<FrameImages, DatasetError> {
         let frame = &self.frames[index];
         let size = (frame.camera.width, frame.camera.height);
-        let open = |rel: &std::path::Path| -> Result<image::DynamicImage, DatasetError> {
-            let file = self.root.join(rel);
-            let img = image::ImageReader::open(&file)
-                .map_err(|source| DatasetError::Io {
-                    file: file.clone(),
-                    source,
-                })?
-                .with_guessed_format()
-                .map_err(|source| DatasetError::Io {
-                    file: file.clone(),
-                    source,
-                })?
-                .decode()
-                .map_err(|e| DatasetError::Image {
-                    file: file.clone(),
-                    problem: format!("cannot decode PNG: {e}"),
-                })?;
-            if img.dimensions_tuple() != size {
-                return Err(DatasetError::Image {
-                    file,
-                    problem: format!(
-                        "is {:?} but the frame's camera is {size:?}",
-                        img.dimensions_tuple()
-                    ),
-                });
-            }
-            Ok(img)
-        };
-        let rgb = open(&frame.image)?.into_rgb8();
-        let mask = open(&frame.mask)?.into_luma8();
-        let segmentation = open(&frame.segmentation)?.into_luma8();
+        let rgb = decode_png(&self.root, &frame.image, size)?.into_rgb8();
+        let mask = decode_png(&self.root, &frame.mask, size)?.into_luma8();
+        let segmentation = decode_png(&self.root, &frame.segmentation, size)?.into_luma8();
         if let Some(bad) = segmentation.pixels().find(|p| p.0[0] as usize >= N_LABELS) {
             return Err(DatasetError::Image {
                 file: self.root.join(&frame.segmentation),
@@ -72,19 +90,7 @@ impl Dataset {
             segmentation,
         })
     }
-}
 
-trait Dimensions {
-    fn dimensions_tuple(&self) -> (u32, u32);
-}
-
-impl Dimensions for image::DynamicImage {
-    fn dimensions_tuple(&self) -> (u32, u32) {
-        (self.width(), self.height())
-    }
-}
-
-impl Dataset {
     /// Decodes frame `index`'s ground-truth depth (camera z in metres per pixel, row-major,
     /// `None` where there is no surface), if the frame has a depth file.
     pub fn depth(&self, index: usize) -> Result<Option<Vec<Option<f32>>>, DatasetError> {
@@ -92,23 +98,7 @@ impl Dataset {
         let Some(rel) = &frame.depth else {
             return Ok(None);
         };
-        let file = self.root.join(rel);
-        let img = image::ImageReader::open(&file)
-            .map_err(|source| DatasetError::Io {
-                file: file.clone(),
-                source,
-            })?
-            .decode()
-            .map_err(|e| DatasetError::Image {
-                file: file.clone(),
-                problem: format!("cannot decode PNG: {e}"),
-            })?;
-        if img.dimensions_tuple() != (frame.camera.width, frame.camera.height) {
-            return Err(DatasetError::Image {
-                file,
-                problem: "depth size differs from the camera's".into(),
-            });
-        }
+        let img = decode_png(&self.root, rel, (frame.camera.width, frame.camera.height))?;
         let depth = img
             .into_luma16()
             .pixels()

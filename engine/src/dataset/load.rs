@@ -217,22 +217,7 @@ impl Dataset {
                 .chain(&frame.depth)
             {
                 let file = self.root.join(rel);
-                let reader = image::ImageReader::open(&file)
-                    .map_err(|source| DatasetError::Io {
-                        file: file.clone(),
-                        source,
-                    })?
-                    .with_guessed_format()
-                    .map_err(|source| DatasetError::Io {
-                        file: file.clone(),
-                        source,
-                    })?;
-                if reader.format() != Some(image::ImageFormat::Png) {
-                    return Err(DatasetError::Image {
-                        file,
-                        problem: "not a PNG file".into(),
-                    });
-                }
+                let reader = super::images::open_png(&file)?;
                 let (w, h) = reader.into_dimensions().map_err(|e| DatasetError::Image {
                     file: file.clone(),
                     problem: format!("unreadable PNG header: {e}"),
