@@ -14,3 +14,4 @@ pub mod json_shape;
 pub mod motion;
 pub mod sampling;
 pub mod synth;
+pub mod train;

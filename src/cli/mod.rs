@@ -4,6 +4,7 @@ mod bench;
 mod demo;
 mod inspect;
 mod synth;
+mod train;
 
 use clap::{Parser, Subcommand};
 
@@ -26,6 +27,8 @@ enum Command {
     /// The main job on the built-in synthetic scene: generate, inspect (and, as the engine
     /// grows, train, render and evaluate).
     Demo(demo::DemoArgs),
+    /// Train the TalkinNeRF field on a dataset (every identity, single process).
+    Train(train::TrainArgs),
 }
 
 pub fn run(cli: Cli) -> anyhow::Result<()> {
@@ -34,5 +37,6 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Inspect(a) => inspect::run(a),
         Command::Demo(a) => demo::run(a),
         Command::Bench(a) => bench::run(a),
+        Command::Train(a) => train::run(a),
     }
 }

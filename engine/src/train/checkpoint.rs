@@ -1,0 +1,119 @@
+//! Checkpoints: the field's parameters (burnpack), its `FieldConfig` (JSON) and the
+//! training state (JSON), each written atomically (temp file in the same directory, then
+//! a rename), the state last so a state file always names a complete checkpoint.
+
+use std::path::{Path, PathBuf};
+
+use burn::prelude::*;
+use serde::{Deserialize, Serialize};
+use talkin_nets::{FieldConfig, TalkinField};
+
+use super::TrainError;
+
+/// The model record's file name inside a checkpoint directory.
+pub const MODEL_FILE: &str = "model.bpk";
+/// The field configuration's file name.
+pub const CONFIG_FILE: &str = "config.json";
+/// The training state's file name (written last).
+pub const STATE_FILE: &str = "state.json";
+
+/// What a checkpoint says about the run besides the weights.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct CheckpointState {
+    /// Optimizer steps taken.
+    pub step: usize,
+    pub preset: String,
+    pub sampler: String,
+    pub seed: u64,
+    /// Dataset directory the run trained on.
+    pub data: PathBuf,
+}
+
+/// Paths of a written checkpoint.
+#[derive(Clone, Debug)]
+pub struct CheckpointPaths {
+    pub dir: PathBuf,
+    pub model: PathBuf,
+    pub config: PathBuf,
+    pub state: PathBuf,
+}
+
+/// Writes `bytes` to `path` through `path` + `.tmp` and a rename: a reader (or a kill
+/// mid-write) sees the old file or the new one, never a partial one.
+pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), TrainError> {
+    let mut tmp = path.as_os_str().to_owned();
+    tmp.push(".tmp");
+    let tmp = PathBuf::from(tmp);
+    let io = |source| TrainError::Io {
+        file: path.to_path_buf(),
+        source,
+    };
+    std::fs::write(&tmp, bytes).map_err(io)?;
+    std::fs::rename(&tmp, path).map_err(|e| {
+        let _ = std::fs::remove_file(&tmp);
+        io(e)
+    })
+}
+
+/// Saves `field` (any backend; autodiff included), its config and `state` under `dir`
+/// (created).
+pub fn save_checkpoint(
+    dir: &Path,
+    field: &TalkinField,
+    config: &FieldConfig,
+    state: &CheckpointState,
+) -> Result<CheckpointPaths, TrainError> {
+    std::fs::create_dir_all(dir).map_err(|source| TrainError::Io {
+        file: dir.to_path_buf(),
+        source,
+    })?;
+    let paths = CheckpointPaths {
+        dir: dir.to_path_buf(),
+        model: dir.join(MODEL_FILE),
+        config: dir.join(CONFIG_FILE),
+        state: dir.join(STATE_FILE),
+    };
+    let bytes = field
+        .clone()
+        .into_record()
+        .into_bytes()
+        .map_err(|e| TrainError::Record {
+            file: paths.model.clone(),
+            problem: e.to_string(),
+        })?;
+    write_atomic(&paths.model, &bytes)?;
+    let config_json = serde_json::to_string_pretty(config).map_err(|e| TrainError::Record {
+        file: paths.config.clone(),
+        problem: e.to_string(),
+    })?;
+    write_atomic(&paths.config, config_json.as_bytes())?;
+    let state_json = serde_json::to_string_pretty(state).expect("plain data serialises");
+    write_atomic(&paths.state, state_json.as_bytes())?;
+    Ok(paths)
+}
+
+/// Reads a checkpoint's field configuration back.
+pub fn load_config(dir: &Path) -> Result<FieldConfig, TrainError> {
+    let file = dir.join(CONFIG_FILE);
+    let text = std::fs::read_to_string(&file).map_err(|source| TrainError::Io {
+        file: file.clone(),
+        source,
+    })?;
+    serde_json::from_str(&text).map_err(|e| TrainError::Record {
+        file,
+        problem: e.to_string(),
+    })
+}
+
+/// Reads a checkpoint's training state back.
+pub fn load_state(dir: &Path) -> Result<CheckpointState, TrainError> {
+    let file = dir.join(STATE_FILE);
+    let text = std::fs::read_to_string(&file).map_err(|source| TrainError::Io {
+        file: file.clone(),
+        source,
+    })?;
+    serde_json::from_str(&text).map_err(|e| TrainError::Record {
+        file,
+        problem: e.to_string(),
+    })
+}
