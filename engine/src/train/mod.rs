@@ -354,12 +354,11 @@ pub fn train(
         let t0 = Instant::now();
         let i = train_frames[rng.below(train_frames.len() as u64) as usize];
         let subject = dataset.frames[i].subject;
-        if !cache.contains_key(&i) {
+        if let std::collections::hash_map::Entry::Vacant(slot) = cache.entry(i) {
             let shells = shells[subject]
                 .as_ref()
                 .expect("a training frame's subject");
-            let c = frame_cache(dataset, i, &canonicals[subject], shells)?;
-            cache.insert(i, c);
+            slot.insert(frame_cache(dataset, i, &canonicals[subject], shells)?);
         }
         let fc = &cache[&i];
         let batch =
