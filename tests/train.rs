@@ -104,6 +104,25 @@ fn trains_with_both_samplers_and_checkpoints_atomically() {
     let dataset = Dataset::load(&data).unwrap();
     check_run(&dataset, SamplerChoice::Accelerated);
     check_run(&dataset, SamplerChoice::Dense);
+
+    // The perceptual term on a 32x32 patch; without LPIPS weights it falls back to SSIM
+    // and says so.
+    let out = common::temp_dir("train_run_perceptual");
+    let opts = TrainOptions {
+        steps: 3,
+        seed: 5,
+        batch_rays: 64,
+        grid_resolution: 32,
+        perceptual: Some(out.join("no_lpips_here")),
+        ..TrainOptions::default()
+    };
+    let report = train(&dataset, &out, &opts, &mut |_, _| {}).unwrap();
+    assert!(report.perceptual_note.is_some());
+    for l in &report.logs {
+        // 64 random rays + the 32x32 patch; the loss holds 0.2 MSE + the perceptual term.
+        assert_eq!(l.rays, 64 + 32 * 32);
+        assert!(l.loss.is_finite() && l.loss > 0.2 * l.mse, "{l:?}");
+    }
 }
 
 #[test]
