@@ -33,6 +33,9 @@ pub struct TrainArgs {
     /// LPIPS with the AlexNet weights in this directory, 1 - SSIM when they are absent.
     #[arg(long)]
     pub perceptual: Option<PathBuf>,
+    /// Initial Adam learning rate (decays to 0.1x of it over the run).
+    #[arg(long, default_value_t = TrainOptions::default().lr)]
+    pub lr: f64,
     /// Occupancy-grid update period in steps (0: never; accelerated sampler only).
     #[arg(long, default_value_t = TrainOptions::default().occ_every)]
     pub occ_every: u32,
@@ -49,6 +52,7 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
         seed: args.seed,
         batch_rays: args.batch,
         occ_every: args.occ_every,
+        lr: args.lr,
         perceptual: args.perceptual.clone(),
         ..TrainOptions::default()
     };
