@@ -5,6 +5,7 @@
 //! Library code returns typed errors that name the file, field and expected shape; the
 //! binary turns them into messages and exit codes.
 
+pub mod atomic;
 pub mod body;
 pub mod camera;
 pub mod dataset;

@@ -65,15 +65,12 @@ impl Dataset {
     }
 }
 
-/// Writes `bytes` to `path` through a temp file in the same directory and a rename.
+/// Writes `bytes` to `path` atomically ([`crate::atomic::write_atomic`]).
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), DatasetError> {
-    let tmp = path.with_extension("tmp");
-    let io = |source| DatasetError::Io {
+    crate::atomic::write_atomic(path, bytes).map_err(|source| DatasetError::Io {
         file: path.to_path_buf(),
         source,
-    };
-    std::fs::write(&tmp, bytes).map_err(io)?;
-    std::fs::rename(&tmp, path).map_err(io)
+    })
 }
 
 fn path_string(p: &Path) -> String {

@@ -4,7 +4,6 @@
 use std::collections::BTreeMap;
 use std::time::Instant;
 
-use glam::Vec3;
 use serde::Serialize;
 use talkin_grids::{
     AcceleratedOpts, CapsuleBvh, DenseOpts, MarginFitOpts, OccupancyGrid, PackedSamples, Part, Ray,
@@ -13,7 +12,7 @@ use talkin_grids::{
 
 use super::FrameScene;
 use super::canonical::{CanonicalGrid, PosedToCanonical};
-use super::frame::{capsule_bounds, foreground_rays};
+use super::frame::{capsule_bounds, foreground_rays, median_dense_step};
 use super::margins::{SubjectMargins, fit_subject_margins, grid_error};
 use crate::body::canonical_params;
 use crate::dataset::{Dataset, DatasetError, Split};
@@ -121,7 +120,7 @@ pub fn bench_sampling(
         let inflated = shells.inflate(&scene.capsules);
         let cores = shells.cores(&scene.capsules);
         let (bbox_min, bbox_max) = capsule_bounds(&inflated, 0.02);
-        let step = median_dense_step(&rays, bbox_min, bbox_max);
+        let step = median_dense_step(&rays, bbox_min, bbox_max, DENSE_SAMPLES_PER_RAY);
         steps.push(step);
 
         let dense_opts = DenseOpts {
@@ -281,23 +280,6 @@ fn surface_sampled(samples: &PackedSamples, r: usize, t: f32) -> bool {
     samples
         .range(r)
         .any(|s| samples.t_start[s] - 2e-4 <= t && t <= samples.t_end[s] + 2e-4)
-}
-
-/// The step the dense sampler takes on the median foreground ray: its chord through the
-/// box over the dense sample count. The accelerated sampler uses it, so both sample the
-/// body equally finely.
-fn median_dense_step(rays: &[Ray], lo: Vec3, hi: Vec3) -> f32 {
-    let mut chords: Vec<f64> = rays
-        .iter()
-        .filter_map(|r| talkin_grids::ray::clip_to_box(r, lo, hi))
-        .map(|(t0, t1)| (t1 - t0) as f64)
-        .collect();
-    let step = median(&mut chords) as f32 / DENSE_SAMPLES_PER_RAY as f32;
-    if step.is_finite() && step > 0.0 {
-        step
-    } else {
-        0.005
-    }
 }
 
 /// Runs `f` `REPEATS` times; returns the last result and the median seconds.

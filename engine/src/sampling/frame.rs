@@ -104,3 +104,20 @@ pub fn foreground_rays(
     }
     Ok((rays, pixels))
 }
+
+/// The step the dense sampler takes on the median ray: its chord through the box over the
+/// dense sample count. The accelerated sampler uses it, so both sample the body equally
+/// finely. 5 mm if no ray crosses the box.
+pub fn median_dense_step(rays: &[Ray], lo: Vec3, hi: Vec3, dense_samples: u32) -> f32 {
+    let mut chords: Vec<f32> = rays
+        .iter()
+        .filter_map(|r| talkin_grids::ray::clip_to_box(r, lo, hi))
+        .map(|(t0, t1)| t1 - t0)
+        .collect();
+    chords.sort_by(f32::total_cmp);
+    chords
+        .get(chords.len() / 2)
+        .map(|c| c / dense_samples as f32)
+        .filter(|s| s.is_finite() && *s > 0.0)
+        .unwrap_or(0.005)
+}

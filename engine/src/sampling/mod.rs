@@ -7,7 +7,10 @@ mod canonical;
 mod frame;
 mod margins;
 
-pub use bench::{PartCoverage, SamplingReport, bench_sampling, format_report};
+pub use bench::{
+    DENSE_SAMPLES_PER_RAY, GRID_RESOLUTION, PartCoverage, SamplingReport, bench_sampling,
+    format_report,
+};
 pub use canonical::{CanonicalGrid, PosedToCanonical};
-pub use frame::{FrameScene, foreground_rays, shell_capsules};
+pub use frame::{FrameScene, capsule_bounds, foreground_rays, median_dense_step, shell_capsules};
 pub use margins::{CapsuleShells, SubjectMargins, fit_subject_margins};

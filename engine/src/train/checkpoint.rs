@@ -38,20 +38,11 @@ pub struct CheckpointPaths {
     pub state: PathBuf,
 }
 
-/// Writes `bytes` to `path` through `path` + `.tmp` and a rename: a reader (or a kill
-/// mid-write) sees the old file or the new one, never a partial one.
+/// Writes `bytes` to `path` atomically ([`crate::atomic::write_atomic`]).
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), TrainError> {
-    let mut tmp = path.as_os_str().to_owned();
-    tmp.push(".tmp");
-    let tmp = PathBuf::from(tmp);
-    let io = |source| TrainError::Io {
+    crate::atomic::write_atomic(path, bytes).map_err(|source| TrainError::Io {
         file: path.to_path_buf(),
         source,
-    };
-    std::fs::write(&tmp, bytes).map_err(io)?;
-    std::fs::rename(&tmp, path).map_err(|e| {
-        let _ = std::fs::remove_file(&tmp);
-        io(e)
     })
 }
 

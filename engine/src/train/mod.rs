@@ -21,8 +21,8 @@ use burn::optim::{AdamConfig, GradientsParams};
 use burn::prelude::*;
 use glam::Vec3;
 use talkin_grids::{
-    AcceleratedOpts, Capsule, CapsuleBvh, DenseOpts, GridError, MarginFitOpts, OccUpdateOpts,
-    OccupancyGrid, PackedSamples, Ray, cull_with_grid, sample_dense, sample_in_front_of_cores,
+    AcceleratedOpts, CapsuleBvh, DenseOpts, GridError, MarginFitOpts, OccUpdateOpts, OccupancyGrid,
+    PackedSamples, Ray, cull_with_grid, sample_dense, sample_in_front_of_cores,
 };
 use talkin_nets::loss::{LossError, PerceptualLoss, mse, seg_cross_entropy};
 use talkin_nets::render::OwnedRaySamples;
@@ -38,11 +38,10 @@ pub use rng::SplitMix64;
 use crate::body::skeleton::body_ancestor;
 use crate::body::{PosedSkeleton, canonical_params, limb_capsules};
 use crate::dataset::{Dataset, DatasetError, FrameImages, Split};
-use crate::sampling::fit_subject_margins;
-use crate::sampling::{CanonicalGrid, CapsuleShells, FrameScene, PosedToCanonical};
-
-/// Dense samples per ray (the HumanNeRF baseline).
-pub const DENSE_SAMPLES_PER_RAY: u32 = 128;
+use crate::sampling::{
+    CanonicalGrid, CapsuleShells, DENSE_SAMPLES_PER_RAY, FrameScene, PosedToCanonical,
+    capsule_bounds, fit_subject_margins, median_dense_step,
+};
 /// Weight of the segmentation cross-entropy.
 pub const SEG_WEIGHT: f32 = 0.05;
 /// Side of the perceptual-loss patch (pixels).
@@ -620,7 +619,7 @@ fn frame_cache(
     let (box_min, box_max) = capsule_bounds(&inflated, 0.02);
 
     let mut bbox: Option<[u32; 4]> = None;
-    let mut chords = Vec::new();
+    let mut rays = Vec::new();
     for (x, y, m) in images.mask.enumerate_pixels() {
         if m.0[0] < 128 {
             continue;
@@ -630,17 +629,9 @@ fn frame_cache(
             Some([x0, y0, x1, y1]) => [x0.min(x), y0.min(y), x1.max(x), y1.max(y)],
         });
         let (o, d) = frame.camera.pixel_ray(x, y);
-        let ray = Ray::new(o.as_vec3(), d.as_vec3(), 0.0, f32::INFINITY).map_err(grid_err)?;
-        if let Some((t0, t1)) = talkin_grids::ray::clip_to_box(&ray, box_min, box_max) {
-            chords.push(t1 - t0);
-        }
+        rays.push(Ray::new(o.as_vec3(), d.as_vec3(), 0.0, f32::INFINITY).map_err(grid_err)?);
     }
-    chords.sort_by(f32::total_cmp);
-    let step = chords
-        .get(chords.len() / 2)
-        .map(|c| c / DENSE_SAMPLES_PER_RAY as f32)
-        .filter(|s| s.is_finite() && *s > 0.0)
-        .unwrap_or(0.005);
+    let step = median_dense_step(&rays, box_min, box_max, DENSE_SAMPLES_PER_RAY);
     Ok(FrameCache {
         conditions: frame_conditions(frame.subject, &frame.params, &scene),
         images,
@@ -652,17 +643,6 @@ fn frame_cache(
         box_max,
         step,
     })
-}
-
-/// Axis-aligned box around capsules (each grown by its radius) plus `pad` metres.
-fn capsule_bounds(capsules: &[Capsule], pad: f32) -> (Vec3, Vec3) {
-    let mut lo = Vec3::splat(f32::INFINITY);
-    let mut hi = Vec3::splat(f32::NEG_INFINITY);
-    for c in capsules {
-        lo = lo.min(c.a.min(c.b) - Vec3::splat(c.radius));
-        hi = hi.max(c.a.max(c.b) + Vec3::splat(c.radius));
-    }
-    (lo - Vec3::splat(pad), hi + Vec3::splat(pad))
 }
 
 /// Draws the step's rays: with `patch`, first a `PATCH`x`PATCH` block inside the
