@@ -85,26 +85,21 @@ pub fn save_checkpoint(
 
 /// Reads a checkpoint's field configuration back.
 pub fn load_config(dir: &Path) -> Result<FieldConfig, TrainError> {
-    let file = dir.join(CONFIG_FILE);
-    let text = std::fs::read_to_string(&file).map_err(|source| TrainError::Io {
-        file: file.clone(),
-        source,
-    })?;
-    serde_json::from_str(&text).map_err(|e| TrainError::Record {
-        file,
-        problem: e.to_string(),
-    })
+    read_json(&dir.join(CONFIG_FILE))
 }
 
 /// Reads a checkpoint's training state back.
 pub fn load_state(dir: &Path) -> Result<CheckpointState, TrainError> {
-    let file = dir.join(STATE_FILE);
-    let text = std::fs::read_to_string(&file).map_err(|source| TrainError::Io {
-        file: file.clone(),
+    read_json(&dir.join(STATE_FILE))
+}
+
+fn read_json<T: serde::de::DeserializeOwned>(file: &Path) -> Result<T, TrainError> {
+    let text = std::fs::read_to_string(file).map_err(|source| TrainError::Io {
+        file: file.to_path_buf(),
         source,
     })?;
     serde_json::from_str(&text).map_err(|e| TrainError::Record {
-        file,
+        file: file.to_path_buf(),
         problem: e.to_string(),
     })
 }
