@@ -10,9 +10,10 @@ use std::process::Command;
 use talkin::engine::dataset::Dataset;
 use talkin::engine::synth::{SynthConfig, generate};
 use talkin::engine::train::{
-    CONFIG_FILE, LOG_FILE, MODEL_FILE, STATE_FILE, SamplerChoice, StepLog, TrainOptions,
-    load_config, load_state, train, write_atomic,
+    CONFIG_FILE, LOG_FILE, MODEL_FILE, STATE_FILE, StepLog, TrainOptions, load_config, load_state,
+    train, write_atomic,
 };
+use talkin::grids::SamplerKind;
 
 const STEPS: usize = 15;
 
@@ -26,7 +27,7 @@ fn no_temp_files(dir: &Path) -> bool {
         .all(|e| !e.unwrap().file_name().to_string_lossy().ends_with(".tmp"))
 }
 
-fn check_run(dataset: &Dataset, sampler: SamplerChoice) {
+fn check_run(dataset: &Dataset, sampler: SamplerKind) {
     let out = common::temp_dir(&format!("train_run_{}", sampler.name()));
     let opts = TrainOptions {
         sampler,
@@ -59,7 +60,7 @@ fn check_run(dataset: &Dataset, sampler: SamplerChoice) {
         "{}: no progress: {logs:#?}",
         sampler.name()
     );
-    if sampler == SamplerChoice::Dense {
+    if sampler == SamplerKind::Dense {
         // 128 samples on every ray that meets the box: most of the batch.
         assert!(logs[0].samples >= 128 * 100, "{:?}", logs[0]);
     }
@@ -102,8 +103,8 @@ fn trains_with_both_samplers_and_checkpoints_atomically() {
     };
     generate(&cfg, &data, &mut |_, _| {}).unwrap();
     let dataset = Dataset::load(&data).unwrap();
-    check_run(&dataset, SamplerChoice::Accelerated);
-    check_run(&dataset, SamplerChoice::Dense);
+    check_run(&dataset, SamplerKind::Accelerated);
+    check_run(&dataset, SamplerKind::Dense);
 
     // The perceptual term on a 32x32 patch; without LPIPS weights it falls back to SSIM
     // and says so.

@@ -2,7 +2,7 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use talkin_engine::dataset::Dataset;
-use talkin_engine::train::{self, SamplerChoice, TrainOptions};
+use talkin_engine::train::{self, SamplerKind, TrainOptions};
 
 use crate::progress::Progress;
 
@@ -46,7 +46,9 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
         .with_context(|| format!("cannot load the dataset in {}", args.data.display()))?;
     let opts = TrainOptions {
         preset: args.preset.clone(),
-        sampler: SamplerChoice::from_name(&args.sampler)
+        sampler: args
+            .sampler
+            .parse::<SamplerKind>()
             .with_context(|| format!("unknown sampler `{}`", args.sampler))?,
         steps: args.steps,
         seed: args.seed,

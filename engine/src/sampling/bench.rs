@@ -6,19 +6,18 @@ use std::time::Instant;
 
 use serde::Serialize;
 use talkin_grids::{
-    AcceleratedOpts, CapsuleBvh, DenseOpts, MarginFitOpts, OccupancyGrid, PackedSamples, Part, Ray,
-    cull_with_grid, sample_dense, sample_in_capsules, sample_in_front_of_cores,
+    MarginFitOpts, OccupancyGrid, PackedSamples, Part, Ray, SamplerKind, sample_in_capsules,
+    sample_in_front_of_cores,
 };
 
 use super::FrameScene;
-use super::canonical::{CanonicalGrid, PosedToCanonical};
-use super::frame::{capsule_bounds, foreground_rays, median_dense_step};
+use super::canonical::CanonicalGrid;
+use super::frame::foreground_rays;
+use super::frame_sampler::FrameSampler;
 use super::margins::{SubjectMargins, fit_subject_margins, grid_error};
 use crate::body::canonical_params;
 use crate::dataset::{Dataset, DatasetError, Split};
 
-/// Dense samples per ray (the HumanNeRF baseline).
-pub const DENSE_SAMPLES_PER_RAY: u32 = 128;
 /// Canonical grid cells along its longest axis.
 pub const GRID_RESOLUTION: u32 = 128;
 /// Timing repeats per frame and sampler; the median is kept.
@@ -117,48 +116,36 @@ pub fn bench_sampling(
             foreground_rays(&frame.camera, &images).map_err(|e| grid_error(dataset, i, e))?;
         let rays: Vec<Ray> = labelled.iter().map(|l| l.ray).collect();
         let shells = &subject_margins[frame.subject].shells;
-        let inflated = shells.inflate(&scene.capsules);
-        let cores = shells.cores(&scene.capsules);
-        let (bbox_min, bbox_max) = capsule_bounds(&inflated, 0.02);
-        let step = median_dense_step(&rays, bbox_min, bbox_max, DENSE_SAMPLES_PER_RAY);
-        steps.push(step);
-
-        let dense_opts = DenseOpts {
-            samples_per_ray: DENSE_SAMPLES_PER_RAY,
-            jitter: true,
-            seed: i as u64,
-        };
-        let (dense, dense_s) = median_time(|| sample_dense(&rays, bbox_min, bbox_max, &dense_opts));
-        let dense = dense.map_err(|e| grid_error(dataset, i, e))?;
-
-        let acc_opts = AcceleratedOpts {
-            step,
-            jitter: true,
-            seed: i as u64,
-        };
-        let map = PosedToCanonical::new(&scene);
         let grid = &grids[frame.subject];
-        let (acc, acc_s) = median_time(|| {
-            let bvh = CapsuleBvh::build(&inflated)?;
-            let core_bvh = CapsuleBvh::build(&cores)?;
-            let truncated = sample_in_front_of_cores(&bvh, &core_bvh, &rays, step, &acc_opts)?;
-            let after_cores = truncated.num_samples();
-            let after = cull_with_grid(truncated, &rays, grid, |p, b| map.map(p, b))?;
-            Ok::<_, talkin_grids::GridError>((after_cores, after))
-        });
-        let (truncated_samples, acc) = acc.map_err(|e| grid_error(dataset, i, e))?;
+        let seed = i as u64;
+        // Building the BVHs is part of the accelerated sampler's cost (once per frame).
+        let (sampler, build_s) = median_time(|| FrameSampler::new(scene.clone(), shells, &rays));
+        let sampler = sampler.map_err(|e| grid_error(dataset, i, e))?;
+        steps.push(sampler.step);
+        let (dense, dense_s) =
+            median_time(|| sampler.sample(SamplerKind::Dense, &rays, grid, seed));
+        let dense = dense.map_err(|e| grid_error(dataset, i, e))?;
+        let (acc, acc_s) =
+            median_time(|| sampler.sample(SamplerKind::Accelerated, &rays, grid, seed));
+        let acc = acc.map_err(|e| grid_error(dataset, i, e))?;
+        let acc_s = acc_s + build_s;
         // Outside the timing, for the counts and to tell which stage loses a surface
         // point: the grown capsules alone, and with the cores (deterministic, so the same
         // samples as inside the timed pipeline).
-        let stages = CapsuleBvh::build(&inflated)
-            .and_then(|bvh| {
-                let core_bvh = CapsuleBvh::build(&cores)?;
-                Ok((
-                    sample_in_capsules(&bvh, &rays, &acc_opts)?,
-                    sample_in_front_of_cores(&bvh, &core_bvh, &rays, step, &acc_opts)?,
-                ))
+        let acc_opts = sampler.accelerated_opts(seed);
+        let stages = sample_in_capsules(&sampler.bvh, &rays, &acc_opts)
+            .and_then(|all| {
+                let front = sample_in_front_of_cores(
+                    &sampler.bvh,
+                    &sampler.core_bvh,
+                    &rays,
+                    sampler.step,
+                    &acc_opts,
+                )?;
+                Ok((all, front))
             })
             .map_err(|e| grid_error(dataset, i, e))?;
+        let truncated_samples = stages.1.num_samples();
         let capsule_samples = stages.0.num_samples();
 
         totals.rays += rays.len();

@@ -5,12 +5,11 @@
 mod bench;
 mod canonical;
 mod frame;
+mod frame_sampler;
 mod margins;
 
-pub use bench::{
-    DENSE_SAMPLES_PER_RAY, GRID_RESOLUTION, PartCoverage, SamplingReport, bench_sampling,
-    format_report,
-};
+pub use bench::{GRID_RESOLUTION, PartCoverage, SamplingReport, bench_sampling, format_report};
 pub use canonical::{CanonicalGrid, PosedToCanonical};
 pub use frame::{FrameScene, capsule_bounds, foreground_rays, median_dense_step, shell_capsules};
+pub use frame_sampler::{DENSE_SAMPLES_PER_RAY, FrameSampler};
 pub use margins::{CapsuleShells, SubjectMargins, fit_subject_margins};

@@ -20,10 +20,8 @@ use std::time::Instant;
 use burn::optim::{AdamConfig, GradientsParams};
 use burn::prelude::*;
 use glam::Vec3;
-use talkin_grids::{
-    AcceleratedOpts, CapsuleBvh, DenseOpts, GridError, MarginFitOpts, OccUpdateOpts, OccupancyGrid,
-    PackedSamples, Ray, cull_with_grid, sample_dense, sample_in_front_of_cores,
-};
+pub use talkin_grids::SamplerKind;
+use talkin_grids::{GridError, MarginFitOpts, OccUpdateOpts, OccupancyGrid, PackedSamples, Ray};
 use talkin_nets::loss::{LossError, PerceptualLoss, mse, seg_cross_entropy};
 use talkin_nets::render::OwnedRaySamples;
 use talkin_nets::skinning::BoneSegment;
@@ -39,8 +37,7 @@ use crate::body::skeleton::body_ancestor;
 use crate::body::{PosedSkeleton, canonical_params, limb_capsules};
 use crate::dataset::{Dataset, DatasetError, FrameImages, Split};
 use crate::sampling::{
-    CanonicalGrid, CapsuleShells, DENSE_SAMPLES_PER_RAY, FrameScene, PosedToCanonical,
-    capsule_bounds, fit_subject_margins, median_dense_step,
+    CanonicalGrid, CapsuleShells, FrameSampler, FrameScene, fit_subject_margins,
 };
 /// Weight of the segmentation cross-entropy.
 pub const SEG_WEIGHT: f32 = 0.05;
@@ -51,38 +48,12 @@ pub const LOG_FILE: &str = "train_log.csv";
 /// The checkpoint directory inside the output directory.
 pub const CHECKPOINT_DIR: &str = "checkpoint";
 
-/// Which sampler generates the training samples.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum SamplerChoice {
-    /// Capsule BVH intervals, core truncation and occupancy-grid culling.
-    Accelerated,
-    /// 128 stratified samples per ray in the posed bounding box.
-    Dense,
-}
-
-impl SamplerChoice {
-    pub fn name(self) -> &'static str {
-        match self {
-            SamplerChoice::Accelerated => "accelerated",
-            SamplerChoice::Dense => "dense",
-        }
-    }
-
-    pub fn from_name(name: &str) -> Option<Self> {
-        match name {
-            "accelerated" => Some(SamplerChoice::Accelerated),
-            "dense" => Some(SamplerChoice::Dense),
-            _ => None,
-        }
-    }
-}
-
 /// Everything a run is told.
 #[derive(Clone, Debug)]
 pub struct TrainOptions {
     /// `fast` or `paper`.
     pub preset: String,
-    pub sampler: SamplerChoice,
+    pub sampler: SamplerKind,
     /// Optimizer steps.
     pub steps: usize,
     /// Seed of the initialisation, frame and ray choice and sample jitter.
@@ -107,7 +78,7 @@ impl Default for TrainOptions {
     fn default() -> Self {
         TrainOptions {
             preset: "fast".into(),
-            sampler: SamplerChoice::Accelerated,
+            sampler: SamplerKind::Accelerated,
             steps: 1000,
             seed: 0,
             batch_rays: 1024,
@@ -201,13 +172,7 @@ struct FrameCache {
     /// Person bounding box in pixels, inclusive (`None`: empty mask).
     bbox: Option<[u32; 4]>,
     conditions: FrameConditions,
-    scene: FrameScene,
-    bvh: CapsuleBvh,
-    core_bvh: CapsuleBvh,
-    box_min: Vec3,
-    box_max: Vec3,
-    /// Accelerated step (metres): the dense step on the median foreground ray.
-    step: f32,
+    sampler: FrameSampler,
 }
 
 /// One step's batch of rays and their targets.
@@ -376,34 +341,15 @@ pub fn train(
             .seed
             .wrapping_mul(0x9E37_79B9)
             .wrapping_add(step as u64);
-        let samples = match opts.sampler {
-            SamplerChoice::Dense => sample_dense(
-                &batch.rays,
-                fc.box_min,
-                fc.box_max,
-                &DenseOpts {
-                    samples_per_ray: DENSE_SAMPLES_PER_RAY,
-                    jitter: true,
-                    seed: jitter_seed,
-                },
-            ),
-            SamplerChoice::Accelerated => {
-                let acc = AcceleratedOpts {
-                    step: fc.step,
-                    jitter: true,
-                    seed: jitter_seed,
-                };
-                let grid = grids[subject].as_ref().expect("a training frame's subject");
-                let map = PosedToCanonical::new(&fc.scene);
-                sample_in_front_of_cores(&fc.bvh, &fc.core_bvh, &batch.rays, fc.step, &acc)
-                    .and_then(|s| cull_with_grid(s, &batch.rays, grid, |p, b| map.map(p, b)))
-            }
-        }
-        .map_err(|source| TrainError::Grid {
-            file: index_file.clone(),
-            frame: i,
-            source,
-        })?;
+        let grid = grids[subject].as_ref().expect("a training frame's subject");
+        let samples = fc
+            .sampler
+            .sample(opts.sampler, &batch.rays, grid, jitter_seed)
+            .map_err(|source| TrainError::Grid {
+                file: index_file.clone(),
+                frame: i,
+                source,
+            })?;
         let n_rays = batch.rays.len();
         let n_samples = samples.num_samples();
         let lr = opts.lr * 0.1f64.powf(step as f64 / opts.steps as f64);
@@ -459,7 +405,7 @@ pub fn train(
         let grads = GradientsParams::from_grads(loss.backward(), &field);
         field = optim.step(lr, field, grads);
 
-        if opts.sampler == SamplerChoice::Accelerated && opts.occ_every > 0 {
+        if opts.sampler == SamplerKind::Accelerated && opts.occ_every > 0 {
             update_grids(
                 &field,
                 &mut grids,
@@ -612,11 +558,6 @@ fn frame_cache(
         source,
     };
     let scene = FrameScene::new(skeleton, canonical, &frame.params);
-    let inflated = shells.inflate(&scene.capsules);
-    let cores = shells.cores(&scene.capsules);
-    let bvh = CapsuleBvh::build(&inflated).map_err(grid_err)?;
-    let core_bvh = CapsuleBvh::build(&cores).map_err(grid_err)?;
-    let (box_min, box_max) = capsule_bounds(&inflated, 0.02);
 
     let mut bbox: Option<[u32; 4]> = None;
     let mut rays = Vec::new();
@@ -631,17 +572,13 @@ fn frame_cache(
         let (o, d) = frame.camera.pixel_ray(x, y);
         rays.push(Ray::new(o.as_vec3(), d.as_vec3(), 0.0, f32::INFINITY).map_err(grid_err)?);
     }
-    let step = median_dense_step(&rays, box_min, box_max, DENSE_SAMPLES_PER_RAY);
+    let conditions = frame_conditions(frame.subject, &frame.params, &scene);
+    let sampler = FrameSampler::new(scene, shells, &rays).map_err(grid_err)?;
     Ok(FrameCache {
-        conditions: frame_conditions(frame.subject, &frame.params, &scene),
+        conditions,
         images,
         bbox,
-        scene,
-        bvh,
-        core_bvh,
-        box_min,
-        box_max,
-        step,
+        sampler,
     })
 }
 
