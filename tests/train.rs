@@ -1,18 +1,18 @@
-//! Training on a tiny synthetic scene with both samplers: finite losses that go down, a
-//! per-step log, and an atomic checkpoint whose config loads back. And the CLI's error on
-//! a missing dataset.
+//! Training on a tiny synthetic scene: both samplers learn, the log and checkpoint are
+//! complete, a checkpoint renders without the dataset, a resumed run is bit-identical to
+//! an uninterrupted one, and bad input gives named errors.
 
 mod common;
 
 use std::path::Path;
 use std::process::Command;
 
+use talkin::engine::atomic::write_atomic;
+use talkin::engine::avatar::Avatar;
+use talkin::engine::checkpoint::{self, CHECKPOINT_DIR, LATEST_FILE};
 use talkin::engine::dataset::Dataset;
 use talkin::engine::synth::{SynthConfig, generate};
-use talkin::engine::train::{
-    CONFIG_FILE, LOG_FILE, MODEL_FILE, STATE_FILE, StepLog, TrainOptions, load_config, load_state,
-    train, write_atomic,
-};
+use talkin::engine::train::{Budget, LOG_FILE, StepLog, TrainOptions, Trainer, train};
 use talkin::grids::SamplerKind;
 
 const STEPS: usize = 15;
@@ -27,23 +27,38 @@ fn no_temp_files(dir: &Path) -> bool {
         .all(|e| !e.unwrap().file_name().to_string_lossy().ends_with(".tmp"))
 }
 
-fn check_run(dataset: &Dataset, sampler: SamplerKind) {
-    let out = common::temp_dir(&format!("train_run_{}", sampler.name()));
-    let opts = TrainOptions {
+fn scene(name: &str) -> Dataset {
+    let data = common::temp_dir(name);
+    let cfg = SynthConfig {
+        identities: 1,
+        frames: 4,
+        size: 48,
+        seed: 1,
+        motion: None,
+    };
+    generate(&cfg, &data, &mut |_, _| {}).unwrap();
+    Dataset::load(&data).unwrap()
+}
+
+fn small_opts(sampler: SamplerKind, steps: usize) -> TrainOptions {
+    TrainOptions {
         sampler,
-        steps: STEPS,
+        budget: Budget::Steps(steps),
         seed: 3,
         batch_rays: 256,
-        lr: 5e-3,
+        patches: 0,
         occ_every: 4,
         grid_resolution: 32,
         ..TrainOptions::default()
-    };
+    }
+}
+
+fn check_run(dataset: &Dataset, sampler: SamplerKind) {
+    let out = common::temp_dir(&format!("train_run_{}", sampler.name()));
     let mut seen = 0;
-    let report = train(dataset, &out, &opts, &mut |log, total| {
+    let report = train(dataset, &out, &small_opts(sampler, STEPS), &mut |log| {
         seen += 1;
         assert_eq!(log.step, seen);
-        assert_eq!(total, STEPS);
     })
     .unwrap();
     let logs = &report.logs;
@@ -53,6 +68,7 @@ fn check_run(dataset: &Dataset, sampler: SamplerKind) {
         assert_eq!(l.rays, 256);
         assert!(l.samples > 0 && l.rays_per_s > 0.0, "{l:?}");
     }
+    assert_eq!(logs[STEPS - 1].progress, 1.0);
     let (first, last) = (&logs[..4], &logs[STEPS - 4..]);
     assert!(
         mean(last, |l| l.loss) < mean(first, |l| l.loss)
@@ -67,63 +83,144 @@ fn check_run(dataset: &Dataset, sampler: SamplerKind) {
 
     // The log: a header and one row per step.
     let csv = std::fs::read_to_string(out.join(LOG_FILE)).unwrap();
-    assert!(csv.starts_with("step,loss,"), "{csv}");
+    assert!(csv.starts_with("step,seconds,loss,"), "{csv}");
     assert_eq!(csv.lines().count(), STEPS + 1);
 
-    // The checkpoint: every file there, no temp file left, config and state load back.
-    let dir = &report.checkpoint.dir;
-    for f in [MODEL_FILE, CONFIG_FILE, STATE_FILE] {
+    // The checkpoint: LATEST names a complete directory, nothing temporary is left.
+    let root = out.join(CHECKPOINT_DIR);
+    let dir = checkpoint::latest_dir(&out).unwrap();
+    assert_eq!(dir, report.checkpoint);
+    for f in [
+        checkpoint::MODEL_FILE,
+        checkpoint::OPTIMIZER_FILE,
+        checkpoint::CONFIG_FILE,
+        checkpoint::SUBJECTS_FILE,
+        checkpoint::STATE_FILE,
+        "grid-0.bin",
+    ] {
         let len = std::fs::metadata(dir.join(f)).unwrap().len();
         assert!(len > 0, "{f} is empty");
     }
-    assert!(no_temp_files(dir));
-    let config = load_config(dir).unwrap();
-    assert_eq!(config.n_identities, 1);
-    assert!(
-        config
-            .aabb_min
-            .iter()
-            .zip(config.aabb_max)
-            .all(|(a, b)| *a < b)
-    );
-    let state = load_state(dir).unwrap();
-    assert_eq!(state.step, STEPS);
-    assert_eq!(state.sampler, sampler.name());
+    assert!(no_temp_files(&root));
+
+    // It renders a frame on its own (no dataset), deterministically and finitely.
+    let avatar = Avatar::load(&out).unwrap();
+    assert_eq!(avatar.sampler, sampler);
+    let f = &dataset.frames[0];
+    let a = avatar.render(0, &f.params, &f.camera, None).unwrap();
+    let b = avatar.render(0, &f.params, &f.camera, None).unwrap();
+    assert_eq!(a.rgb, b.rgb);
+    assert_eq!(a.rgb.len(), (3 * f.camera.width * f.camera.height) as usize);
+    assert!(a.rgb.iter().chain(&a.opacity).all(|v| v.is_finite()));
+    assert!(a.samples > 0);
 }
 
 #[test]
-fn trains_with_both_samplers_and_checkpoints_atomically() {
-    let data = common::temp_dir("train_scene");
-    let cfg = SynthConfig {
-        identities: 1,
-        frames: 4,
-        size: 48,
-        seed: 1,
-        motion: None,
-    };
-    generate(&cfg, &data, &mut |_, _| {}).unwrap();
-    let dataset = Dataset::load(&data).unwrap();
+fn trains_with_both_samplers_and_renders_from_the_checkpoint() {
+    let dataset = scene("train_scene");
     check_run(&dataset, SamplerKind::Accelerated);
     check_run(&dataset, SamplerKind::Dense);
+}
 
-    // The perceptual term on a 32x32 patch; without LPIPS weights it falls back to SSIM
-    // and says so.
+#[test]
+fn perceptual_patches_fall_back_to_ssim_and_say_so() {
+    let dataset = scene("train_scene_perceptual");
     let out = common::temp_dir("train_run_perceptual");
     let opts = TrainOptions {
-        steps: 3,
-        seed: 5,
+        patches: 2,
         batch_rays: 64,
-        grid_resolution: 32,
         perceptual: Some(out.join("no_lpips_here")),
-        ..TrainOptions::default()
+        ..small_opts(SamplerKind::Accelerated, 3)
     };
-    let report = train(&dataset, &out, &opts, &mut |_, _| {}).unwrap();
+    let report = train(&dataset, &out, &opts, &mut |_| {}).unwrap();
     assert!(report.perceptual_note.is_some());
     for l in &report.logs {
-        // 64 random rays + the 32x32 patch; the loss holds 0.2 MSE + the perceptual term.
-        assert_eq!(l.rays, 64 + 32 * 32);
+        // 64 random rays + two 32x32 patches; the loss holds 0.2 MSE + the perceptual term.
+        assert_eq!(l.rays, 64 + 2 * 32 * 32);
         assert!(l.loss.is_finite() && l.loss > 0.2 * l.mse, "{l:?}");
     }
+}
+
+#[test]
+fn resume_continues_exactly() {
+    let dataset = scene("train_scene_resume");
+    let opts = small_opts(SamplerKind::Accelerated, 8);
+    // Uninterrupted.
+    let straight = common::temp_dir("train_resume_straight");
+    train(&dataset, &straight, &opts, &mut |_| {}).unwrap();
+    // Interrupted after 4 steps (checkpoint, then the process "dies"), then resumed.
+    let broken = common::temp_dir("train_resume_broken");
+    {
+        let mut t = Trainer::new(&dataset, &broken, &opts).unwrap();
+        for _ in 0..4 {
+            t.step().unwrap();
+        }
+        t.save().unwrap();
+        // Steps after the checkpoint are lost with the process, and a half-written
+        // checkpoint directory is left behind.
+        t.step().unwrap();
+    }
+    std::fs::create_dir_all(broken.join(CHECKPOINT_DIR).join("step-000009.tmp")).unwrap();
+    let resumed = Trainer::resume(&dataset, &broken).unwrap();
+    assert_eq!(resumed.steps_taken(), 4);
+    resumed.run(&mut |_| {}).unwrap();
+
+    // Same weights: the same render to the bit (the record's bytes hold random
+    // parameter ids, so they are compared through what the weights do).
+    let f = &dataset.frames[0];
+    let render = |run: &Path| {
+        Avatar::load(run)
+            .unwrap()
+            .render(0, &f.params, &f.camera, None)
+            .unwrap()
+            .rgb
+    };
+    assert!(
+        render(&straight) == render(&broken),
+        "resumed weights differ"
+    );
+    let losses = |run: &Path| -> Vec<String> {
+        std::fs::read_to_string(run.join(LOG_FILE))
+            .unwrap()
+            .lines()
+            .map(|l| {
+                let c: Vec<&str> = l.split(',').collect();
+                format!("{},{},{}", c[0], c[2], c[3])
+            })
+            .collect()
+    };
+    assert_eq!(losses(&straight), losses(&broken));
+    let grid = |run: &Path| {
+        std::fs::read(checkpoint::latest_dir(run).unwrap().join("grid-0.bin")).unwrap()
+    };
+    assert!(grid(&straight) == grid(&broken), "resumed grids differ");
+}
+
+#[test]
+fn missing_and_damaged_checkpoints_are_named() {
+    let dataset = scene("train_scene_damage");
+    let run = common::temp_dir("train_damage");
+    let e = Avatar::load(&run).err().unwrap().to_string();
+    assert!(e.contains("no checkpoint"), "{e}");
+    train(
+        &dataset,
+        &run,
+        &small_opts(SamplerKind::Accelerated, 2),
+        &mut |_| {},
+    )
+    .unwrap();
+    let dir = checkpoint::latest_dir(&run).unwrap();
+    // A truncated grid and a LATEST escaping the directory: errors naming the file.
+    let grid = dir.join("grid-0.bin");
+    let bytes = std::fs::read(&grid).unwrap();
+    std::fs::write(&grid, &bytes[..bytes.len() / 2]).unwrap();
+    let e = Avatar::load(&run).err().unwrap().to_string();
+    assert!(e.contains("grid-0.bin"), "{e}");
+    std::fs::write(&grid, &bytes).unwrap();
+    let latest = run.join(CHECKPOINT_DIR).join(LATEST_FILE);
+    std::fs::write(&latest, "../../etc").unwrap();
+    let e = Avatar::load(&run).err().unwrap().to_string();
+    assert!(e.contains("LATEST"), "{e}");
 }
 
 #[test]
@@ -134,18 +231,17 @@ fn atomic_write_replaces_whole_files_and_leaves_no_temp() {
     write_atomic(&file, b"second, longer").unwrap();
     assert_eq!(std::fs::read(&file).unwrap(), b"second, longer");
     assert!(no_temp_files(&dir));
-    // A target that cannot be written (a directory in the way) fails with the file's name
-    // and leaves neither the target nor a temp file changed.
+    // A target that cannot be written (a directory in the way) fails and leaves neither
+    // the target nor a temp file changed.
     let blocked = dir.join("blocked");
     std::fs::create_dir_all(blocked.join("inner")).unwrap();
-    let err = write_atomic(&blocked, b"data").unwrap_err();
-    assert!(err.to_string().contains("blocked"), "{err}");
+    assert!(write_atomic(&blocked, b"data").is_err());
     assert!(blocked.is_dir());
     assert!(no_temp_files(&dir));
 }
 
 #[test]
-fn cli_reports_a_missing_dataset() {
+fn cli_reports_a_missing_dataset_and_a_missing_checkpoint() {
     let out = Command::new(env!("CARGO_BIN_EXE_talkin"))
         .args(["train", "--data", "/nonexistent"])
         .output()

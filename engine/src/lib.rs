@@ -6,13 +6,16 @@
 //! binary turns them into messages and exit codes.
 
 pub mod atomic;
+pub mod avatar;
 pub mod body;
 pub mod camera;
+pub mod checkpoint;
 pub mod dataset;
 pub mod draw;
 pub mod inspect;
 pub mod json_shape;
 pub mod motion;
 pub mod sampling;
+pub mod subject_model;
 pub mod synth;
 pub mod train;

@@ -99,6 +99,54 @@ impl OccupancyGrid {
         })
     }
 
+    /// A grid from saved parts ([`OccupancyGrid::aabb`], [`OccupancyGrid::resolution`],
+    /// [`OccupancyGrid::occupancy`], [`OccupancyGrid::bitfield`]), checked for consistent
+    /// sizes and finite values.
+    pub fn from_parts(
+        aabb_min: Vec3,
+        aabb_max: Vec3,
+        resolution: [u32; 3],
+        occupancy: Vec<f32>,
+        bitfield: Vec<u64>,
+    ) -> Result<OccupancyGrid, GridError> {
+        let mut grid = OccupancyGrid::new(aabb_min, aabb_max, resolution)?;
+        if occupancy.len() != grid.occupancy.len() {
+            return Err(GridError::LengthMismatch {
+                what: "occupancy",
+                expected: grid.occupancy.len(),
+                got: occupancy.len(),
+            });
+        }
+        if bitfield.len() != grid.bitfield.len() {
+            return Err(GridError::LengthMismatch {
+                what: "bitfield",
+                expected: grid.bitfield.len(),
+                got: bitfield.len(),
+            });
+        }
+        if let Some(index) = occupancy.iter().position(|v| !v.is_finite()) {
+            return Err(GridError::NonFiniteValue {
+                what: "occupancy",
+                index,
+            });
+        }
+        grid.occupancy = occupancy;
+        grid.bitfield = bitfield;
+        // Bits past the last cell stay clear.
+        let tail = grid.occupancy.len() % 64;
+        if tail != 0
+            && let Some(last) = grid.bitfield.last_mut()
+        {
+            *last &= (1u64 << tail) - 1;
+        }
+        Ok(grid)
+    }
+
+    /// The occupied bits, 64 cells per word (cell `i` is bit `i % 64` of word `i / 64`).
+    pub fn bitfield(&self) -> &[u64] {
+        &self.bitfield
+    }
+
     /// The canonical box `(min, max)`.
     pub fn aabb(&self) -> (Vec3, Vec3) {
         (self.aabb_min, self.aabb_max)

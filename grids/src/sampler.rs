@@ -7,7 +7,8 @@ use crate::GridError;
 
 /// The two samplers: `dense` (HumanNeRF's baseline, every speed/quality claim is made
 /// against it) and `accelerated` (capsule intervals + occupancy culling).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
 pub enum SamplerKind {
     /// [`crate::sample_dense`].
     Dense,

@@ -118,7 +118,9 @@ impl FieldConfig {
         .with_n_identities(n_identities)
     }
 
-    /// The CPU default: a 12-level hash grid (2^15 entries per level) and 2x64 MLPs.
+    /// The CPU default: a 12-level hash grid (2^15 entries per level) and 2x64 MLPs, with
+    /// the paper's step schedule (D_nr from 100k, the same Hann windows): training maps
+    /// any run onto the paper's 400k iterations.
     pub fn fast(n_identities: usize) -> Self {
         let small = MlpConfig::new(2, 64);
         FieldConfig::new(
@@ -131,12 +133,11 @@ impl FieldConfig {
             small.clone(),
             small.clone(),
             small,
-            HannWindowConfig::new(20_000, 30_000),
-            HannWindowConfig::new(0, 10_000),
+            HannWindowConfig::new(100_000, 150_000),
+            HannWindowConfig::new(0, 50_000),
             SkinningConfig::new(),
         )
         .with_n_identities(n_identities)
-        .with_non_rigid_start_step(Some(20_000))
     }
 
     /// A preset by name (`"paper"` or `"fast"`).
@@ -416,6 +417,23 @@ impl TalkinField {
             .map(|a| 1.0 / (s.aabb_max[a] - s.aabb_min[a]))
             .collect();
         (x - min) * floats(inv, [1, 3], &device)
+    }
+
+    /// Identity codes this field holds.
+    pub fn n_identities(&self) -> usize {
+        self.settings.n_identities
+    }
+
+    /// Appends a new identity code (for adapting to a novel subject), initialised to the
+    /// mean of the existing codes; returns the field and the new code's index.
+    pub fn add_identity(mut self) -> (TalkinField, usize) {
+        let codes = self.identity.val();
+        let mean = codes.clone().mean_dim(0); // [1, d]
+        let grown = Tensor::cat(vec![codes, mean], 0).detach();
+        self.identity = Param::from_tensor(grown);
+        let index = self.settings.n_identities;
+        self.settings.n_identities += 1;
+        (self, index)
     }
 
     /// D_r alone (e.g. for the engine's occupancy test before the full forward).

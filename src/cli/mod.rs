@@ -1,5 +1,6 @@
 //! Subcommands. Each file parses nothing itself: clap structs here, work in the engine.
 
+mod adapt;
 mod bench;
 mod demo;
 mod inspect;
@@ -27,8 +28,10 @@ enum Command {
     /// The main job on the built-in synthetic scene: generate, inspect (and, as the engine
     /// grows, train, render and evaluate).
     Demo(demo::DemoArgs),
-    /// Train the TalkinNeRF field on a dataset (every identity, single process).
+    /// Train the TalkinNeRF field on a dataset (one or many identities; --resume).
     Train(train::TrainArgs),
+    /// Adapt a trained run to a novel subject from a short clip (new identity code).
+    Adapt(adapt::AdaptArgs),
 }
 
 pub fn run(cli: Cli) -> anyhow::Result<()> {
@@ -38,5 +41,6 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Demo(a) => demo::run(a),
         Command::Bench(a) => bench::run(a),
         Command::Train(a) => train::run(a),
+        Command::Adapt(a) => adapt::run(a),
     }
 }

@@ -2,84 +2,147 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use talkin_engine::dataset::Dataset;
-use talkin_engine::train::{self, SamplerKind, TrainOptions};
+use talkin_engine::train::{self, Budget, SamplerKind, StepLog, TrainOptions, Trainer};
 
 use crate::progress::Progress;
+
+/// Where `scripts/lpips_weights.py` puts the converted LPIPS weights.
+pub const DEFAULT_LPIPS_DIR: &str = "assets/lpips";
 
 #[derive(clap::Args, Debug, Clone)]
 pub struct TrainArgs {
     /// Dataset directory (with dataset.json).
     #[arg(long)]
     pub data: PathBuf,
-    /// Run directory: train_log.csv and checkpoint/ are written there.
+    /// Run directory: recipe.json, train_log.csv and checkpoint/ are written there.
     #[arg(long, default_value = "out/train")]
     pub out: PathBuf,
+    /// Continue the run in --out from its newest checkpoint (same options; the budget
+    /// options given here are ignored).
+    #[arg(long)]
+    pub resume: bool,
+    #[command(flatten)]
+    pub recipe: RecipeArgs,
+}
+
+/// The options shared by `train` and `adapt`.
+#[derive(clap::Args, Debug, Clone)]
+pub struct RecipeArgs {
     /// Field preset: `fast` (hash grid, small MLPs) or `paper` (8x256 MLPs).
     #[arg(long, default_value = "fast", value_parser = ["fast", "paper"])]
     pub preset: String,
     /// Sampler: `accelerated` (capsule BVH + occupancy grid) or `dense` (128 per ray).
     #[arg(long, default_value = "accelerated", value_parser = ["accelerated", "dense"])]
     pub sampler: String,
-    /// Optimizer steps.
-    #[arg(long, default_value_t = TrainOptions::default().steps)]
-    pub steps: usize,
+    /// Optimizer steps (default 1000 unless --minutes is given).
+    #[arg(long, conflicts_with = "minutes")]
+    pub steps: Option<usize>,
+    /// Train for this many minutes of wall-clock time instead of a step count.
+    #[arg(long)]
+    pub minutes: Option<f64>,
+    /// Subjects to train on: `all` or a comma-separated list of names.
+    #[arg(long, default_value = "all")]
+    pub identities: String,
     /// Seed of every random choice.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
-    /// Random pixel rays per step.
+    /// Random pixel rays per step (besides the LPIPS patches).
     #[arg(long, default_value_t = TrainOptions::default().batch_rays)]
     pub batch: usize,
-    /// Add the perceptual loss on a 32x32 patch per step (weight 1, MSE weight 0.2):
-    /// LPIPS with the AlexNet weights in this directory, 1 - SSIM when they are absent.
+    /// 32x32 LPIPS patches per step (the paper: 6; 0 turns the perceptual term off).
+    #[arg(long, default_value_t = TrainOptions::default().patches)]
+    pub patches: usize,
+    /// Directory of the converted LPIPS weights (`python3 scripts/lpips_weights.py`);
+    /// without them the perceptual term is 1 - SSIM, and the run says so.
+    #[arg(long, default_value = DEFAULT_LPIPS_DIR)]
+    pub lpips_dir: PathBuf,
+    /// Initial Adam learning rate (default: the preset's; decays x0.1 per 500k of the
+    /// paper's iterations, onto which every run is mapped).
     #[arg(long)]
-    pub perceptual: Option<PathBuf>,
-    /// Initial Adam learning rate (decays to 0.1x of it over the run).
-    #[arg(long, default_value_t = TrainOptions::default().lr)]
-    pub lr: f64,
+    pub lr: Option<f64>,
     /// Occupancy-grid update period in steps (0: never; accelerated sampler only).
     #[arg(long, default_value_t = TrainOptions::default().occ_every)]
     pub occ_every: u32,
+    /// Checkpoint every this many seconds (and at the end).
+    #[arg(long, default_value_t = TrainOptions::default().checkpoint_every_s)]
+    pub checkpoint_every: f64,
+}
+
+impl RecipeArgs {
+    pub fn options(&self) -> anyhow::Result<TrainOptions> {
+        let budget = match (self.steps, self.minutes) {
+            (_, Some(m)) => Budget::Seconds(m * 60.0),
+            (Some(s), None) => Budget::Steps(s),
+            (None, None) => TrainOptions::default().budget,
+        };
+        let identities = match self.identities.trim() {
+            "all" => None,
+            list => Some(
+                list.split(',')
+                    .map(|s| s.trim().to_string())
+                    .filter(|s| !s.is_empty())
+                    .collect(),
+            ),
+        };
+        Ok(TrainOptions {
+            preset: self.preset.clone(),
+            sampler: self
+                .sampler
+                .parse::<SamplerKind>()
+                .with_context(|| format!("unknown sampler `{}`", self.sampler))?,
+            budget,
+            seed: self.seed,
+            identities,
+            batch_rays: self.batch,
+            patches: self.patches,
+            lr: self.lr,
+            occ_every: self.occ_every,
+            perceptual: (self.patches > 0).then(|| self.lpips_dir.clone()),
+            checkpoint_every_s: self.checkpoint_every,
+            ..TrainOptions::default()
+        })
+    }
 }
 
 pub fn run(args: TrainArgs) -> anyhow::Result<()> {
     let dataset = Dataset::load(&args.data)
         .with_context(|| format!("cannot load the dataset in {}", args.data.display()))?;
-    let opts = TrainOptions {
-        preset: args.preset.clone(),
-        sampler: args
-            .sampler
-            .parse::<SamplerKind>()
-            .with_context(|| format!("unknown sampler `{}`", args.sampler))?,
-        steps: args.steps,
-        seed: args.seed,
-        batch_rays: args.batch,
-        occ_every: args.occ_every,
-        lr: args.lr,
-        perceptual: args.perceptual.clone(),
-        ..TrainOptions::default()
+    let trainer = if args.resume {
+        Trainer::resume(&dataset, &args.out)
+            .with_context(|| format!("resuming {}", args.out.display()))?
+    } else {
+        Trainer::new(&dataset, &args.out, &args.recipe.options()?)
+            .with_context(|| format!("training on {}", args.data.display()))?
     };
-    let progress = Progress::new("train steps", opts.steps);
-    let report = train::train(&dataset, &args.out, &opts, &mut |log, _total| {
-        progress.update(
-            log.step,
-            &format!(
-                "loss {:.4} psnr {:.2} dB, {:.0} rays/s, {:.0} samples/s",
-                log.loss, log.psnr, log.rays_per_s, log.samples_per_s
-            ),
-        )
-    })
-    .with_context(|| format!("training on {}", args.data.display()))?;
-    if let Some(note) = &report.perceptual_note {
+    run_trainer(trainer, &args.data)
+}
+
+/// Runs a trainer to the end with a progress line and prints a summary.
+pub fn run_trainer(trainer: Trainer, data: &std::path::Path) -> anyhow::Result<()> {
+    if let Some(note) = trainer.perceptual_note() {
         eprintln!("note: {note}");
     }
+    let opts = trainer.options().clone();
+    let progress = Progress::new("training (per mille)", 1000);
+    let report = trainer
+        .run(&mut |log: &StepLog| {
+            progress.update(
+                (log.progress * 1000.0).floor() as usize,
+                &format!(
+                    "step {} loss {:.4} psnr {:.2} dB, {:.0} rays/s",
+                    log.step, log.loss, log.psnr, log.rays_per_s
+                ),
+            )
+        })
+        .with_context(|| format!("training on {}", data.display()))?;
     let n = report.logs.len();
-    let tail = &report.logs[n.saturating_sub(10)..];
+    let tail = &report.logs[n.saturating_sub(20)..];
     let mean = |f: &dyn Fn(&train::StepLog) -> f64| {
         tail.iter().map(f).sum::<f64>() / tail.len().max(1) as f64
     };
     println!(
         "trained {} steps ({} sampler, {} preset) in {:.1} s: {:.2} steps/s; last {} steps: \
-         loss {:.4}, psnr {:.2} dB, {:.0} rays/s, {:.0} samples/s",
+         loss {:.4}, batch psnr {:.2} dB, {:.0} rays/s, {:.0} samples/s",
         n,
         opts.sampler.name(),
         opts.preset,
@@ -94,7 +157,7 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
     println!(
         "log: {}\ncheckpoint: {}",
         report.log_file.display(),
-        report.checkpoint.dir.display()
+        report.checkpoint.display()
     );
     Ok(())
 }

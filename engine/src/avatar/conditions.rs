@@ -1,0 +1,43 @@
+//! The field's per-frame conditions from a frame's parameters and posed scene.
+
+use talkin_nets::FrameConditions;
+use talkin_nets::field::{EXPRESSION_DIM, JAW_DIM};
+
+use crate::body::FrameParams;
+use crate::sampling::FrameScene;
+
+/// Identity `subject`, the 22 row-major `canonical_from_posed` matrices, the body pose
+/// (D_nr), `e = [psi; jaw]` and both hands' poses.
+pub fn frame_conditions(
+    subject: usize,
+    params: &FrameParams,
+    scene: &FrameScene,
+) -> FrameConditions {
+    let canonical_from_posed = scene
+        .canonical_from_posed
+        .iter()
+        .map(|a| {
+            let m = a.matrix3;
+            let t = a.translation;
+            [
+                m.x_axis.x, m.y_axis.x, m.z_axis.x, t.x, //
+                m.x_axis.y, m.y_axis.y, m.z_axis.y, t.y, //
+                m.x_axis.z, m.y_axis.z, m.z_axis.z, t.z, //
+                0.0, 0.0, 0.0, 1.0,
+            ]
+        })
+        .collect();
+    let face = params.face_condition();
+    let mut expression = [0.0f32; EXPRESSION_DIM];
+    expression.copy_from_slice(&face[..EXPRESSION_DIM]);
+    let mut jaw = [0.0f32; JAW_DIM];
+    jaw.copy_from_slice(&face[EXPRESSION_DIM..]);
+    FrameConditions {
+        identity: subject,
+        canonical_from_posed,
+        body_pose: params.body_condition().to_vec(),
+        expression,
+        jaw,
+        hand_pose: params.hand_condition().to_vec(),
+    }
+}

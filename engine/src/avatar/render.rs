@@ -1,0 +1,195 @@
+//! Rendering one frame: every pixel's ray through the frame's sampler, the field in
+//! chunks, volume rendering over the background.
+
+use std::time::Instant;
+
+use burn::prelude::*;
+use image::{GrayImage, RgbImage};
+use talkin_grids::{PackedSamples, Ray, SamplerKind};
+use talkin_nets::FieldInput;
+use talkin_nets::render::OwnedRaySamples;
+
+use super::{Avatar, AvatarError, frame_conditions};
+use crate::body::FrameParams;
+use crate::camera::Camera;
+use crate::sampling::{FrameSampler, FrameScene};
+
+/// Rays per field evaluation when rendering (bounds the memory of one forward).
+pub const RENDER_CHUNK_RAYS: usize = 8192;
+/// Largest image a render accepts (pixels): 4096 x 4096.
+pub const MAX_RENDER_PIXELS: u64 = 4096 * 4096;
+
+/// A rendered image.
+#[derive(Clone, Debug)]
+pub struct RenderedFrame {
+    pub width: u32,
+    pub height: u32,
+    /// Row-major RGB over the background, in [0, 1]. `[h * w * 3]`
+    pub rgb: Vec<f32>,
+    /// Accumulated opacity. `[h * w]`
+    pub opacity: Vec<f32>,
+    /// Argmax of the rendered segmentation logits (0 where the opacity is below 0.5).
+    /// `[h * w]`
+    pub labels: Vec<u8>,
+    /// Field samples evaluated.
+    pub samples: usize,
+    pub seconds: f64,
+}
+
+impl RenderedFrame {
+    /// The colour as an 8-bit image.
+    pub fn to_image(&self) -> RgbImage {
+        let bytes = self
+            .rgb
+            .iter()
+            .map(|v| (v.clamp(0.0, 1.0) * 255.0).round() as u8)
+            .collect();
+        RgbImage::from_raw(self.width, self.height, bytes).expect("w * h * 3 values")
+    }
+
+    /// The opacity as an 8-bit mask.
+    pub fn mask_image(&self) -> GrayImage {
+        let bytes = self
+            .opacity
+            .iter()
+            .map(|v| (v.clamp(0.0, 1.0) * 255.0).round() as u8)
+            .collect();
+        GrayImage::from_raw(self.width, self.height, bytes).expect("w * h values")
+    }
+}
+
+/// The nets' packed layout of grids' samples.
+pub(crate) fn packed_layout(s: &PackedSamples) -> OwnedRaySamples {
+    OwnedRaySamples {
+        offsets: s.ray_offsets.iter().map(|&o| o as usize).collect(),
+        t_start: s.t_start.clone(),
+        t_end: s.t_end.clone(),
+    }
+}
+
+/// Pixel rays of `camera`, row-major.
+pub(crate) fn pixel_rays(camera: &Camera) -> Result<Vec<Ray>, talkin_grids::GridError> {
+    let mut rays = Vec::with_capacity((camera.width * camera.height) as usize);
+    for y in 0..camera.height {
+        for x in 0..camera.width {
+            let (o, d) = camera.pixel_ray(x, y);
+            rays.push(Ray::new(o.as_vec3(), d.as_vec3(), 0.0, f32::INFINITY)?);
+        }
+    }
+    Ok(rays)
+}
+
+impl Avatar {
+    /// Renders subject `subject` (identity index) in pose `params` through `camera`, with
+    /// `sampler` (`None`: the one the avatar was trained with). Deterministic.
+    pub fn render(
+        &self,
+        subject: usize,
+        params: &FrameParams,
+        camera: &Camera,
+        sampler: Option<SamplerKind>,
+    ) -> Result<RenderedFrame, AvatarError> {
+        let start = Instant::now();
+        let model = self.subject_at(subject)?;
+        if !params.is_finite() {
+            return Err(AvatarError::BadInput {
+                what: "params".into(),
+                problem: "every pose, expression and translation value must be finite".into(),
+            });
+        }
+        let pixels = u64::from(camera.width) * u64::from(camera.height);
+        if pixels > MAX_RENDER_PIXELS {
+            return Err(AvatarError::BadInput {
+                what: "camera".into(),
+                problem: format!(
+                    "{}x{} is {pixels} pixels, more than the {MAX_RENDER_PIXELS} a render accepts",
+                    camera.width, camera.height
+                ),
+            });
+        }
+        let kind = sampler.unwrap_or(self.sampler);
+        let scene = FrameScene::new(&model.skeleton, &model.canonical, params);
+        let conditions = frame_conditions(subject, params, &scene);
+        let rays = pixel_rays(camera)?;
+        let frame_sampler = FrameSampler::new(scene, &model.shells, &rays)?;
+
+        let n = rays.len();
+        let mut rgb = Vec::with_capacity(3 * n);
+        let mut opacity = Vec::with_capacity(n);
+        let mut labels = Vec::with_capacity(n);
+        let mut total_samples = 0;
+        for (c, chunk) in rays.chunks(RENDER_CHUNK_RAYS).enumerate() {
+            let samples = frame_sampler.sample(kind, chunk, &model.grid, c as u64)?;
+            total_samples += samples.num_samples();
+            if samples.num_samples() == 0 {
+                for _ in chunk {
+                    rgb.extend_from_slice(&self.background);
+                    opacity.push(0.0);
+                    labels.push(0);
+                }
+                continue;
+            }
+            let points: Vec<[f32; 3]> = samples
+                .midpoints_in_world(chunk)
+                .into_iter()
+                .map(|p| p.to_array())
+                .collect();
+            let input = FieldInput {
+                points: &points,
+                bone_masks: &samples.bone_mask,
+                part_masks: &samples.part_mask,
+                frame: &conditions,
+                step: self.field_step,
+            };
+            let output = self.field.forward(&input)?;
+            let layout = packed_layout(&samples);
+            let rendered = output.render(&layout.view())?;
+            let to_vec = |t: Tensor<2>| t.try_to_vec_as::<f32>().unwrap_or_default();
+            let chunk_rgb = to_vec(rendered.rgb_over(self.background));
+            let chunk_alpha = rendered
+                .opacity
+                .clone()
+                .try_to_vec_as::<f32>()
+                .unwrap_or_default();
+            let seg = to_vec(rendered.seg_logits.clone());
+            if chunk_rgb.len() != 3 * chunk.len() || chunk_alpha.len() != chunk.len() {
+                return Err(AvatarError::BadInput {
+                    what: "render".into(),
+                    problem: "the field returned the wrong number of values".into(),
+                });
+            }
+            let classes = seg.len() / chunk.len().max(1);
+            for (r, &alpha) in chunk_alpha.iter().enumerate() {
+                let logits = &seg[r * classes..(r + 1) * classes];
+                let label = if alpha < 0.5 || classes == 0 {
+                    0
+                } else {
+                    // Argmax among the person classes.
+                    (1..classes)
+                        .max_by(|&a, &b| logits[a].total_cmp(&logits[b]))
+                        .unwrap_or(0) as u8
+                };
+                labels.push(label);
+            }
+            if chunk_rgb.iter().chain(&chunk_alpha).any(|v| !v.is_finite()) {
+                return Err(AvatarError::BadInput {
+                    what: "render".into(),
+                    problem: "the field produced a non-finite colour or opacity \
+                              (a diverged checkpoint?)"
+                        .into(),
+                });
+            }
+            rgb.extend_from_slice(&chunk_rgb);
+            opacity.extend_from_slice(&chunk_alpha);
+        }
+        Ok(RenderedFrame {
+            width: camera.width,
+            height: camera.height,
+            rgb,
+            opacity,
+            labels,
+            samples: total_samples,
+            seconds: start.elapsed().as_secs_f64(),
+        })
+    }
+}

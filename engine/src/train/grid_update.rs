@@ -1,0 +1,93 @@
+//! Occupancy-grid updates from the field's density, in canonical space.
+
+use burn::prelude::*;
+use glam::Vec3;
+use talkin_grids::OccUpdateOpts;
+use talkin_nets::TalkinField;
+
+use super::TrainError;
+use crate::checkpoint::SubjectSlot;
+
+/// Updates every trained subject's grid with the field's density at canonical points
+/// (the max over body, face and hand nets, so a part another net renders is never
+/// culled), times the cell size as nerfacc's `density * step`, without gradients.
+pub(crate) fn update_grids(
+    field: &TalkinField,
+    subjects: &mut [SubjectSlot],
+    step: u32,
+    opts: &OccUpdateOpts,
+    face_dim: usize,
+) -> Result<(), TrainError> {
+    if opts.n == 0 || !step.is_multiple_of(opts.n) {
+        return Ok(());
+    }
+    for (subject, slot) in subjects.iter_mut().enumerate() {
+        let name = slot.name.clone();
+        let Some(model) = slot.model.as_mut() else {
+            continue;
+        };
+        let scale = model.grid.cell_size().min_element();
+        let density = |points: &[Vec3]| canonical_density(field, subject, points, scale, face_dim);
+        model
+            .grid
+            .update_every_n_steps(step, density, opts)
+            .map_err(|source| TrainError::Occupancy {
+                subject: name,
+                source,
+            })?;
+    }
+    Ok(())
+}
+
+/// `max(sigma_body, sigma_face, sigma_hands) * scale` at canonical points of `subject`
+/// (neutral expression and hand pose; no non-rigid offsets). Non-finite densities count
+/// as occupied (never cull what cannot be judged).
+fn canonical_density(
+    field: &TalkinField,
+    subject: usize,
+    points: &[Vec3],
+    scale: f32,
+    face_dim: usize,
+) -> Vec<f32> {
+    let n = points.len();
+    if n == 0 {
+        return Vec::new();
+    }
+    let device = field.identity.val().device();
+    let flat: Vec<f32> = points.iter().flat_map(|p| p.to_array()).collect();
+    let x = Tensor::<2>::from_data(TensorData::new(flat, [n, 3]), &device);
+    let unit = field.to_unit(x);
+    let id = field
+        .identity
+        .val()
+        .select(
+            0,
+            Tensor::<1, Int>::from_data(TensorData::new(vec![subject as i32], [1]), &device),
+        )
+        .repeat_dim(0, n);
+    let raw_sigma = |raw: Tensor<2>| raw.narrow(1, 0, 1).squeeze_dim::<1>(1);
+    let mut sigma = raw_sigma(
+        field
+            .body
+            .forward(unit.clone(), vec![id.clone()], usize::MAX),
+    );
+    if let Some(face) = &field.face {
+        let e = Tensor::<2>::zeros([n, face_dim], &device);
+        let s = raw_sigma(face.forward(unit.clone(), vec![e, id.clone()], usize::MAX));
+        sigma = sigma.max_pair(s);
+    }
+    if let Some(hands) = &field.hands {
+        let s = raw_sigma(hands.forward(unit, vec![id], usize::MAX));
+        sigma = sigma.max_pair(s);
+    }
+    // softplus after the max (monotone, so the same as the max of the densities).
+    let relu = sigma.clone().clamp_min(0.0);
+    let sigma = relu + sigma.abs().neg().exp().log1p();
+    sigma
+        .mul_scalar(scale)
+        .try_to_vec_as::<f32>()
+        .unwrap_or_else(|_| vec![f32::INFINITY; n])
+        .into_iter()
+        .map(|d| if d.is_nan() { f32::INFINITY } else { d })
+        .collect()
+}

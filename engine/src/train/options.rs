@@ -1,0 +1,116 @@
+//! What a run is told, recorded in every checkpoint's `state.json` and in `RUN/recipe.json`.
+
+use std::path::PathBuf;
+
+use serde::{Deserialize, Serialize};
+use talkin_grids::SamplerKind;
+
+use super::TrainError;
+
+/// How long to train.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Budget {
+    /// Optimizer steps (reproducible to the bit).
+    Steps(usize),
+    /// Wall-clock seconds of training (the schedule follows elapsed time; evaluation
+    /// pauses in the benchmark do not count).
+    Seconds(f64),
+}
+
+/// Everything a run is told.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct TrainOptions {
+    /// `fast` or `paper`.
+    pub preset: String,
+    pub sampler: SamplerKind,
+    pub budget: Budget,
+    /// Seed of the initialisation, frame and ray choice and sample jitter.
+    pub seed: u64,
+    /// Names of the subjects to train on; `None`: all with training frames.
+    pub identities: Option<Vec<String>>,
+    /// Random pixel rays per step (besides the LPIPS patches).
+    pub batch_rays: usize,
+    /// 32x32 LPIPS patches per step (the paper: 6).
+    pub patches: usize,
+    /// Initial Adam learning rate (decays x0.1 per 500k virtual steps); `None`: the
+    /// preset's (`paper` 5e-4 as the paper, `fast` 5e-3: its hash grid learns ~10x faster).
+    pub lr: Option<f64>,
+    /// Fraction of random rays drawn inside the person's bounding box (the paper: 80%).
+    pub bbox_fraction: f32,
+    /// Update the occupancy grids every this many steps (0: never). Accelerated only.
+    pub occ_every: u32,
+    /// Occupancy-grid cells along the longest axis.
+    pub grid_resolution: u32,
+    /// Directory of the LPIPS weights (`alex.safetensors`); without them the perceptual
+    /// term is 1 - SSIM, and the run says so.
+    pub perceptual: Option<PathBuf>,
+    /// Write a checkpoint every this many seconds of training (and always at the end).
+    pub checkpoint_every_s: f64,
+}
+
+impl Default for TrainOptions {
+    fn default() -> Self {
+        TrainOptions {
+            preset: "fast".into(),
+            sampler: SamplerKind::Accelerated,
+            budget: Budget::Steps(1000),
+            seed: 0,
+            identities: None,
+            batch_rays: 1024,
+            patches: 1,
+            lr: None,
+            bbox_fraction: 0.8,
+            occ_every: 64,
+            grid_resolution: 128,
+            perceptual: None,
+            checkpoint_every_s: 120.0,
+        }
+    }
+}
+
+impl TrainOptions {
+    /// The initial learning rate: the option, else the preset's.
+    pub fn initial_lr(&self) -> f64 {
+        self.lr
+            .unwrap_or(if self.preset == "paper" { 5e-4 } else { 5e-3 })
+    }
+
+    pub(crate) fn check(&self) -> Result<(), TrainError> {
+        let bad = |field, problem: &str| {
+            Err(TrainError::BadOption {
+                field,
+                problem: problem.to_string(),
+            })
+        };
+        match self.budget {
+            Budget::Steps(0) => return bad("steps", "must be at least 1"),
+            Budget::Seconds(s) if !(s.is_finite() && s > 0.0) => {
+                return bad("minutes", "must be a positive number");
+            }
+            _ => {}
+        }
+        if self.batch_rays == 0 && self.patches == 0 {
+            return bad(
+                "batch_rays",
+                "a step needs rays: batch_rays or patches must be > 0",
+            );
+        }
+        if !(self.initial_lr().is_finite() && self.initial_lr() > 0.0) {
+            return bad("lr", "must be a positive number");
+        }
+        if !(0.0..=1.0).contains(&self.bbox_fraction) {
+            return bad("bbox_fraction", "must lie in [0, 1]");
+        }
+        if self.grid_resolution < 8 || self.grid_resolution > 512 {
+            return bad("grid_resolution", "must be in 8..=512");
+        }
+        if !(self.checkpoint_every_s > 0.0) {
+            return bad("checkpoint_every_s", "must be positive");
+        }
+        if self.preset != "fast" && self.preset != "paper" {
+            return bad("preset", "expected `fast` or `paper`");
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,53 @@
+use std::path::PathBuf;
+
+use anyhow::Context;
+use talkin_engine::dataset::Dataset;
+use talkin_engine::train::Trainer;
+
+use super::train::{RecipeArgs, run_trainer};
+
+/// The paper adapts with lr 1e-5, 1/50 of its training rate 5e-4; the fast preset keeps
+/// that ratio to its own training rate (5e-3 -> 1e-4).
+const ADAPT_LR_RATIO: f64 = 1.0 / 50.0;
+
+#[derive(clap::Args, Debug, Clone)]
+pub struct AdaptArgs {
+    /// The trained multi-identity run to adapt.
+    #[arg(long)]
+    pub run: PathBuf,
+    /// Dataset holding the novel subject's clip.
+    #[arg(long)]
+    pub data: PathBuf,
+    /// The novel subject's name in that dataset.
+    #[arg(long)]
+    pub subject: String,
+    /// The adapted run's directory.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Use only the first S seconds of the subject's training frames (the paper: 1, 3,
+    /// 10 or 30 s).
+    #[arg(long)]
+    pub seconds_of_video: Option<f64>,
+    #[command(flatten)]
+    pub recipe: RecipeArgs,
+}
+
+pub fn run(args: AdaptArgs) -> anyhow::Result<()> {
+    let dataset = Dataset::load(&args.data)
+        .with_context(|| format!("cannot load the dataset in {}", args.data.display()))?;
+    let mut opts = args.recipe.options()?;
+    if opts.lr.is_none() {
+        opts.lr = Some(opts.initial_lr() * ADAPT_LR_RATIO);
+    }
+    opts.identities = Some(vec![args.subject.clone()]);
+    let trainer = Trainer::adapt(
+        &dataset,
+        &args.run,
+        &args.subject,
+        args.seconds_of_video,
+        &args.out,
+        &opts,
+    )
+    .with_context(|| format!("adapting {} to `{}`", args.run.display(), args.subject))?;
+    run_trainer(trainer, &args.data)
+}
