@@ -5,6 +5,7 @@
 //! Library code returns typed errors that name the file, field and expected shape; the
 //! binary turns them into messages and exit codes.
 
+pub mod ablations;
 pub mod atomic;
 pub mod avatar;
 pub mod body;
@@ -12,10 +13,13 @@ pub mod camera;
 pub mod checkpoint;
 pub mod dataset;
 pub mod draw;
+pub mod eval;
 pub mod inspect;
 pub mod json_shape;
 pub mod motion;
 pub mod sampling;
+pub mod speed_vs_error;
 pub mod subject_model;
 pub mod synth;
+pub mod text;
 pub mod train;

@@ -5,7 +5,7 @@ mod bench;
 mod demo;
 mod inspect;
 mod synth;
-mod train;
+pub mod train;
 
 use clap::{Parser, Subcommand};
 

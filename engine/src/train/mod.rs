@@ -30,7 +30,7 @@ use talkin_nets::loss::{Backbone, LossError, PerceptualLoss, mse, seg_cross_entr
 use talkin_nets::{FieldConfig, FieldInput, NetsError, TalkinField};
 
 pub use batch::PATCH;
-pub use options::{Budget, TrainOptions};
+pub use options::{Ablation, Budget, TrainOptions};
 pub use rng::SplitMix64;
 pub use talkin_grids::SamplerKind;
 
@@ -181,6 +181,9 @@ impl<'a> Trainer<'a> {
                 field: "preset",
                 problem: format!("unknown preset `{}` (fast or paper)", opts.preset),
             })?;
+        config.use_d_hands = opts.ablation.use_d_hands;
+        config.hand_background = opts.ablation.hand_background;
+        config.face_uses_jaw = opts.ablation.face_uses_jaw;
         let subjects = fit_subjects(dataset, &frames, opts.grid_resolution)?;
         fit_field_box(&mut config, &subjects);
         let device = Device::flex().autodiff();

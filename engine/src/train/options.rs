@@ -47,6 +47,30 @@ pub struct TrainOptions {
     pub perceptual: Option<PathBuf>,
     /// Write a checkpoint every this many seconds of training (and always at the end).
     pub checkpoint_every_s: f64,
+    /// The paper's ablation switches (all on: the full method).
+    #[serde(default)]
+    pub ablation: Ablation,
+}
+
+/// The paper's ablations (Tables 1 and 3), as switches on the field.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Ablation {
+    /// D_hands deforms hand samples (off: "w/o D_hands").
+    pub use_d_hands: bool,
+    /// The body's rendered colour is the hands' background (off: "w/o background").
+    pub hand_background: bool,
+    /// F_face is conditioned on [psi; jaw] (off: psi only).
+    pub face_uses_jaw: bool,
+}
+
+impl Default for Ablation {
+    fn default() -> Self {
+        Ablation {
+            use_d_hands: true,
+            hand_background: true,
+            face_uses_jaw: true,
+        }
+    }
 }
 
 impl Default for TrainOptions {
@@ -65,6 +89,7 @@ impl Default for TrainOptions {
             grid_resolution: 128,
             perceptual: None,
             checkpoint_every_s: 120.0,
+            ablation: Ablation::default(),
         }
     }
 }
