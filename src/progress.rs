@@ -1,5 +1,5 @@
 //! A one-line progress display on stderr: count, rate and ETA, redrawn at most 5 times a
-//! second (and not at all when stderr is not a terminal, except the final line).
+//! second on a terminal; elsewhere (a log file) a line every 15 s and the final one.
 
 use std::io::{IsTerminal, Write};
 use std::sync::Mutex;
@@ -30,7 +30,13 @@ impl Progress {
         let finished = done >= self.total;
         {
             let mut last = self.last_draw.lock().unwrap_or_else(|p| p.into_inner());
-            if !finished && (!self.interactive || last.elapsed() < Duration::from_millis(200)) {
+            // A terminal is redrawn 5 times a second; a log file gets a line every 15 s.
+            let period = if self.interactive {
+                Duration::from_millis(200)
+            } else {
+                Duration::from_secs(15)
+            };
+            if !finished && last.elapsed() < period {
                 return;
             }
             *last = Instant::now();
@@ -43,13 +49,17 @@ impl Progress {
             f64::NAN
         };
         let mut err = std::io::stderr().lock();
-        let _ = write!(
-            err,
-            "\r{}: {done}/{} ({:.1}/s, {:.0}s elapsed, ETA {:.0}s) {extra}\x1b[K",
+        let line = format!(
+            "{}: {done}/{} ({:.1}/s, {:.0}s elapsed, ETA {:.0}s) {extra}",
             self.label, self.total, rate, elapsed, eta
         );
-        if finished {
-            let _ = writeln!(err);
+        if self.interactive {
+            let _ = write!(err, "\r{line}\x1b[K");
+            if finished {
+                let _ = writeln!(err);
+            }
+        } else {
+            let _ = writeln!(err, "{line}");
         }
     }
 }

@@ -127,7 +127,8 @@ impl FieldConfig {
             EncodingConfig::HashGrid(
                 HashGridConfig::new()
                     .with_n_levels(12)
-                    .with_log2_hashmap_size(15),
+                    .with_log2_hashmap_size(15)
+                    .with_n_identities(n_identities.max(1)),
             ),
             small.clone(),
             small.clone(),
@@ -215,15 +216,18 @@ pub struct RadianceNet {
 }
 
 impl RadianceNet {
+    /// Points of identity `identity` (all of one subject).
+    ///
     /// # Shapes
     /// - `unit_points`: `[n, 3]`, each of `conditions`: `[n, d_k]`; output `[n, d_out]`
     pub fn forward(
         &self,
         unit_points: Tensor<2>,
+        identity: usize,
         conditions: Vec<Tensor<2>>,
         step: usize,
     ) -> Tensor<2> {
-        let mut inputs = vec![self.encoding.forward(unit_points, step)];
+        let mut inputs = vec![self.encoding.forward(unit_points, identity, step)];
         inputs.extend(conditions);
         self.mlp.forward(Tensor::cat(inputs, 1))
     }
@@ -524,6 +528,7 @@ impl TalkinField {
             .select(0, ints(vec![frame.identity as i32], &device)); // [1, id]
         let raw = self.body.forward(
             self.to_unit(x.clone()),
+            frame.identity,
             vec![identity.clone().repeat_dim(0, n)],
             step,
         ); // [n, 9]
@@ -552,6 +557,7 @@ impl TalkinField {
                 let e = floats(e, [1, d_e], &device).repeat_dim(0, h);
                 let raw = face.forward(
                     self.to_unit(xh),
+                    frame.identity,
                     vec![e, identity.clone().repeat_dim(0, h)],
                     step,
                 );
@@ -574,7 +580,12 @@ impl TalkinField {
                         .repeat_dim(0, h);
                     xh = xh.clone() + dh.forward(self.to_unit(xh), pose, step);
                 }
-                let raw = hands.forward(self.to_unit(xh), vec![identity.repeat_dim(0, h)], step);
+                let raw = hands.forward(
+                    self.to_unit(xh),
+                    frame.identity,
+                    vec![identity.repeat_dim(0, h)],
+                    step,
+                );
                 let (s_hand, c_hand) = activate(&raw);
                 stats.hand_rows = h;
                 if self.settings.hand_background {

@@ -11,6 +11,8 @@ use crate::util::{floats, host, ints};
 
 /// instant-ngp's spatial-hash primes (the first is 1 for cache coherence along x).
 const PRIMES: [u32; 3] = [1, 2_654_435_761, 805_459_861];
+/// Mixes the identity into the spatial hash (a fourth coordinate).
+const IDENTITY_PRIME: u32 = 3_674_653_429;
 
 /// Configuration of [`HashGrid`] (tiny-cuda-nn's `HashGrid` fields).
 #[derive(Config, Debug)]
@@ -33,6 +35,11 @@ pub struct HashGridConfig {
     /// Table entries start uniform in `[-init_scale, init_scale]` (instant-ngp: 1e-4).
     #[config(default = 1e-4)]
     pub init_scale: f64,
+    /// Identities with their own features (a fourth hashed coordinate): subjects share
+    /// the table's capacity but not its entries, so one canonical place can hold three
+    /// people's different clothes. Dense levels hold `n_identities` blocks.
+    #[config(default = 1)]
+    pub n_identities: usize,
 }
 
 impl HashGridConfig {
@@ -46,7 +53,7 @@ impl HashGridConfig {
             let res = (self.base_resolution as f64 * self.per_level_scale.powi(level as i32))
                 .floor()
                 .max(1.0) as usize;
-            let dense = (res + 1).pow(3);
+            let dense = (res + 1).pow(3) * self.n_identities.max(1);
             resolutions.push(res);
             offsets.push(total);
             total += dense.min(max_entries);
@@ -89,17 +96,22 @@ impl HashGrid {
         *self.offsets.last().unwrap_or(&0)
     }
 
-    /// Table row of integer vertex `c` on `level`.
-    fn vertex_index(&self, level: usize, c: [u32; 3]) -> usize {
+    /// Table row of integer vertex `c` of identity `id` on `level`: dense levels hold
+    /// one block per identity (an identity added after training wraps onto the others'
+    /// blocks), hashed levels hash the identity with the vertex.
+    fn vertex_index(&self, level: usize, c: [u32; 3], id: u32) -> usize {
         let res1 = self.resolutions[level] + 1;
+        let block = res1.pow(3);
         let size = self.offsets[level + 1] - self.offsets[level];
-        let local = if res1.pow(3) <= size {
-            c[0] as usize + res1 * (c[1] as usize + res1 * c[2] as usize)
+        let dense = c[0] as usize + res1 * (c[1] as usize + res1 * c[2] as usize);
+        let local = if block <= size && size % block == 0 {
+            (dense + id as usize * block) % size
         } else {
             // size is a power of two when hashed.
             let h = c[0].wrapping_mul(PRIMES[0])
                 ^ c[1].wrapping_mul(PRIMES[1])
-                ^ c[2].wrapping_mul(PRIMES[2]);
+                ^ c[2].wrapping_mul(PRIMES[2])
+                ^ id.wrapping_mul(IDENTITY_PRIME);
             h as usize & (size - 1)
         };
         self.offsets[level] + local
@@ -107,7 +119,7 @@ impl HashGrid {
 
     /// Host-side lower cell corners `[n, L, 3]` and the 8 vertex rows `[n, L, 8]` of each
     /// point (points already clamped to [0, 1]). Corner `k` is `(k & 1, k >> 1 & 1, k >> 2)`.
-    fn corners(&self, points: &[f32]) -> (Vec<f32>, Vec<i32>) {
+    fn corners(&self, points: &[f32], id: u32) -> (Vec<f32>, Vec<i32>) {
         let n = points.len() / 3;
         let l = self.resolutions.len();
         let mut lower = Vec::with_capacity(n * l * 3);
@@ -124,20 +136,20 @@ impl HashGrid {
                 }
                 for k in 0..8u32 {
                     let v = [c[0] + (k & 1), c[1] + ((k >> 1) & 1), c[2] + (k >> 2)];
-                    rows.push(self.vertex_index(level, v) as i32);
+                    rows.push(self.vertex_index(level, v, id) as i32);
                 }
             }
         }
         (lower, rows)
     }
 
-    /// Encodes points given in the unit cube (clamped to it: outside, the gradient w.r.t.
-    /// the point is zero).
+    /// Encodes points of identity `identity` given in the unit cube (clamped to it:
+    /// outside, the gradient w.r.t. the point is zero).
     ///
     /// # Shapes
     /// - `x`: `[n, 3]` in [0, 1]^3
     /// - output: `[n, n_levels * n_features_per_level]`, level-major.
-    pub fn forward(&self, x: Tensor<2>) -> Tensor<2> {
+    pub fn forward(&self, x: Tensor<2>, identity: usize) -> Tensor<2> {
         let [n, _] = x.dims();
         let l = self.resolutions.len();
         let f = self.n_features;
@@ -146,7 +158,7 @@ impl HashGrid {
             return Tensor::zeros([0, l * f], &device);
         }
         let x = x.clamp(0.0, 1.0);
-        let (lower, rows) = self.corners(&host(&x));
+        let (lower, rows) = self.corners(&host(&x), identity as u32);
         let res: Vec<f32> = self.resolutions.iter().map(|&r| r as f32).collect();
         let res = floats(res, [1, l, 1], &device); // [1, L, 1]
         let lower = floats(lower, [n, l, 3], &device); // [n, L, 3]
@@ -173,7 +185,7 @@ pub(crate) mod tests {
     use super::*;
 
     /// Plain f64 reference of the encoding (same vertex indexing).
-    pub(crate) fn reference(grid: &HashGrid, table: &[f64], p: [f64; 3]) -> Vec<f64> {
+    pub(crate) fn reference(grid: &HashGrid, table: &[f64], p: [f64; 3], id: u32) -> Vec<f64> {
         let f = grid.n_features;
         let mut out = Vec::new();
         for (level, &res) in grid.resolutions.iter().enumerate() {
@@ -192,7 +204,7 @@ pub(crate) mod tests {
                 for a in 0..3 {
                     w *= if d[a] == 1 { t[a] } else { 1.0 - t[a] };
                 }
-                let row = grid.vertex_index(level, [c[0] + d[0], c[1] + d[1], c[2] + d[2]]);
+                let row = grid.vertex_index(level, [c[0] + d[0], c[1] + d[1], c[2] + d[2]], id);
                 for j in 0..f {
                     acc[j] += w * table[row * f + j];
                 }
@@ -224,13 +236,46 @@ pub(crate) mod tests {
         let table: Vec<f64> = host(&grid.table.val()).iter().map(|&v| v as f64).collect();
         let pts = [[0.1f32, 0.5, 0.9], [0.77, 0.01, 0.33], [1.0, 0.0, 0.5]];
         let x = floats(pts.iter().flatten().copied().collect(), [3, 3], &device);
-        let y = host(&grid.forward(x));
+        let y = host(&grid.forward(x, 0));
         for (i, p) in pts.iter().enumerate() {
-            let r = reference(&grid, &table, p.map(|v| v as f64));
+            let r = reference(&grid, &table, p.map(|v| v as f64), 0);
             for (j, v) in r.iter().enumerate() {
                 assert!((y[i * 8 + j] as f64 - v).abs() < 1e-5, "{i} {j}");
             }
         }
+    }
+
+    /// Each identity has its own dense block on coarse levels and its own hash on fine
+    /// ones: the same point reads different table rows for different subjects.
+    #[test]
+    fn identities_read_their_own_features() {
+        let device = Device::flex();
+        let grid = HashGridConfig::new()
+            .with_n_levels(4)
+            .with_log2_hashmap_size(9)
+            .with_base_resolution(3)
+            .with_per_level_scale(2.0)
+            .with_init_scale(1.0)
+            .with_n_identities(2)
+            .init(&device);
+        // Level 0: two dense blocks of 4^3; level 1 (7^3 * 2 > 512) hashed.
+        assert_eq!(grid.offsets[1], 128);
+        assert_eq!(
+            grid.vertex_index(0, [1, 2, 3], 1),
+            grid.vertex_index(0, [1, 2, 3], 0) + 64
+        );
+        let table: Vec<f64> = host(&grid.table.val()).iter().map(|&v| v as f64).collect();
+        let p = [0.3f32, 0.6, 0.2];
+        let x = floats(p.to_vec(), [1, 3], &device);
+        for id in 0..2u32 {
+            let y = host(&grid.forward(x.clone(), id as usize));
+            let r = reference(&grid, &table, p.map(|v| v as f64), id);
+            for (j, v) in r.iter().enumerate() {
+                assert!((y[j] as f64 - v).abs() < 1e-5, "{id} {j}");
+            }
+        }
+        let (a, b) = (host(&grid.forward(x.clone(), 0)), host(&grid.forward(x, 1)));
+        assert!(a.iter().zip(&b).all(|(u, v)| u != v), "{a:?} {b:?}");
     }
 
     /// Autodiff gradients w.r.t. the table and the points against central differences of
@@ -252,7 +297,7 @@ pub(crate) mod tests {
             &device,
         )
         .require_grad();
-        let out = grid.forward(x.clone());
+        let out = grid.forward(x.clone(), 0);
         let c = floats(
             coeff.iter().map(|&v| v as f32).collect(),
             [2, out_dim],
@@ -265,7 +310,7 @@ pub(crate) mod tests {
         let loss = |table: &[f64], pts: &[[f64; 3]; 2]| -> f64 {
             let mut s = 0.0;
             for (i, p) in pts.iter().enumerate() {
-                for (j, v) in reference(&grid, table, *p).iter().enumerate() {
+                for (j, v) in reference(&grid, table, *p, 0).iter().enumerate() {
                     s += v * coeff[i * out_dim + j];
                 }
             }

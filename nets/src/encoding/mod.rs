@@ -46,16 +46,18 @@ impl Encoding {
         }
     }
 
-    /// Encodes points given in the unit cube of the canonical bounding box.
+    /// Encodes points of identity `identity` given in the unit cube of the canonical
+    /// bounding box (the sinusoids ignore the identity; the hash grid gives each its own
+    /// features).
     ///
     /// # Shapes
     /// - `unit_points`: `[n, 3]` in [0, 1]^3
     /// - output: `[n, output_dim]`
-    pub fn forward(&self, unit_points: Tensor<2>, step: usize) -> Tensor<2> {
+    pub fn forward(&self, unit_points: Tensor<2>, identity: usize, step: usize) -> Tensor<2> {
         match self {
             // Sinusoids want coordinates in about [-1, 1].
             Encoding::Frequency(e) => e.forward(unit_points.mul_scalar(2.0).sub_scalar(1.0), step),
-            Encoding::HashGrid(e) => e.forward(unit_points),
+            Encoding::HashGrid(e) => e.forward(unit_points, identity),
         }
     }
 }
