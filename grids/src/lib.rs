@@ -68,6 +68,7 @@ pub mod intervals;
 pub mod margins;
 pub mod occupancy;
 mod packing;
+pub mod posed_grid;
 pub mod ray;
 mod rng;
 pub mod sampler;
@@ -85,6 +86,7 @@ pub use margins::{
     LabelledRay, MarginFitOpts, MarginReport, PartFit, PartMargins, fit_part_margins,
 };
 pub use occupancy::{OccUpdateOpts, OccUpdateReport, OccupancyGrid};
+pub use posed_grid::{CanonicalCull, DilatedOccupancy, PosedGrid};
 pub use ray::Ray;
 pub use sampler::SamplerKind;
 pub use sampler_accelerated::{

@@ -170,6 +170,28 @@ impl OccupancyGrid {
         &self.occupancy
     }
 
+    /// A 64-bit hash of the box, resolution and occupied bits: equal grids have equal
+    /// fingerprints, so per-frame structures derived from the bits can be cached by it
+    /// (the grid changes only at occupancy updates).
+    pub fn fingerprint(&self) -> u64 {
+        let mut h = crate::rng::mix64(0x6F63_6367_7269_6431);
+        let head = self
+            .aabb_min
+            .to_array()
+            .into_iter()
+            .chain(self.aabb_max.to_array());
+        for v in head
+            .map(|v| v.to_bits() as u64)
+            .chain(self.resolution.map(u64::from))
+        {
+            h = crate::rng::mix64(h ^ v);
+        }
+        for &w in &self.bitfield {
+            h = crate::rng::mix64(h ^ w);
+        }
+        h
+    }
+
     /// Number of occupied cells.
     pub fn num_occupied(&self) -> usize {
         self.bitfield.iter().map(|w| w.count_ones() as usize).sum()

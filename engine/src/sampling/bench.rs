@@ -118,8 +118,13 @@ pub fn bench_sampling(
         let shells = &subject_margins[frame.subject].shells;
         let grid = &grids[frame.subject];
         let seed = i as u64;
-        // Building the BVHs is part of the accelerated sampler's cost (once per frame).
-        let (sampler, build_s) = median_time(|| FrameSampler::new(scene.clone(), shells, &rays));
+        // Building the frame's structures (BVHs, posed grid) is part of the accelerated
+        // sampler's cost (once per frame).
+        let (sampler, build_s) = median_time(|| {
+            let sampler = FrameSampler::new(scene.clone(), shells, &rays)?;
+            sampler.prepare(grid)?;
+            Ok::<_, talkin_grids::GridError>(sampler)
+        });
         let sampler = sampler.map_err(|e| grid_error(dataset, i, e))?;
         steps.push(sampler.step);
         let (dense, dense_s) =

@@ -1,24 +1,34 @@
 //! One frame's samplers, built once and used by training, rendering and the benchmark:
-//! the dense baseline in the posed box and the accelerated pipeline (capsule intervals,
-//! core truncation, occupancy-grid culling).
+//! the dense baseline in the posed box and the accelerated pipeline (a posed-space grid
+//! that answers the grown capsules, the solid cores and the canonical occupancy grid per
+//! cell, walked by 3D-DDA).
 
-use glam::Vec3;
+use std::sync::{Arc, Mutex};
+
+use glam::{Affine3A, Vec3};
 use talkin_grids::{
-    AcceleratedOpts, CapsuleBvh, DenseOpts, GridError, OccupancyGrid, PackedSamples, Ray,
-    SamplerKind, cull_with_grid, sample_dense, sample_in_front_of_cores,
+    AcceleratedOpts, CanonicalCull, Capsule, CapsuleBvh, DenseOpts, DilatedOccupancy, GridError,
+    OccupancyGrid, PackedSamples, PosedGrid, Ray, SamplerKind, sample_dense,
 };
 
-use super::canonical::PosedToCanonical;
 use super::frame::{FrameScene, capsule_bounds, median_dense_step};
 use super::margins::CapsuleShells;
+use crate::body::skeleton::body_ancestor;
 
 /// Dense samples per ray (the HumanNeRF baseline).
 pub const DENSE_SAMPLES_PER_RAY: u32 = 128;
 
+/// Edge of the posed grid's cells in accelerated steps. Finer cells answer more samples
+/// without exact tests but cost more to build per frame (2.5 and 4 steps measured the
+/// same overall rate on the default scene: sampling, not the build, dominates).
+pub const POSED_CELL_STEPS: f32 = 2.5;
+
 /// A posed frame's acceleration structures and sampling box.
 pub struct FrameSampler {
     pub scene: FrameScene,
-    /// BVH over the grown capsules, and over their solid cores.
+    /// BVH over the grown capsules, and over their solid cores (the exact reference the
+    /// posed grid is checked against; the benchmark uses them to tell which stage lost a
+    /// surface point).
     pub bvh: CapsuleBvh,
     pub core_bvh: CapsuleBvh,
     /// The dense sampler's box: the grown capsules plus 2 cm.
@@ -26,6 +36,12 @@ pub struct FrameSampler {
     pub box_max: Vec3,
     /// The accelerated step (metres).
     pub step: f32,
+    grown: Vec<Capsule>,
+    cores: Vec<Capsule>,
+    /// Per bone (0..64): posed -> canonical by its body ancestor's skinning transform.
+    canonical_from_posed: Vec<Affine3A>,
+    /// The posed grid for the canonical grid with this fingerprint.
+    posed: Mutex<Option<(u64, Arc<PosedGrid>)>>,
 }
 
 impl FrameSampler {
@@ -37,11 +53,18 @@ impl FrameSampler {
         shells: &CapsuleShells,
         step_rays: &[Ray],
     ) -> Result<FrameSampler, GridError> {
-        let inflated = shells.inflate(&scene.capsules);
-        let bvh = CapsuleBvh::build(&inflated)?;
-        let core_bvh = CapsuleBvh::build(&shells.cores(&scene.capsules))?;
-        let (box_min, box_max) = capsule_bounds(&inflated, 0.02);
+        let grown = shells.inflate(&scene.capsules);
+        let cores = shells.cores(&scene.capsules);
+        let bvh = CapsuleBvh::build(&grown)?;
+        let core_bvh = CapsuleBvh::build(&cores)?;
+        let (box_min, box_max) = capsule_bounds(&grown, 0.02);
         let step = median_dense_step(step_rays, box_min, box_max, DENSE_SAMPLES_PER_RAY);
+        let canonical_from_posed = (0..64)
+            .map(|b| {
+                let j = body_ancestor(b.min(54));
+                scene.canonical_from_posed[j]
+            })
+            .collect();
         Ok(FrameSampler {
             scene,
             bvh,
@@ -49,7 +72,38 @@ impl FrameSampler {
             box_min,
             box_max,
             step,
+            grown,
+            cores,
+            canonical_from_posed,
+            posed: Mutex::new(None),
         })
+    }
+
+    /// The posed grid for `grid` (the subject's canonical occupancy grid), built on first
+    /// use and again only when the grid's bits change (occupancy updates).
+    pub fn prepare(&self, grid: &OccupancyGrid) -> Result<Arc<PosedGrid>, GridError> {
+        let key = grid.fingerprint();
+        let mut cached = self.posed.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some((k, posed)) = cached.as_ref()
+            && *k == key
+        {
+            return Ok(posed.clone());
+        }
+        let cell = POSED_CELL_STEPS * self.step;
+        let dilated = dilated_occupancy(grid, PosedGrid::cull_reach(cell, self.step))?;
+        let cull = CanonicalCull {
+            grid: &dilated,
+            canonical_from_posed: &self.canonical_from_posed,
+        };
+        let posed = Arc::new(PosedGrid::build(
+            &self.grown,
+            &self.cores,
+            Some(&cull),
+            cell,
+            self.step,
+        )?);
+        *cached = Some((key, posed.clone()));
+        Ok(posed)
     }
 
     /// Samples `rays` with `kind` (jittered with `seed`). The accelerated sampler culls
@@ -72,17 +126,9 @@ impl FrameSampler {
                     seed,
                 },
             ),
-            SamplerKind::Accelerated => {
-                let samples = sample_in_front_of_cores(
-                    &self.bvh,
-                    &self.core_bvh,
-                    rays,
-                    self.step,
-                    &self.accelerated_opts(seed),
-                )?;
-                let map = PosedToCanonical::new(&self.scene);
-                cull_with_grid(samples, rays, grid, |p, b| map.map(p, b))
-            }
+            SamplerKind::Accelerated => self
+                .prepare(grid)?
+                .sample(rays, &self.accelerated_opts(seed)),
         }
     }
 
@@ -94,4 +140,25 @@ impl FrameSampler {
             seed,
         }
     }
+}
+
+/// The canonical grid dilated by at least `reach`, shared by every frame of a subject:
+/// dilating is per grid, not per frame, so the last few results are kept by fingerprint.
+fn dilated_occupancy(grid: &OccupancyGrid, reach: f32) -> Result<Arc<DilatedOccupancy>, GridError> {
+    static CACHE: Mutex<Vec<Arc<DilatedOccupancy>>> = Mutex::new(Vec::new());
+    let key = grid.fingerprint();
+    let mut cache = CACHE.lock().unwrap_or_else(|e| e.into_inner());
+    if let Some(d) = cache
+        .iter()
+        .find(|d| d.source_fingerprint() == key && d.reach() >= reach)
+    {
+        return Ok(d.clone());
+    }
+    // A little more than asked, so frames whose steps differ slightly share one.
+    let d = Arc::new(DilatedOccupancy::new(grid, reach * 1.25)?);
+    if cache.len() >= 8 {
+        cache.remove(0);
+    }
+    cache.push(d.clone());
+    Ok(d)
 }

@@ -1,0 +1,769 @@
+//! A per-frame grid over posed space that answers, per cell and once per frame, what the
+//! capsule BVH, the solid cores and the canonical occupancy grid would answer per sample:
+//! may a capsule be here (and which parts and bones), is the cell solid (behind a
+//! surface), and may the canonical grid hold density here. Sampling is then a 3D-DDA walk
+//! over the cells plus one byte lookup per sample; only samples in cells that straddle a
+//! capsule or core surface run exact point tests.
+//!
+//! Everything is conservative: a sample is dropped only if it provably lies outside every
+//! grown capsule, behind a core, or (through every candidate bone's map) in no occupied
+//! canonical cell, so it never loses a point the exact pipeline
+//! ([`crate::sample_in_front_of_cores`] then [`crate::cull_with_grid`]) keeps.
+
+use glam::{Affine3A, UVec3, Vec3};
+use rayon::prelude::*;
+
+use crate::intersect::validate_capsules;
+use crate::packing::par_pack;
+use crate::ray::{clip_to_box, validate_rays};
+use crate::rng::SplitMix;
+use crate::samples::{PackedSamples, Sample};
+use crate::{AcceleratedOpts, Capsule, GridError, OccupancyGrid, Ray};
+
+/// Some grown capsule comes within `radius + half cell diagonal + half the longest bin`.
+const NEAR: u8 = 1;
+/// The whole cell lies inside a grown capsule.
+const INSIDE: u8 = 2;
+/// Some candidate bone maps the cell (with its reach) near an occupied canonical cell.
+const OCCUPIED: u8 = 4;
+/// The whole cell lies inside a core.
+const SOLID: u8 = 8;
+/// Some core comes within its radius + half a cell diagonal.
+const CORE_NEAR: u8 = 16;
+
+/// Most cells a posed grid may have (the cell size grows to stay below it).
+pub const MAX_POSED_CELLS: usize = 1 << 22;
+
+/// The canonical side of a [`PosedGrid`]: the subject's occupancy grid, dilated once
+/// (see [`DilatedOccupancy::new`]), and per bone the posed-to-canonical transform.
+pub struct CanonicalCull<'a> {
+    pub grid: &'a DilatedOccupancy,
+    /// Indexed by bone; must be rigid (rotation + translation) and cover every bone of
+    /// the capsules.
+    pub canonical_from_posed: &'a [Affine3A],
+}
+
+/// An occupancy grid's bitfield grown by `cells` cells along every axis, one byte per
+/// cell for a fast lookup; points up to `cells` cells outside the box clamp to the
+/// border cell.
+pub struct DilatedOccupancy {
+    min: Vec3,
+    inv_cell: Vec3,
+    res: UVec3,
+    cells: u32,
+    occupied: Vec<u8>,
+    source_fingerprint: u64,
+}
+
+impl DilatedOccupancy {
+    /// Dilates `grid` by enough cells that every canonical point within `reach` of an
+    /// occupied cell lands in an occupied cell.
+    pub fn new(grid: &OccupancyGrid, reach: f32) -> Result<DilatedOccupancy, GridError> {
+        if !(reach.is_finite() && reach >= 0.0) {
+            return Err(GridError::BadOption {
+                field: "reach",
+                value: reach,
+                expected: "finite and >= 0",
+            });
+        }
+        let size = grid.cell_size();
+        let cells = (reach / size.min_element()).ceil() as u32;
+        let res = UVec3::from(grid.resolution());
+        let (rx, ry, rz) = (res.x as usize, res.y as usize, res.z as usize);
+        let mut a: Vec<u8> = (0..grid.num_cells())
+            .map(|i| grid.is_cell_occupied(i) as u8)
+            .collect();
+        let mut b = a.clone();
+        for _ in 0..cells {
+            // z: within rows.
+            for (dst, src) in b.chunks_mut(rz).zip(a.chunks(rz)) {
+                for z in 0..rz {
+                    dst[z] = src[z] | src[z.saturating_sub(1)] | src[(z + 1).min(rz - 1)];
+                }
+            }
+            std::mem::swap(&mut a, &mut b);
+            // y and x: whole rows / slabs at once.
+            for (stride, len) in [(rz, ry), (ry * rz, rx)] {
+                b.copy_from_slice(&a);
+                let block = stride * len;
+                for (dst, src) in b.chunks_mut(block).zip(a.chunks(block)) {
+                    for k in 0..len {
+                        let here = &mut dst[k * stride..(k + 1) * stride];
+                        for n in [k.wrapping_sub(1), k + 1] {
+                            if n < len {
+                                let other = &src[n * stride..(n + 1) * stride];
+                                here.iter_mut().zip(other).for_each(|(h, o)| *h |= o);
+                            }
+                        }
+                    }
+                }
+                std::mem::swap(&mut a, &mut b);
+            }
+        }
+        let (min, max) = grid.aabb();
+        Ok(DilatedOccupancy {
+            min,
+            inv_cell: res.as_vec3() / (max - min),
+            res,
+            cells,
+            occupied: a,
+            source_fingerprint: grid.fingerprint(),
+        })
+    }
+
+    /// How far (metres) the dilation reaches past the occupied cells: whole cells, at
+    /// least the `reach` asked for.
+    pub fn reach(&self) -> f32 {
+        self.cells as f32 / self.inv_cell.max_element()
+    }
+
+    /// [`OccupancyGrid::fingerprint`] of the grid this was made from.
+    pub fn source_fingerprint(&self) -> u64 {
+        self.source_fingerprint
+    }
+
+    /// Whether `p_canonical` lies in a cell of the dilated set (points within the
+    /// dilation outside the box count as their border cell).
+    #[inline]
+    pub fn is_occupied(&self, p_canonical: Vec3) -> bool {
+        let f = (p_canonical - self.min) * self.inv_cell;
+        let lo = -(self.cells as f32);
+        let hi = self.res.as_vec3() + self.cells as f32;
+        if !(f.cmpge(Vec3::splat(lo)).all() && f.cmplt(hi).all()) {
+            return false;
+        }
+        let c = f.max(Vec3::ZERO).as_uvec3().min(self.res - 1);
+        let i = (c.x as usize * self.res.y as usize + c.y as usize) * self.res.z as usize
+            + c.z as usize;
+        self.occupied[i] != 0
+    }
+}
+
+/// A capsule's segment prepared for repeated squared-distance queries.
+#[derive(Clone, Copy)]
+struct Seg {
+    a: Vec3,
+    ab: Vec3,
+    inv_len2: f32,
+    radius: f32,
+}
+
+impl Seg {
+    fn new(c: &Capsule) -> Seg {
+        let ab = c.b - c.a;
+        let l2 = ab.length_squared();
+        Seg {
+            a: c.a,
+            ab,
+            inv_len2: if l2 > 0.0 { 1.0 / l2 } else { 0.0 },
+            radius: c.radius,
+        }
+    }
+
+    #[inline]
+    fn dist2(&self, p: Vec3) -> f32 {
+        let ap = p - self.a;
+        let s = (ap.dot(self.ab) * self.inv_len2).clamp(0.0, 1.0);
+        (ap - s * self.ab).length_squared()
+    }
+}
+
+/// One frame's posed sampling grid. See the module docs.
+pub struct PosedGrid {
+    min: Vec3,
+    cell: f32,
+    res: UVec3,
+    flags: Vec<u8>,
+    parts: Vec<u8>,
+    bones: Vec<u64>,
+    /// Per bone: its grown capsules and cores.
+    capsules_of_bone: Vec<Vec<Seg>>,
+    cores_of_bone: Vec<Vec<Seg>>,
+    /// Longest bin the grid is valid for (see [`PosedGrid::build`]).
+    max_step: f32,
+}
+
+impl PosedGrid {
+    /// Builds the grid over the grown `capsules` (plus the cells' reach), with `cores`,
+    /// for samplers whose step is at most `max_step` (jittered bins are at most 1.9
+    /// steps long). `cell` is the cell edge in metres (grown if the grid would exceed
+    /// [`MAX_POSED_CELLS`]). Without `cull`, no cell is culled by occupancy. The cull's
+    /// dilation must cover half a cell diagonal plus 0.95 `max_step`
+    /// ([`PosedGrid::cull_reach`]).
+    pub fn build(
+        capsules: &[Capsule],
+        cores: &[Capsule],
+        cull: Option<&CanonicalCull>,
+        cell: f32,
+        max_step: f32,
+    ) -> Result<PosedGrid, GridError> {
+        validate_capsules(capsules)?;
+        validate_capsules(cores)?;
+        for (field, v) in [("cell", cell), ("max_step", max_step)] {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(GridError::BadOption {
+                    field,
+                    value: v,
+                    expected: "finite and > 0",
+                });
+            }
+        }
+        let half_bin = 0.95 * max_step;
+        let mut lo = Vec3::splat(f32::INFINITY);
+        let mut hi = Vec3::splat(f32::NEG_INFINITY);
+        for c in capsules {
+            lo = lo.min(c.a.min(c.b) - c.radius);
+            hi = hi.max(c.a.max(c.b) + c.radius);
+        }
+        if capsules.is_empty() {
+            (lo, hi) = (Vec3::ZERO, Vec3::ONE);
+        }
+        let extent = hi - lo + 2.0 * half_bin;
+        let mut cell = cell;
+        let cells_for = |cell: f32| (extent / cell).ceil().max(Vec3::ONE);
+        while cells_for(cell).x as f64 * cells_for(cell).y as f64 * cells_for(cell).z as f64
+            > MAX_POSED_CELLS as f64
+        {
+            cell *= 1.25;
+        }
+        let res = cells_for(cell).as_uvec3();
+        let min = lo - half_bin;
+        let h = 0.5 * cell * 3f32.sqrt();
+        if let Some(cull) = cull {
+            let need = Self::cull_reach(cell, max_step);
+            let have = cull.grid.reach();
+            if have < need * (1.0 - 1e-4) {
+                return Err(GridError::BadOption {
+                    field: "cull dilation (metres)",
+                    value: have,
+                    expected: "at least half a posed cell diagonal + 0.95 max_step",
+                });
+            }
+            let max_bone = capsules.iter().map(|c| c.bone as usize).max().unwrap_or(0);
+            if cull.canonical_from_posed.len() <= max_bone {
+                return Err(GridError::LengthMismatch {
+                    what: "canonical_from_posed (one per bone)",
+                    expected: max_bone + 1,
+                    got: cull.canonical_from_posed.len(),
+                });
+            }
+            for (i, m) in cull.canonical_from_posed.iter().enumerate() {
+                let m3 = glam::Mat3::from(m.matrix3);
+                let rigid = (m3.transpose() * m3 - glam::Mat3::IDENTITY)
+                    .to_cols_array()
+                    .iter()
+                    .all(|e| e.abs() < 1e-3);
+                if !(m.is_finite() && rigid) {
+                    return Err(GridError::NonFiniteValue {
+                        what: "rigid canonical_from_posed of bone",
+                        index: i,
+                    });
+                }
+            }
+        }
+        let mut capsules_of_bone = vec![Vec::new(); 64];
+        for c in capsules {
+            capsules_of_bone[c.bone as usize].push(Seg::new(c));
+        }
+        let mut cores_of_bone = vec![Vec::new(); 64];
+        for c in cores {
+            cores_of_bone[c.bone as usize].push(Seg::new(c));
+        }
+        let n = (res.x * res.y * res.z) as usize;
+        let slab = (res.y * res.z) as usize;
+        let mut flags = vec![0u8; n];
+        let mut parts = vec![0u8; n];
+        let mut bones = vec![0u64; n];
+        let centre = |x: u32, y: u32, z: u32| min + (UVec3::new(x, y, z).as_vec3() + 0.5) * cell;
+        // The cell range of a capsule grown by `reach`.
+        let range = |c: &Capsule, reach: f32| {
+            let a = ((c.a.min(c.b) - c.radius - reach - min) / cell).floor();
+            let b = ((c.a.max(c.b) + c.radius + reach - min) / cell).floor();
+            (
+                a.max(Vec3::ZERO).as_uvec3(),
+                b.min((res - 1).as_vec3()).max(Vec3::ZERO).as_uvec3(),
+            )
+        };
+        flags
+            .par_chunks_mut(slab)
+            .zip(parts.par_chunks_mut(slab))
+            .zip(bones.par_chunks_mut(slab))
+            .enumerate()
+            .for_each(|(x, ((flags, parts), bones))| {
+                let x = x as u32;
+                for c in capsules {
+                    let (lo, hi) = range(c, h + half_bin);
+                    if x < lo.x || x > hi.x {
+                        continue;
+                    }
+                    let seg = Seg::new(c);
+                    let near = c.radius + h + half_bin;
+                    let near2 = near * near;
+                    let inside = c.radius - h;
+                    let inside2 = if inside > 0.0 { inside * inside } else { -1.0 };
+                    for y in lo.y..=hi.y {
+                        for z in lo.z..=hi.z {
+                            let d2 = seg.dist2(centre(x, y, z));
+                            if d2 <= near2 {
+                                let i = (y * res.z + z) as usize;
+                                flags[i] |= NEAR | if d2 <= inside2 { INSIDE } else { 0 };
+                                parts[i] |= c.part.bit();
+                                bones[i] |= 1u64 << c.bone;
+                            }
+                        }
+                    }
+                }
+                for c in cores {
+                    let (lo, hi) = range(c, h);
+                    if x < lo.x || x > hi.x {
+                        continue;
+                    }
+                    let seg = Seg::new(c);
+                    let near2 = (c.radius + h) * (c.radius + h);
+                    let solid = c.radius - h;
+                    let solid2 = if solid > 0.0 { solid * solid } else { -1.0 };
+                    for y in lo.y..=hi.y {
+                        for z in lo.z..=hi.z {
+                            let d2 = seg.dist2(centre(x, y, z));
+                            let i = (y * res.z + z) as usize;
+                            if d2 <= solid2 {
+                                flags[i] |= SOLID;
+                            } else if d2 <= near2 {
+                                flags[i] |= CORE_NEAR;
+                            }
+                        }
+                    }
+                }
+                for y in 0..res.y {
+                    for z in 0..res.z {
+                        let i = (y * res.z + z) as usize;
+                        if flags[i] & NEAR == 0 {
+                            continue;
+                        }
+                        let occupied = match cull {
+                            None => true,
+                            Some(cull) => {
+                                let p = centre(x, y, z);
+                                let mut bits = bones[i];
+                                let mut hit = false;
+                                while bits != 0 && !hit {
+                                    let b = bits.trailing_zeros() as usize;
+                                    bits &= bits - 1;
+                                    hit = cull.grid.is_occupied(
+                                        cull.canonical_from_posed[b].transform_point3(p),
+                                    );
+                                }
+                                hit
+                            }
+                        };
+                        if occupied {
+                            flags[i] |= OCCUPIED;
+                        }
+                    }
+                }
+            });
+        Ok(PosedGrid {
+            min,
+            cell,
+            res,
+            flags,
+            parts,
+            bones,
+            capsules_of_bone,
+            cores_of_bone,
+            max_step,
+        })
+    }
+
+    /// The canonical dilation (metres) a [`CanonicalCull`] needs for cells of edge `cell`
+    /// and steps up to `max_step`: a sample's points lie within half a cell diagonal +
+    /// half the longest bin of its cell's centre, and rigid maps keep distances.
+    pub fn cull_reach(cell: f32, max_step: f32) -> f32 {
+        0.5 * cell * 3f32.sqrt() + 0.95 * max_step
+    }
+
+    /// The cell edge in metres.
+    pub fn cell(&self) -> f32 {
+        self.cell
+    }
+
+    fn cell_index(&self, p: Vec3) -> Option<usize> {
+        let f = (p - self.min) / self.cell;
+        let res = self.res.as_vec3();
+        if !(f.cmpge(Vec3::ZERO).all() && f.cmplt(res).all()) {
+            return None;
+        }
+        let c = f.as_uvec3().min(self.res - 1);
+        Some(((c.x * self.res.y + c.y) * self.res.z + c.z) as usize)
+    }
+
+    /// Whether a sample around `p` reaching `half` metres either side could hold a point
+    /// of a grown capsule that the canonical grid keeps: what decides if it is emitted.
+    pub fn keeps(&self, p: Vec3, half: f32) -> bool {
+        self.cell_index(p).is_some_and(|i| {
+            let f = self.flags[i];
+            f & NEAR != 0
+                && f & OCCUPIED != 0
+                && (f & INSIDE != 0 || self.near_capsule(p, half, self.bones[i]))
+        })
+    }
+
+    /// Whether `p` is provably inside a core (behind a surface).
+    pub fn is_solid(&self, p: Vec3) -> bool {
+        self.cell_index(p).is_some_and(|i| {
+            let f = self.flags[i];
+            f & SOLID != 0 || (f & CORE_NEAR != 0 && self.in_core(p, self.bones[i]))
+        })
+    }
+
+    #[inline]
+    fn near_capsule(&self, p: Vec3, half: f32, mut bones: u64) -> bool {
+        while bones != 0 {
+            let b = bones.trailing_zeros() as usize;
+            bones &= bones - 1;
+            for s in &self.capsules_of_bone[b] {
+                let r = s.radius + half;
+                if s.dist2(p) <= r * r * (1.0 + 1e-5) {
+                    return true;
+                }
+            }
+        }
+        false
+    }
+
+    #[inline]
+    fn in_core(&self, p: Vec3, mut bones: u64) -> bool {
+        while bones != 0 {
+            let b = bones.trailing_zeros() as usize;
+            bones &= bones - 1;
+            for s in &self.cores_of_bone[b] {
+                if s.dist2(p) <= s.radius * s.radius * (1.0 - 1e-5) {
+                    return true;
+                }
+            }
+        }
+        false
+    }
+
+    /// Per ray, the stretches `[t_in, t_out]` inside cells that some grown capsule comes
+    /// near, by a 3D-DDA walk (f64), appended to `out`.
+    fn runs(&self, ray: &Ray, out: &mut Vec<(f32, f32)>) {
+        let max = self.min + self.res.as_vec3() * self.cell;
+        let Some((t0, t1)) = clip_to_box(ray, self.min, max) else {
+            return;
+        };
+        let (t0, t1) = (t0 as f64, t1 as f64);
+        let cell = self.cell as f64;
+        let o = (ray.origin - self.min).as_dvec3();
+        let d = ray.direction.as_dvec3();
+        let p0 = (o + d * t0) / cell;
+        let res = [self.res.x as i64, self.res.y as i64, self.res.z as i64];
+        let mut c = [0i64; 3];
+        let mut step = [0i64; 3];
+        let mut t_next = [f64::INFINITY; 3];
+        let mut t_delta = [f64::INFINITY; 3];
+        for k in 0..3 {
+            c[k] = (p0[k].floor() as i64).clamp(0, res[k] - 1);
+            if d[k] > 0.0 {
+                step[k] = 1;
+                t_next[k] = ((c[k] + 1) as f64 * cell - o[k]) / d[k];
+                t_delta[k] = cell / d[k];
+            } else if d[k] < 0.0 {
+                step[k] = -1;
+                t_next[k] = (c[k] as f64 * cell - o[k]) / d[k];
+                t_delta[k] = -cell / d[k];
+            }
+        }
+        let mut t = t0;
+        let mut run: Option<(f64, f64)> = None;
+        loop {
+            let axis = if t_next[0] <= t_next[1] && t_next[0] <= t_next[2] {
+                0
+            } else if t_next[1] <= t_next[2] {
+                1
+            } else {
+                2
+            };
+            let t_exit = t_next[axis].min(t1);
+            let i = ((c[0] * res[1] + c[1]) * res[2] + c[2]) as usize;
+            if self.flags[i] & NEAR != 0 {
+                run = Some(match run {
+                    Some((a, _)) => (a, t_exit),
+                    None => (t, t_exit),
+                });
+            } else if let Some((a, b)) = run.take() {
+                out.push((a as f32, b as f32));
+            }
+            if t_next[axis] >= t1 {
+                break;
+            }
+            t = t_exit;
+            c[axis] += step[axis];
+            if c[axis] < 0 || c[axis] >= res[axis] {
+                break;
+            }
+            t_next[axis] += t_delta[axis];
+        }
+        if let Some((a, b)) = run {
+            out.push((a as f32, b as f32));
+        }
+    }
+
+    /// Samples every ray: stretches in cells near a grown capsule are cut into bins of at
+    /// most `opts.step` (stratified jitter as [`crate::sample_in_capsules`]); a bin is
+    /// kept if it may hold a point of a grown capsule the canonical grid keeps
+    /// ([`PosedGrid::keeps`]), with its cell's candidate parts and bones; the ray ends
+    /// after the first bin whose midpoint is inside a core. `opts.step` must not exceed
+    /// the `max_step` the grid was built for.
+    pub fn sample(&self, rays: &[Ray], opts: &AcceleratedOpts) -> Result<PackedSamples, GridError> {
+        validate_rays(rays)?;
+        if !(opts.step.is_finite() && opts.step > 0.0 && opts.step <= self.max_step) {
+            return Err(GridError::BadOption {
+                field: "step",
+                value: opts.step,
+                expected: "finite, > 0 and <= the posed grid's max_step",
+            });
+        }
+        let (offsets, samples) = par_pack(rays.len(), Vec::new, |runs, i, out| {
+            runs.clear();
+            let ray = &rays[i];
+            self.runs(ray, runs);
+            let mut rng = SplitMix::new(opts.seed, i as u64);
+            'ray: for &(t_a, t_b) in runs.iter() {
+                let length = t_b - t_a;
+                if !(length > 0.0) {
+                    continue;
+                }
+                let n = (length / opts.step * (1.0 - 1e-5)).ceil().max(1.0) as u32;
+                let width = length / n as f32;
+                let mut prev = t_a;
+                for k in 1..=n {
+                    let b = if k == n {
+                        t_b
+                    } else {
+                        let shift = if opts.jitter {
+                            0.9 * (rng.next_f32() - 0.5)
+                        } else {
+                            0.0
+                        };
+                        (t_a + (k as f32 + shift) * width).clamp(prev, t_b)
+                    };
+                    let (a, mid, half) = (prev, 0.5 * (prev + b), 0.5 * (b - prev));
+                    prev = b;
+                    let p = ray.at(mid);
+                    let Some(c) = self.cell_index(p) else {
+                        continue;
+                    };
+                    let f = self.flags[c];
+                    if f & NEAR == 0 {
+                        continue;
+                    }
+                    let keep = f & OCCUPIED != 0
+                        && half > 0.0
+                        && (f & INSIDE != 0 || self.near_capsule(p, half, self.bones[c]));
+                    if keep {
+                        out.push(Sample {
+                            t_start: a,
+                            t_end: b,
+                            part_mask: self.parts[c],
+                            bone_mask: self.bones[c],
+                        });
+                    }
+                    if f & SOLID != 0 || (f & CORE_NEAR != 0 && self.in_core(p, self.bones[c])) {
+                        break 'ray;
+                    }
+                }
+            }
+        });
+        Ok(PackedSamples::from_parts(offsets, samples))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use glam::{Quat, vec3};
+
+    use super::*;
+    use crate::{Part, ray_capsule, sample_in_front_of_cores};
+
+    /// Three limbs of different bones, their cores, and per bone a rigid map.
+    fn scene() -> (Vec<Capsule>, Vec<Capsule>, Vec<Affine3A>) {
+        let limb = |a: Vec3, b: Vec3, radius: f32, part: Part, bone: u16| Capsule {
+            a,
+            b,
+            radius,
+            part,
+            bone,
+        };
+        let capsules = vec![
+            limb(
+                vec3(0.0, 0.0, 0.0),
+                vec3(0.0, 0.5, 0.0),
+                0.15,
+                Part::Body,
+                3,
+            ),
+            limb(
+                vec3(0.0, 0.5, 0.0),
+                vec3(0.3, 0.6, 0.0),
+                0.06,
+                Part::Arms,
+                16,
+            ),
+            limb(
+                vec3(0.3, 0.6, 0.0),
+                vec3(0.4, 0.6, 0.02),
+                0.02,
+                Part::Hands,
+                20,
+            ),
+        ];
+        let cores = capsules
+            .iter()
+            .map(|c| Capsule {
+                radius: 0.6 * c.radius,
+                ..*c
+            })
+            .collect();
+        let maps = (0..64)
+            .map(|b| {
+                let angle = 0.1 * b as f32;
+                Affine3A::from_rotation_translation(
+                    Quat::from_axis_angle(vec3(0.3, 1.0, 0.2).normalize(), angle),
+                    vec3(0.01 * b as f32, -0.02, 0.05),
+                )
+            })
+            .collect();
+        (capsules, cores, maps)
+    }
+
+    /// A reproducible point stream in a box.
+    fn points(n: usize, lo: Vec3, hi: Vec3) -> Vec<Vec3> {
+        let mut rng = SplitMix::new(5, 0);
+        (0..n)
+            .map(|_| lo + (hi - lo) * vec3(rng.next_f32(), rng.next_f32(), rng.next_f32()))
+            .collect()
+    }
+
+    #[test]
+    fn never_culls_a_point_the_exact_map_keeps() {
+        let (capsules, cores, maps) = scene();
+        // Canonical grid: a few random blobs, so some of posed space is culled.
+        let mut canonical =
+            OccupancyGrid::new(vec3(-0.6, -0.4, -0.6), vec3(0.8, 1.0, 0.6), [40; 3]).unwrap();
+        canonical.mark(&points(4000, vec3(-0.6, -0.4, -0.6), vec3(0.8, 1.0, 0.6)));
+        let (cell, step) = (0.02, 0.006);
+        let dilated = DilatedOccupancy::new(&canonical, PosedGrid::cull_reach(cell, step)).unwrap();
+        let cull = CanonicalCull {
+            grid: &dilated,
+            canonical_from_posed: &maps,
+        };
+        let grid = PosedGrid::build(&capsules, &cores, Some(&cull), cell, step).unwrap();
+        let (mut kept, mut culled) = (0, 0);
+        for p in points(200_000, vec3(-0.3, -0.2, -0.2), vec3(0.5, 0.8, 0.2)) {
+            // The exact map: any bone whose capsule holds p (the nearest-bone map picks
+            // one of them).
+            let exact = capsules.iter().any(|c| {
+                crate::intersect::signed_distance(p, c) <= 0.0
+                    && canonical.is_occupied(maps[c.bone as usize].transform_point3(p))
+            });
+            let inside = capsules
+                .iter()
+                .any(|c| crate::intersect::signed_distance(p, c) <= 0.0);
+            if exact {
+                assert!(grid.keeps(p, 0.0), "culled {p}, which the exact map keeps");
+                kept += 1;
+            } else if inside && !grid.keeps(p, 0.0) {
+                culled += 1;
+            }
+        }
+        assert!(kept > 1000 && culled > 1000, "kept {kept}, culled {culled}");
+    }
+
+    #[test]
+    fn samples_hold_every_capsule_point_in_front_of_the_cores() {
+        let (capsules, cores, _) = scene();
+        let step = 0.005;
+        let grid = PosedGrid::build(&capsules, &cores, None, 0.0125, step).unwrap();
+        let mut rays = Vec::new();
+        let mut rng = SplitMix::new(11, 1);
+        for _ in 0..400 {
+            let target = vec3(
+                -0.2 + 0.7 * rng.next_f32(),
+                -0.1 + 0.8 * rng.next_f32(),
+                -0.1 + 0.2 * rng.next_f32(),
+            );
+            let origin = vec3(0.5 * rng.next_f32() - 0.25, 0.3, -2.0);
+            rays.push(Ray::new(origin, target - origin, 0.0, f32::INFINITY).unwrap());
+        }
+        let opts = AcceleratedOpts {
+            step,
+            jitter: true,
+            seed: 3,
+        };
+        let samples = grid.sample(&rays, &opts).unwrap();
+        samples.check_layout().unwrap();
+        for (i, ray) in rays.iter().enumerate() {
+            let core_entry = cores
+                .iter()
+                .filter_map(|c| ray_capsule(ray, c))
+                .map(|(t, _)| t)
+                .fold(f32::INFINITY, f32::min);
+            for k in 0..4000 {
+                let t = 1.0 + 2.0 * k as f32 / 4000.0;
+                let p = ray.at(t);
+                let in_capsule = capsules
+                    .iter()
+                    .any(|c| crate::intersect::signed_distance(p, c) < -1e-5);
+                if in_capsule && t < core_entry {
+                    assert!(
+                        samples
+                            .range(i)
+                            .any(|s| samples.t_start[s] <= t && t <= samples.t_end[s]),
+                        "ray {i}: t {t} in a capsule before the cores is in no sample"
+                    );
+                }
+            }
+        }
+        // No more samples than the exact BVH pipeline, give or take a bin per stretch.
+        let bvh = crate::CapsuleBvh::build(&capsules).unwrap();
+        let core_bvh = crate::CapsuleBvh::build(&cores).unwrap();
+        let exact = sample_in_front_of_cores(&bvh, &core_bvh, &rays, 0.0, &opts).unwrap();
+        assert!(
+            samples.num_samples() as f64 <= 1.1 * exact.num_samples() as f64 + 2.0 * 400.0,
+            "{} vs {}",
+            samples.num_samples(),
+            exact.num_samples()
+        );
+        // Bad input is an error.
+        let too_long = AcceleratedOpts { step: 0.01, ..opts };
+        assert!(grid.sample(&rays, &too_long).is_err());
+        let bad = Ray {
+            origin: Vec3::NAN,
+            ..rays[0]
+        };
+        assert!(grid.sample(&[bad], &opts).is_err());
+        assert!(PosedGrid::build(&capsules, &cores, None, f32::NAN, step).is_err());
+    }
+
+    #[test]
+    fn dilation_matches_the_reference() {
+        let mut g = OccupancyGrid::new(Vec3::ZERO, vec3(1.0, 0.8, 0.6), [10, 8, 6]).unwrap();
+        g.mark(&points(12, Vec3::ZERO, vec3(1.0, 0.8, 0.6)));
+        for reach in [0.0, 0.1, 0.25] {
+            let d = DilatedOccupancy::new(&g, reach).unwrap();
+            let mut reference = g.clone();
+            reference.dilate(d.cells);
+            for i in 0..g.num_cells() {
+                let p = g.cell_point(i, Vec3::splat(0.5));
+                assert_eq!(
+                    d.is_occupied(p),
+                    reference.is_cell_occupied(i),
+                    "{reach} {p}"
+                );
+            }
+            assert!(d.reach() >= reach);
+        }
+        assert!(DilatedOccupancy::new(&g, f32::NAN).is_err());
+    }
+}
