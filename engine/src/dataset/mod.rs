@@ -13,6 +13,7 @@ mod write;
 use std::path::PathBuf;
 
 pub use error::DatasetError;
+pub(crate) use load::camera_field;
 pub use images::{FrameImages, LABEL_NAMES, N_LABELS};
 
 use crate::body::{FrameParams, Skeleton};
