@@ -58,7 +58,9 @@ impl Default for Smoothing {
 /// Why a sequence could not be smoothed.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum SmoothError {
-    #[error("smoothing: the window must be odd and sigma positive, found window {window}, sigma {sigma}")]
+    #[error(
+        "smoothing: the window must be odd and sigma positive, found window {window}, sigma {sigma}"
+    )]
     BadFilter { window: usize, sigma: f64 },
     #[error("frame {frame}: `{field}` is not finite: smoothing needs finite poses and cameras")]
     NonFinite { frame: usize, field: &'static str },
@@ -374,8 +376,14 @@ mod tests {
         };
         let (before, after) = (err(&noisy), err(&smooth));
         assert!(after.0 < 0.5 * before.0, "rotation {before:?} -> {after:?}");
-        assert!(after.1 < 0.5 * before.1, "expression {before:?} -> {after:?}");
-        assert!(after.2 < 0.5 * before.2, "translation {before:?} -> {after:?}");
+        assert!(
+            after.1 < 0.5 * before.1,
+            "expression {before:?} -> {after:?}"
+        );
+        assert!(
+            after.2 < 0.5 * before.2,
+            "translation {before:?} -> {after:?}"
+        );
 
         // Cameras: a jittered centre and focal length get closer to the clean path.
         let clean_cams: Vec<Camera> = (0..n)

@@ -58,13 +58,23 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
     let mut report = evaluate_with_progress(&avatar, &dataset, &frames, &opts, &mut |done, _| {
         progress.update(done, "")
     })
-    .with_context(|| format!("evaluating {} on {}", args.run.display(), args.data.display()))?;
+    .with_context(|| {
+        format!(
+            "evaluating {} on {}",
+            args.run.display(),
+            args.data.display()
+        )
+    })?;
     report.run = Some(args.run.clone());
     if let Some(dir) = args.json.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     }
     report.write_json(&args.json)?;
     print!("{}", report.table());
-    println!("report: {}\nrenders: {}", args.json.display(), renders.display());
+    println!(
+        "report: {}\nrenders: {}",
+        args.json.display(),
+        renders.display()
+    );
     Ok(())
 }

@@ -18,7 +18,12 @@ pub struct RenderArgs {
     pub run: PathBuf,
     /// Dataset whose split's poses and cameras to render (with ground truth: a contact
     /// sheet ground truth | render | error is written too).
-    #[arg(long, requires = "split", conflicts_with = "poses", required_unless_present = "poses")]
+    #[arg(
+        long,
+        requires = "split",
+        conflicts_with = "poses",
+        required_unless_present = "poses"
+    )]
     pub data: Option<PathBuf>,
     /// The split of --data: train, test_same, test_cross or test_ood.
     #[arg(long, requires = "data")]
@@ -79,7 +84,10 @@ pub fn run(args: RenderArgs) -> anyhow::Result<()> {
         renders.samples as f64 / renders.frames.len().max(1) as f64
     );
     if let Some(sheet) = &renders.contact_sheet {
-        println!("contact sheet (ground truth | render | error): {}", sheet.display());
+        println!(
+            "contact sheet (ground truth | render | error): {}",
+            sheet.display()
+        );
     }
     Ok(())
 }

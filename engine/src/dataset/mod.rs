@@ -13,8 +13,8 @@ mod write;
 use std::path::PathBuf;
 
 pub use error::DatasetError;
-pub(crate) use load::camera_field;
 pub use images::{FrameImages, LABEL_NAMES, N_LABELS};
+pub(crate) use load::camera_field;
 
 use crate::body::{FrameParams, Skeleton};
 use crate::camera::Camera;

@@ -25,7 +25,7 @@ impl LpipsScorer {
     pub fn from_dir(dir: Option<&Path>) -> Result<Result<LpipsScorer, String>, LossError> {
         let Some(dir) = dir else {
             return Ok(Err(
-                "LPIPS not computed: no LPIPS weights directory was given".into()
+                "LPIPS not computed: no LPIPS weights directory was given".into(),
             ));
         };
         let file = dir.join(BACKBONE.file_name());
@@ -60,10 +60,7 @@ impl LpipsScorer {
             }
             Tensor::<4>::from_data(TensorData::new(v, [1, 3, h, w]), &self.device)
         };
-        let d: f32 = self
-            .lpips
-            .forward_unit(tensor(a), tensor(b))
-            .into_scalar();
+        let d: f32 = self.lpips.forward_unit(tensor(a), tensor(b)).into_scalar();
         Some(d as f64)
     }
 }

@@ -64,7 +64,11 @@ fn planes(img: &RgbImage, r: Rect) -> [Vec<f64>; 3] {
 }
 
 fn check(a: &RgbImage, b: &RgbImage, r: Rect) {
-    assert_eq!(a.dimensions(), b.dimensions(), "metrics: image sizes differ");
+    assert_eq!(
+        a.dimensions(),
+        b.dimensions(),
+        "metrics: image sizes differ"
+    );
     assert!(
         r.is_inside(a.width(), a.height()),
         "metrics: {r:?} outside the image"
@@ -114,15 +118,15 @@ fn blur(plane: &[f64], h: usize, w: usize, g: &[f64; SSIM_WINDOW]) -> Vec<f64> {
     let mut rows = vec![0.0; h * w2]; // [h, w2]
     for y in 0..h {
         for x in 0..w2 {
-            rows[y * w2 + x] = (0..SSIM_WINDOW)
-                .map(|k| g[k] * plane[y * w + x + k])
-                .sum();
+            rows[y * w2 + x] = (0..SSIM_WINDOW).map(|k| g[k] * plane[y * w + x + k]).sum();
         }
     }
     let mut out = vec![0.0; h2 * w2];
     for y in 0..h2 {
         for x in 0..w2 {
-            out[y * w2 + x] = (0..SSIM_WINDOW).map(|k| g[k] * rows[(y + k) * w2 + x]).sum();
+            out[y * w2 + x] = (0..SSIM_WINDOW)
+                .map(|k| g[k] * rows[(y + k) * w2 + x])
+                .sum();
         }
     }
     out

@@ -139,7 +139,9 @@ fn score_shot(
     renders_dir: Option<&Path>,
     scorer: Option<&LpipsScorer>,
 ) -> Result<FrameScore, EvalError> {
-    let index = shot.ground_truth.expect("evaluation shots come from dataset frames");
+    let index = shot
+        .ground_truth
+        .expect("evaluation shots come from dataset frames");
     let frame = &dataset.frames[index];
     let rendered = avatar.render(shot.identity, &shot.params, &shot.camera, None)?;
     let render = rendered.to_image();

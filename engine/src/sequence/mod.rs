@@ -13,7 +13,7 @@ pub use poses_file::{PosedCamera, parse_poses, read_poses_file};
 pub use render::{
     SHEET_FILE, SHEET_MAX_FRAMES, SequenceRenders, encode_png, render_sequence, write_png,
 };
-pub use sheet::{HEAT_FULL_SCALE, comparison_sheet, error_heat};
+pub use sheet::{HEAT_FULL_SCALE, SheetRow, comparison_sheet, error_heat, outline};
 
 use crate::avatar::{Avatar, AvatarError};
 use crate::body::FrameParams;

@@ -92,8 +92,8 @@ mod tests {
     use serde_json::json;
 
     fn frame() -> Value {
-        let cam = Camera::look_at(32, 48, 60.0, DVec3::new(0.0, 1.0, 3.0), DVec3::Y, DVec3::Y)
-            .unwrap();
+        let cam =
+            Camera::look_at(32, 48, 60.0, DVec3::new(0.0, 1.0, 3.0), DVec3::Y, DVec3::Y).unwrap();
         json!({
             "params": FrameParams::default().to_json(),
             "camera": {
@@ -114,7 +114,10 @@ mod tests {
         let mut bad = json!({"frames": [frame(), frame(), frame(), frame()]});
         bad["frames"][3]["params"]["body_pose"] = json!([[0, 0, 0]]);
         let e = parse_poses(&bad.to_string(), file).unwrap_err().to_string();
-        assert!(e.contains("poses.json") && e.contains("frames[3].params.body_pose"), "{e}");
+        assert!(
+            e.contains("poses.json") && e.contains("frames[3].params.body_pose"),
+            "{e}"
+        );
 
         let mut bad = json!({"frames": [frame()]});
         bad["frames"][0]["camera"]["intrinsics"][1][1] = json!(0.0);
@@ -126,7 +129,9 @@ mod tests {
         let e = parse_poses(&bad.to_string(), file).unwrap_err().to_string();
         assert!(e.contains("frames[0].params.jaw_pose[2]"), "{e}");
 
-        let e = parse_poses(r#"{"frames": []}"#, file).unwrap_err().to_string();
+        let e = parse_poses(r#"{"frames": []}"#, file)
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("`frames`"), "{e}");
         let e = parse_poses("{\"frames\": [\n  {\"params\": [NaN]}]}", file)
             .unwrap_err()

@@ -5,10 +5,20 @@ use std::time::Instant;
 
 use image::RgbImage;
 
-use super::sheet::comparison_sheet;
+use super::sheet::{SheetRow, comparison_sheet};
 use super::{SequenceError, Shot};
 use crate::avatar::Avatar;
 use crate::dataset::Dataset;
+use crate::draw::LABEL_COLOURS;
+use crate::eval::{CropKind, frame_crops};
+
+/// Outline colour of a crop on the sheet: its part's segmentation colour.
+fn crop_colour(kind: CropKind) -> [u8; 3] {
+    match kind {
+        CropKind::Face => LABEL_COLOURS[4],
+        CropKind::LeftHand | CropKind::RightHand => LABEL_COLOURS[3],
+    }
+}
 
 /// Most frames on a contact sheet (spread evenly over the sequence).
 pub const SHEET_MAX_FRAMES: usize = 12;
@@ -20,7 +30,8 @@ pub const SHEET_FILE: &str = "contact_sheet.png";
 pub struct SequenceRenders {
     /// One PNG per shot, in shot order.
     pub frames: Vec<PathBuf>,
-    /// Ground truth | render | error per row, when the shots have ground truth.
+    /// Ground truth (face and hand crops outlined) | render | error, when the shots have
+    /// ground truth.
     pub contact_sheet: Option<PathBuf>,
     /// Field samples evaluated over all frames.
     pub samples: usize,
@@ -30,11 +41,14 @@ pub struct SequenceRenders {
 /// An image as PNG bytes.
 pub fn encode_png(img: &RgbImage, file: &Path) -> Result<Vec<u8>, SequenceError> {
     let mut bytes = Vec::new();
-    img.write_to(&mut std::io::Cursor::new(&mut bytes), image::ImageFormat::Png)
-        .map_err(|e| SequenceError::Png {
-            file: file.to_path_buf(),
-            problem: e.to_string(),
-        })?;
+    img.write_to(
+        &mut std::io::Cursor::new(&mut bytes),
+        image::ImageFormat::Png,
+    )
+    .map_err(|e| SequenceError::Png {
+        file: file.to_path_buf(),
+        problem: e.to_string(),
+    })?;
     Ok(bytes)
 }
 
@@ -69,7 +83,7 @@ pub fn render_sequence(
     let on_sheet: Vec<usize> = (0..n_sheet)
         .map(|i| with_truth[i * with_truth.len() / n_sheet])
         .collect();
-    let mut pairs = Vec::new();
+    let mut rows = Vec::new();
     let mut frames = Vec::with_capacity(shots.len());
     let mut samples = 0;
     for (k, shot) in shots.iter().enumerate() {
@@ -81,21 +95,31 @@ pub fn render_sequence(
         frames.push(file);
         if let (Some(d), Some(gt), true) = (dataset, shot.ground_truth, on_sheet.contains(&k)) {
             let truth = d.images(gt)?.rgb;
+            // The regions the face and hand metrics score (from the ground-truth pose).
+            let f = &d.frames[gt];
+            let outlines = frame_crops(&d.subjects[f.subject].skeleton, &f.params, &f.camera)
+                .into_iter()
+                .filter_map(|(kind, crop)| Some((crop.ok()?, crop_colour(kind))))
+                .collect();
             // A ground truth of another size (another camera) cannot sit beside the render.
             if truth.dimensions() == img.dimensions() {
-                pairs.push((truth, img));
+                rows.push(SheetRow {
+                    truth,
+                    render: img,
+                    outlines,
+                });
             }
         }
         progress(k + 1, shots.len());
     }
-    let contact_sheet = if pairs.is_empty() {
+    let contact_sheet = if rows.is_empty() {
         None
     } else {
         // Tiles must share a size: keep the first frame's.
-        let size = pairs[0].0.dimensions();
-        pairs.retain(|(t, _)| t.dimensions() == size);
+        let size = rows[0].truth.dimensions();
+        rows.retain(|r| r.truth.dimensions() == size);
         let file = out.join(SHEET_FILE);
-        write_png(&comparison_sheet(&pairs), &file)?;
+        write_png(&comparison_sheet(&rows), &file)?;
         Some(file)
     };
     Ok(SequenceRenders {

@@ -3,6 +3,7 @@
 use image::RgbImage;
 
 use crate::draw;
+use crate::eval::Rect;
 
 /// Absolute error (mean over channels, in [0, 1]) that the heat map shows as white.
 pub const HEAT_FULL_SCALE: f32 = 0.25;
@@ -19,11 +20,44 @@ pub fn error_heat(truth: &RgbImage, render: &RgbImage) -> RgbImage {
     })
 }
 
-/// Rows of (ground truth, render) pairs of one size: ground truth | render | heat map.
-pub fn comparison_sheet(pairs: &[(RgbImage, RgbImage)]) -> RgbImage {
-    let tiles: Vec<RgbImage> = pairs
+/// Outlines `r` on `img` (one pixel wide).
+pub fn outline(img: &mut RgbImage, r: Rect, colour: [u8; 3]) {
+    let (x0, y0) = (r.x as f64, r.y as f64);
+    let (x1, y1) = (x0 + r.width as f64 - 1.0, y0 + r.height as f64 - 1.0);
+    for (a, b) in [
+        ((x0, y0), (x1, y0)),
+        ((x1, y0), (x1, y1)),
+        ((x1, y1), (x0, y1)),
+        ((x0, y1), (x0, y0)),
+    ] {
+        draw::line(img, a, b, colour, 1);
+    }
+}
+
+/// One row of a comparison sheet.
+#[derive(Clone, Debug)]
+pub struct SheetRow {
+    pub truth: RgbImage,
+    pub render: RgbImage,
+    /// Regions outlined on the ground truth and the heat map (not on the render).
+    pub outlines: Vec<(Rect, [u8; 3])>,
+}
+
+/// Rows of one size as triplets ground truth | render | heat map, one triplet a row (two
+/// side by side beyond four rows).
+pub fn comparison_sheet(rows: &[SheetRow]) -> RgbImage {
+    let tiles: Vec<RgbImage> = rows
         .iter()
-        .flat_map(|(truth, render)| [truth.clone(), render.clone(), error_heat(truth, render)])
+        .flat_map(|row| {
+            let mut truth = row.truth.clone();
+            let mut heat = error_heat(&row.truth, &row.render);
+            for &(r, colour) in &row.outlines {
+                outline(&mut truth, r, colour);
+                outline(&mut heat, r, colour);
+            }
+            [truth, row.render.clone(), heat]
+        })
         .collect();
-    draw::tile(&tiles, 3, 2, [24, 24, 24])
+    let columns = if rows.len() > 4 { 6 } else { 3 };
+    draw::tile(&tiles, columns, 2, [24, 24, 24])
 }
