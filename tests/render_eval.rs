@@ -165,7 +165,7 @@ fn library_eval_matches_identities_by_name_and_smooths() {
     let frames = split_frames(&dataset, Split::TestOod).unwrap();
     let plain = evaluate(&avatar, &dataset, &frames, &EvalOptions::default()).unwrap();
     assert_eq!(plain.frames_evaluated, frames.len());
-    assert!(plain.lpips.is_none() && !plain.notes.is_empty());
+    assert!(plain.lpips.is_none() && plain.lpips_note.is_some());
     for f in &plain.frames {
         assert_eq!(f.subject, f.rendered_as, "identity matched by name");
         assert!(f.render.is_none());

@@ -33,7 +33,7 @@ impl Smoothing {
 
     /// Weight of each window offset `-half..=half` (not normalised: edges renormalise).
     fn weights(&self) -> Result<Vec<f64>, SmoothError> {
-        if self.window % 2 == 0 || !(self.sigma.is_finite() && self.sigma > 0.0) {
+        if self.window.is_multiple_of(2) || !(self.sigma.is_finite() && self.sigma > 0.0) {
             return Err(SmoothError::BadFilter {
                 window: self.window,
                 sigma: self.sigma,
@@ -117,7 +117,7 @@ fn mean_rotation(centre: DQuat, taps: impl Iterator<Item = (DQuat, f64)>) -> DQu
     let mut sum = DQuat::from_xyzw(0.0, 0.0, 0.0, 0.0);
     for (q, w) in taps {
         let q = if q.dot(centre) < 0.0 { -q } else { q };
-        sum = sum + q * w;
+        sum += q * w;
     }
     // Every term lies in the centre's hemisphere and the centre's own weight is > 0, so
     // the sum's projection on the centre is positive and the sum is never zero.
@@ -270,8 +270,10 @@ mod tests {
     }
 
     fn posed(seed: f64) -> FrameParams {
-        let mut p = FrameParams::default();
-        p.global_orient = DVec3::new(0.1, 0.2 * seed, -0.3);
+        let mut p = FrameParams {
+            global_orient: DVec3::new(0.1, 0.2 * seed, -0.3),
+            ..Default::default()
+        };
         for (i, r) in p.body_pose.iter_mut().enumerate() {
             *r = DVec3::new(0.05 * i as f64, -0.02 * seed, 0.3);
         }

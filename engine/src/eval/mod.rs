@@ -97,13 +97,9 @@ pub fn evaluate_with_progress(
     if opts.smooth {
         smooth_shots(&mut shots, &Smoothing::PAPER)?;
     }
-    let mut notes = Vec::new();
-    let scorer = match LpipsScorer::from_dir(opts.lpips_dir.as_deref())? {
-        Ok(s) => Some(s),
-        Err(note) => {
-            notes.push(note);
-            None
-        }
+    let (scorer, lpips_note) = match LpipsScorer::from_dir(opts.lpips_dir.as_deref())? {
+        Ok(s) => (Some(s), None),
+        Err(note) => (None, Some(note)),
     };
     if let Some(dir) = &opts.renders_dir {
         std::fs::create_dir_all(dir).map_err(|source| EvalError::Io {
@@ -126,7 +122,7 @@ pub fn evaluate_with_progress(
         dataset,
         scores,
         opts.smooth,
-        notes,
+        lpips_note,
         start.elapsed().as_secs_f64(),
     ))
 }

@@ -68,7 +68,8 @@ pub struct EvalReport {
     pub frames_evaluated: usize,
     /// Means over frames (full frame).
     pub psnr: f64,
-    pub ssim: Option<f64>,
+    /// NaN (`null` in JSON) only if some frame is smaller than SSIM's 11x11 window.
+    pub ssim: f64,
     /// x1000.
     pub lpips: Option<f64>,
     /// Means over the face crops that were scored.
@@ -86,6 +87,8 @@ pub struct EvalReport {
     pub lpips_scale: f64,
     /// PSNR of identical images (JSON has no infinity).
     pub psnr_cap_db: f64,
+    /// Why LPIPS is null, when it is (also in `notes`).
+    pub lpips_note: Option<String>,
     pub notes: Vec<String>,
     pub seconds: f64,
     pub frames: Vec<FrameScore>,
@@ -110,9 +113,10 @@ impl EvalReport {
         dataset: &Dataset,
         frames: Vec<FrameScore>,
         smooth: bool,
-        mut notes: Vec<String>,
+        lpips_note: Option<String>,
         seconds: f64,
     ) -> EvalReport {
+        let mut notes: Vec<String> = lpips_note.iter().cloned().collect();
         let splits: Vec<_> = frames
             .iter()
             .map(|f| dataset.frames[f.frame].split)
@@ -152,7 +156,7 @@ impl EvalReport {
             smooth,
             frames_evaluated: frames.len(),
             psnr: mean(frames.iter().map(|f| f.psnr)).unwrap_or(f64::NAN),
-            ssim: mean_all(&frames.iter().map(|f| f.ssim).collect::<Vec<_>>()),
+            ssim: mean_all(&frames.iter().map(|f| f.ssim).collect::<Vec<_>>()).unwrap_or(f64::NAN),
             lpips: mean_all(&frames.iter().map(|f| f.lpips).collect::<Vec<_>>()),
             psnr_face,
             ssim_face,
@@ -166,6 +170,7 @@ impl EvalReport {
             lpips_backbone: BACKBONE.name(),
             lpips_scale: LPIPS_SCALE,
             psnr_cap_db: PSNR_CAP_DB,
+            lpips_note,
             notes,
             seconds,
             frames,
@@ -210,7 +215,7 @@ impl EvalReport {
             (
                 format!("full ({})", self.frames_evaluated),
                 Some(self.psnr),
-                self.ssim,
+                Some(self.ssim).filter(|v| v.is_finite()),
                 self.lpips,
             ),
             (
