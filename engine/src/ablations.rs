@@ -140,13 +140,13 @@ pub fn ablations(
                 name,
                 split,
                 frames.len(),
-                &report,
+                &Scores::of(&report),
                 trainer.steps_taken(),
             ));
         }
     }
     // One model per subject, each scored on its own subject's frames.
-    let mut per_split: Vec<Vec<(usize, EvalReport)>> = vec![Vec::new(); SPLITS.len()];
+    let mut per_split: Vec<Vec<(usize, Scores)>> = vec![Vec::new(); SPLITS.len()];
     let mut steps = 0;
     for (s, subject) in dataset.subjects.iter().enumerate() {
         let own = |split| -> Vec<usize> {
@@ -185,10 +185,8 @@ pub fn ablations(
         for (k, split) in SPLITS.into_iter().enumerate() {
             let frames = own(split);
             if !frames.is_empty() {
-                per_split[k].push((
-                    frames.len(),
-                    evaluate(&avatar, dataset, &frames, &eval_opts)?,
-                ));
+                let report = evaluate(&avatar, dataset, &frames, &eval_opts)?;
+                per_split[k].push((frames.len(), Scores::of(&report)));
             }
         }
     }
@@ -215,7 +213,29 @@ fn train_to_end<'a>(
     Ok(trainer)
 }
 
-fn row(name: &str, split: Split, frames: usize, r: &EvalReport, steps: usize) -> AblationRow {
+/// The averages a row reports.
+#[derive(Clone, Debug)]
+struct Scores {
+    psnr: f64,
+    ssim: f64,
+    lpips: Option<f64>,
+    psnr_face: Option<f64>,
+    psnr_hands: Option<f64>,
+}
+
+impl Scores {
+    fn of(r: &EvalReport) -> Scores {
+        Scores {
+            psnr: r.psnr,
+            ssim: r.ssim,
+            lpips: r.lpips,
+            psnr_face: r.psnr_face,
+            psnr_hands: r.psnr_hands,
+        }
+    }
+}
+
+fn row(name: &str, split: Split, frames: usize, r: &Scores, steps: usize) -> AblationRow {
     AblationRow {
         variant: name.into(),
         split: split.name().into(),
@@ -229,29 +249,28 @@ fn row(name: &str, split: Split, frames: usize, r: &EvalReport, steps: usize) ->
     }
 }
 
-/// Frame-weighted mean of several reports' averages.
-fn merge(reports: &[(usize, EvalReport)]) -> Option<EvalReport> {
-    let total: usize = reports.iter().map(|r| r.0).sum();
+/// Frame-weighted mean of several models' averages.
+fn merge(scores: &[(usize, Scores)]) -> Option<Scores> {
+    let total: usize = scores.iter().map(|r| r.0).sum();
     if total == 0 {
         return None;
     }
-    let mean = |f: &dyn Fn(&EvalReport) -> f64| {
-        reports.iter().map(|(n, r)| *n as f64 * f(r)).sum::<f64>() / total as f64
+    let mean = |f: &dyn Fn(&Scores) -> f64| {
+        scores.iter().map(|(n, r)| *n as f64 * f(r)).sum::<f64>() / total as f64
     };
-    let mean_opt = |f: &dyn Fn(&EvalReport) -> Option<f64>| {
-        reports
+    let mean_opt = |f: &dyn Fn(&Scores) -> Option<f64>| {
+        scores
             .iter()
             .map(|(n, r)| f(r).map(|v| *n as f64 * v))
             .sum::<Option<f64>>()
             .map(|v| v / total as f64)
     };
-    Some(EvalReport {
+    Some(Scores {
         psnr: mean(&|r| r.psnr),
         ssim: mean(&|r| r.ssim),
         lpips: mean_opt(&|r| r.lpips),
         psnr_face: mean_opt(&|r| r.psnr_face),
         psnr_hands: mean_opt(&|r| r.psnr_hands),
-        lpips_note: reports.iter().find_map(|r| r.1.lpips_note.clone()),
     })
 }
 

@@ -18,6 +18,8 @@ pub mod inspect;
 pub mod json_shape;
 pub mod motion;
 pub mod sampling;
+pub mod sequence;
+pub mod smooth;
 pub mod speed_vs_error;
 pub mod subject_model;
 pub mod synth;

@@ -3,7 +3,9 @@
 mod adapt;
 mod bench;
 mod demo;
+mod eval;
 mod inspect;
+mod render;
 mod synth;
 pub mod train;
 
@@ -32,6 +34,10 @@ enum Command {
     Train(train::TrainArgs),
     /// Adapt a trained run to a novel subject from a short clip (new identity code).
     Adapt(adapt::AdaptArgs),
+    /// Render a pose sequence (a dataset split or a poses file), optionally as another subject.
+    Render(render::RenderArgs),
+    /// Render a split, score it (PSNR, SSIM, LPIPS on frame, face and hands), write JSON.
+    Eval(eval::EvalArgs),
 }
 
 pub fn run(cli: Cli) -> anyhow::Result<()> {
@@ -42,5 +48,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Bench(a) => bench::run(a),
         Command::Train(a) => train::run(a),
         Command::Adapt(a) => adapt::run(a),
+        Command::Render(a) => render::run(a),
+        Command::Eval(a) => eval::run(a),
     }
 }

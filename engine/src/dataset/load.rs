@@ -177,17 +177,7 @@ impl Dataset {
                 None | Some(Value::Null) => None,
                 Some(_) => Some(relpath("depth")?),
             };
-            let camera = parse_camera(get("camera")?, &field("camera")).map_err(|e| match e {
-                Ok(source) => DatasetError::Camera {
-                    file: file.clone(),
-                    field: field("camera"),
-                    source,
-                },
-                Err(source) => DatasetError::Shape {
-                    file: file.clone(),
-                    source,
-                },
-            })?;
+            let camera = camera_field(get("camera")?, &field("camera"), &file)?;
             let params = FrameParams::from_json(get("params")?, &field("params")).map_err(shape)?;
             frames.push(Frame {
                 subject,
@@ -235,6 +225,22 @@ impl Dataset {
         }
         Ok(())
     }
+}
+
+/// The camera object at `path` of `file` (a dataset.json or a poses file), with errors
+/// naming the file and field.
+pub(crate) fn camera_field(v: &Value, path: &str, file: &Path) -> Result<Camera, DatasetError> {
+    parse_camera(v, path).map_err(|e| match e {
+        Ok(source) => DatasetError::Camera {
+            file: file.to_path_buf(),
+            field: path.to_string(),
+            source,
+        },
+        Err(source) => DatasetError::Shape {
+            file: file.to_path_buf(),
+            source,
+        },
+    })
 }
 
 /// Camera of a frame: `Err(Ok(_))` for a well-shaped but degenerate camera, `Err(Err(_))`

@@ -249,11 +249,11 @@ impl<'a> Trainer<'a> {
             .filter(|&i| dataset.frames[i].subject == s)
             .collect();
         frames.sort_by(|&a, &b| dataset.frames[a].time.total_cmp(&dataset.frames[b].time));
-        if let Some(limit) = clip_seconds {
-            if let Some(&first) = frames.first() {
-                let t0 = dataset.frames[first].time;
-                frames.retain(|&i| dataset.frames[i].time - t0 < limit);
-            }
+        if let Some(limit) = clip_seconds
+            && let Some(&first) = frames.first()
+        {
+            let t0 = dataset.frames[first].time;
+            frames.retain(|&i| dataset.frames[i].time - t0 < limit);
         }
         if frames.is_empty() {
             return Err(TrainError::NoTrainFrames { file: index_file });

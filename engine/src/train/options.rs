@@ -130,7 +130,7 @@ impl TrainOptions {
         if self.grid_resolution < 8 || self.grid_resolution > 512 {
             return bad("grid_resolution", "must be in 8..=512");
         }
-        if !(self.checkpoint_every_s > 0.0) {
+        if self.checkpoint_every_s.is_nan() || self.checkpoint_every_s <= 0.0 {
             return bad("checkpoint_every_s", "must be positive");
         }
         if self.preset != "fast" && self.preset != "paper" {

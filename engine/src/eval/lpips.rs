@@ -1,0 +1,66 @@
+//! LPIPS (AlexNet, v0.1 heads) of image regions through `nets::loss::Lpips` on the CPU.
+
+use std::path::Path;
+
+use burn::tensor::{Device, Tensor, TensorData};
+use image::RgbImage;
+use talkin_nets::loss::{Backbone, LossError, Lpips};
+
+use super::crops::MIN_CROP;
+use super::metrics::Rect;
+
+/// The backbone evaluation reports (the paper's LPIPS and the `lpips` package default).
+pub const BACKBONE: Backbone = Backbone::Alex;
+
+/// LPIPS weights loaded on the CPU device.
+pub struct LpipsScorer {
+    lpips: Lpips,
+    device: Device,
+}
+
+impl LpipsScorer {
+    /// The scorer from `dir/alex.safetensors`: `Ok(Err(note))` when there is no directory or
+    /// no weights file (then LPIPS is reported as null with that note); a file that exists
+    /// but cannot be loaded is an error.
+    pub fn from_dir(dir: Option<&Path>) -> Result<Result<LpipsScorer, String>, LossError> {
+        let Some(dir) = dir else {
+            return Ok(Err(
+                "LPIPS not computed: no LPIPS weights directory was given".into(),
+            ));
+        };
+        let file = dir.join(BACKBONE.file_name());
+        if !file.exists() {
+            return Ok(Err(format!(
+                "LPIPS not computed: weights not found at {} \
+                 (run `python3 scripts/lpips_weights.py`)",
+                file.display()
+            )));
+        }
+        let device = Device::flex();
+        let lpips = Lpips::load(&file, BACKBONE, &device)?;
+        Ok(Ok(LpipsScorer { lpips, device }))
+    }
+
+    /// LPIPS distance of `a` and `b` over `r` (not scaled); `None` for a region smaller
+    /// than [`MIN_CROP`] on a side, which AlexNet cannot see.
+    pub fn distance(&self, a: &RgbImage, b: &RgbImage, r: Rect) -> Option<f64> {
+        if r.width < MIN_CROP || r.height < MIN_CROP {
+            return None;
+        }
+        let tensor = |img: &RgbImage| {
+            let (w, h) = (r.width as usize, r.height as usize);
+            let mut v = vec![0.0f32; 3 * w * h];
+            for y in 0..h {
+                for x in 0..w {
+                    let p = img.get_pixel(r.x + x as u32, r.y + y as u32).0;
+                    for c in 0..3 {
+                        v[(c * h + y) * w + x] = p[c] as f32 / 255.0;
+                    }
+                }
+            }
+            Tensor::<4>::from_data(TensorData::new(v, [1, 3, h, w]), &self.device)
+        };
+        let d: f32 = self.lpips.forward_unit(tensor(a), tensor(b)).into_scalar();
+        Some(d as f64)
+    }
+}

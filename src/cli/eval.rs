@@ -1,0 +1,80 @@
+use std::path::PathBuf;
+
+use anyhow::Context;
+use talkin_engine::avatar::Avatar;
+use talkin_engine::dataset::{Dataset, Split};
+use talkin_engine::eval::{EvalOptions, evaluate_with_progress};
+use talkin_engine::sequence::split_frames;
+
+use super::train::DEFAULT_LPIPS_DIR;
+use crate::progress::Progress;
+
+#[derive(clap::Args, Debug)]
+pub struct EvalArgs {
+    /// The trained run (its newest checkpoint is evaluated).
+    #[arg(long)]
+    pub run: PathBuf,
+    /// Dataset with the ground truth.
+    #[arg(long)]
+    pub data: PathBuf,
+    /// The split to evaluate: train, test_same, test_cross or test_ood.
+    #[arg(long)]
+    pub split: String,
+    /// The report (JSON, written atomically).
+    #[arg(long)]
+    pub json: PathBuf,
+    /// Where the scored renders go (default: `<json stem>_renders/` next to the JSON).
+    #[arg(long)]
+    pub renders: Option<PathBuf>,
+    /// Directory of the LPIPS weights (`python3 scripts/lpips_weights.py`); without them
+    /// LPIPS is null in the report and a note says why.
+    #[arg(long, default_value = DEFAULT_LPIPS_DIR)]
+    pub lpips_dir: PathBuf,
+    /// Smooth poses and cameras over time (Gaussian, window 5, sigma 1) before rendering.
+    #[arg(long)]
+    pub smooth: bool,
+}
+
+pub fn run(args: EvalArgs) -> anyhow::Result<()> {
+    let split: Split = args.split.parse().map_err(anyhow::Error::msg)?;
+    let dataset = Dataset::load(&args.data)
+        .with_context(|| format!("cannot load the dataset in {}", args.data.display()))?;
+    let avatar =
+        Avatar::load(&args.run).with_context(|| format!("loading run {}", args.run.display()))?;
+    let frames = split_frames(&dataset, split)?;
+    let renders = args.renders.clone().unwrap_or_else(|| {
+        let stem = args
+            .json
+            .file_stem()
+            .map_or_else(|| "eval".into(), |s| s.to_string_lossy().into_owned());
+        args.json.with_file_name(format!("{stem}_renders"))
+    });
+    let opts = EvalOptions {
+        renders_dir: Some(renders.clone()),
+        lpips_dir: Some(args.lpips_dir.clone()),
+        smooth: args.smooth,
+    };
+    let progress = Progress::new("evaluating frames", frames.len());
+    let mut report = evaluate_with_progress(&avatar, &dataset, &frames, &opts, &mut |done, _| {
+        progress.update(done, "")
+    })
+    .with_context(|| {
+        format!(
+            "evaluating {} on {}",
+            args.run.display(),
+            args.data.display()
+        )
+    })?;
+    report.run = Some(args.run.clone());
+    if let Some(dir) = args.json.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    }
+    report.write_json(&args.json)?;
+    print!("{}", report.table());
+    println!(
+        "report: {}\nrenders: {}",
+        args.json.display(),
+        renders.display()
+    );
+    Ok(())
+}

@@ -1,0 +1,455 @@
+//! Rendering and evaluation end to end on a tiny synthetic scene trained for a few steps:
+//! the eval JSON and its renders, metrics on synthetic images, crops, `talkin render`'s
+//! frames and contact sheet, and bad input named without a panic.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+use std::sync::OnceLock;
+
+use talkin::engine::avatar::Avatar;
+use talkin::engine::body::joint;
+use talkin::engine::dataset::{Dataset, Split};
+use talkin::engine::eval::{
+    self, CropKind, EvalOptions, LpipsScorer, PSNR_CAP_DB, Rect, evaluate, frame_crops, rescore_png,
+};
+use talkin::engine::sequence::split_frames;
+use talkin::engine::synth::{SynthConfig, generate};
+use talkin::engine::train::{Budget, TrainOptions, train};
+use talkin::grids::SamplerKind;
+
+/// A two-identity scene (40x48 px) and a run trained on it for a few steps, made once.
+fn scene() -> &'static (PathBuf, PathBuf) {
+    static SCENE: OnceLock<(PathBuf, PathBuf)> = OnceLock::new();
+    SCENE.get_or_init(|| {
+        let data = common::temp_dir("render_eval_data");
+        let cfg = SynthConfig {
+            identities: 2,
+            frames: 4,
+            size: 48,
+            seed: 5,
+            motion: None,
+        };
+        generate(&cfg, &data, &mut |_, _| {}).unwrap();
+        let dataset = Dataset::load(&data).unwrap();
+        let run = common::temp_dir("render_eval_run");
+        let opts = TrainOptions {
+            sampler: SamplerKind::Accelerated,
+            budget: Budget::Steps(6),
+            seed: 2,
+            batch_rays: 256,
+            patches: 0,
+            occ_every: 4,
+            grid_resolution: 32,
+            ..TrainOptions::default()
+        };
+        train(&dataset, &run, &opts, &mut |_| {}).unwrap();
+        (data, run)
+    })
+}
+
+/// `$TALKIN_LPIPS_DIR`, else `<repo>/assets/lpips` (written by scripts/lpips_weights.py).
+fn lpips_dir() -> PathBuf {
+    match std::env::var_os("TALKIN_LPIPS_DIR") {
+        Some(d) => PathBuf::from(d),
+        None => Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/lpips"),
+    }
+}
+
+fn talkin(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_talkin"))
+        .args(args)
+        .output()
+        .unwrap()
+}
+
+fn stderr(out: &Output) -> String {
+    String::from_utf8_lossy(&out.stderr).into_owned()
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+#[test]
+fn eval_json_has_the_keys_and_renders_that_rescore_the_same() {
+    let (data, run) = scene();
+    let out = common::temp_dir("render_eval_eval");
+    let json = out.join("eval.json");
+    let lpips = lpips_dir();
+    let res = talkin(&[
+        "eval",
+        "--run",
+        s(run),
+        "--data",
+        s(data),
+        "--split",
+        "test_cross",
+        "--json",
+        s(&json),
+        "--lpips-dir",
+        s(&lpips),
+    ]);
+    assert_eq!(res.status.code(), Some(0), "{}", stderr(&res));
+    let table = String::from_utf8_lossy(&res.stdout);
+    assert!(table.contains("PSNR") && table.contains("hands"), "{table}");
+
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    for key in [
+        "psnr",
+        "ssim",
+        "lpips",
+        "psnr_face",
+        "ssim_face",
+        "lpips_face",
+        "psnr_hands",
+        "ssim_hands",
+        "lpips_hands",
+        "frames_evaluated",
+        "split",
+        "frames",
+    ] {
+        assert!(report.get(key).is_some(), "missing `{key}` in {report}");
+    }
+    assert_eq!(report["split"], "test_cross");
+    let dataset = Dataset::load(data).unwrap();
+    let expected = dataset.split_indices(Split::TestCross).len();
+    assert_eq!(report["frames_evaluated"], expected);
+    let frames = report["frames"].as_array().unwrap();
+    assert_eq!(frames.len(), expected);
+    // LPIPS is a number with the weights and null (with a note) without: never faked.
+    let has_weights = lpips.join("alex.safetensors").exists();
+    assert_eq!(report["lpips"].is_number(), has_weights, "{report}");
+    assert_eq!(report["lpips_face"].is_number(), has_weights, "{report}");
+    if !has_weights {
+        eprintln!("SKIPPED (LPIPS part): no weights in {}", lpips.display());
+        assert!(report["notes"].to_string().contains("LPIPS"), "{report}");
+    }
+    let psnr = report["psnr"].as_f64().unwrap();
+    assert!(
+        psnr.is_finite() && psnr > 3.0 && psnr < PSNR_CAP_DB,
+        "{psnr}"
+    );
+    let ssim = report["ssim"].as_f64().unwrap();
+    assert!((-1.0..1.0).contains(&ssim), "{ssim}");
+    for f in frames {
+        let index = f["frame"].as_u64().unwrap() as usize;
+        assert_eq!(dataset.frames[index].split, Split::TestCross);
+        let png = PathBuf::from(f["render"].as_str().unwrap());
+        assert!(png.exists(), "{}", png.display());
+        // Next to the JSON by default.
+        assert_eq!(png.parent().unwrap(), out.join("eval_renders"));
+        let again = rescore_png(&dataset, index, &png).unwrap();
+        assert_eq!(again, f["psnr"].as_f64().unwrap(), "frame {index}");
+    }
+    let mean: f64 = frames
+        .iter()
+        .map(|f| f["psnr"].as_f64().unwrap())
+        .sum::<f64>()
+        / frames.len() as f64;
+    assert!((mean - psnr).abs() < 1e-9);
+    assert!(
+        std::fs::read_dir(&out)
+            .unwrap()
+            .all(|e| { !e.unwrap().file_name().to_string_lossy().ends_with(".tmp") })
+    );
+}
+
+#[test]
+fn library_eval_matches_identities_by_name_and_smooths() {
+    let (data, run) = scene();
+    let dataset = Dataset::load(data).unwrap();
+    let avatar = Avatar::load(run).unwrap();
+    let frames = split_frames(&dataset, Split::TestOod).unwrap();
+    let plain = evaluate(&avatar, &dataset, &frames, &EvalOptions::default()).unwrap();
+    assert_eq!(plain.frames_evaluated, frames.len());
+    assert!(plain.lpips.is_none() && plain.lpips_note.is_some());
+    for f in &plain.frames {
+        assert_eq!(f.subject, f.rendered_as, "identity matched by name");
+        assert!(f.render.is_none());
+        assert!(f.crops.len() + f.skipped_crops.len() == 3);
+    }
+    let smooth = EvalOptions {
+        smooth: true,
+        ..EvalOptions::default()
+    };
+    let smoothed = evaluate(&avatar, &dataset, &frames, &smooth).unwrap();
+    assert!(smoothed.smooth && smoothed.psnr.is_finite());
+    assert!(
+        plain
+            .frames
+            .iter()
+            .zip(&smoothed.frames)
+            .any(|(a, b)| a.psnr != b.psnr),
+        "smoothing changed no render"
+    );
+    assert!(matches!(
+        evaluate(&avatar, &dataset, &[], &EvalOptions::default()),
+        Err(eval::EvalError::NoFrames)
+    ));
+    let e = evaluate(&avatar, &dataset, &[10_000], &EvalOptions::default())
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(e.contains("10000") && e.contains("out of range"), "{e}");
+}
+
+#[test]
+fn perfect_and_noisy_images_score_as_they_must() {
+    let (data, _) = scene();
+    let dataset = Dataset::load(data).unwrap();
+    let truth = dataset.images(0).unwrap().rgb;
+    let full = Rect::full(&truth);
+    assert_eq!(eval::psnr(&truth, &truth, full), PSNR_CAP_DB);
+    assert!((eval::ssim(&truth, &truth, full).unwrap() - 1.0).abs() < 1e-12);
+    // Seeded +-10 noise on every value that stays in range: PSNR = 20 log10(255 / 10).
+    let mut noisy = truth.clone();
+    let mut state = 7u32;
+    for p in noisy.pixels_mut() {
+        for v in p.0.iter_mut() {
+            state = state.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+            let up = (state >> 16) & 1 == 1;
+            *v = if (up && *v <= 245) || *v < 10 {
+                *v + 10
+            } else {
+                *v - 10
+            };
+        }
+    }
+    let got = eval::psnr(&truth, &noisy, full);
+    let want = 20.0 * (255.0f64 / 10.0).log10();
+    assert!((got - want).abs() < 1e-9, "{got} vs {want}");
+    let s = eval::ssim(&truth, &noisy, full).unwrap();
+    assert!(s < 0.99 && s > 0.3, "{s}");
+    if let Ok(scorer) = LpipsScorer::from_dir(Some(&lpips_dir())).unwrap() {
+        let same = scorer.distance(&truth, &truth, full).unwrap();
+        let diff = scorer.distance(&truth, &noisy, full).unwrap();
+        assert!(same.abs() < 1e-6 && diff > 1e-3, "{same} {diff}");
+    }
+    let missing = LpipsScorer::from_dir(Some(Path::new("/nonexistent"))).unwrap();
+    assert!(missing.err().unwrap().contains("/nonexistent"));
+}
+
+#[test]
+fn crops_lie_inside_and_contain_the_head_and_wrists() {
+    let (data, _) = scene();
+    let dataset = Dataset::load(data).unwrap();
+    let mut checked = 0;
+    for f in &dataset.frames {
+        let skeleton = &dataset.subjects[f.subject].skeleton;
+        let posed = skeleton.pose(&f.params);
+        for (kind, crop) in frame_crops(skeleton, &f.params, &f.camera) {
+            let r = crop.unwrap_or_else(|why| panic!("{kind:?}: {why}"));
+            assert!(r.is_inside(f.camera.width, f.camera.height), "{r:?}");
+            assert_eq!(r.width, r.height);
+            assert!(r.width >= eval::MIN_CROP.min(f.camera.width.min(f.camera.height)));
+            let j = match kind {
+                CropKind::Face => joint::HEAD,
+                CropKind::LeftHand => joint::LEFT_WRIST,
+                CropKind::RightHand => joint::RIGHT_WRIST,
+            };
+            let p = f.camera.project(posed.joint(j)).unwrap();
+            let in_image = p.x >= 0.0
+                && p.y >= 0.0
+                && p.x < f.camera.width as f64
+                && p.y < f.camera.height as f64;
+            if in_image {
+                assert!(r.contains(p.x, p.y), "{kind:?} {r:?} misses {p:?}");
+                checked += 1;
+            }
+        }
+    }
+    assert!(checked >= dataset.frames.len() * 2, "{checked}");
+}
+
+#[test]
+fn render_writes_frames_and_a_contact_sheet() {
+    let (data, run) = scene();
+    let out = common::temp_dir("render_eval_render");
+    let res = talkin(&[
+        "render",
+        "--run",
+        s(run),
+        "--data",
+        s(data),
+        "--split",
+        "test_ood",
+        "--out",
+        s(&out),
+        "--smooth",
+    ]);
+    assert_eq!(res.status.code(), Some(0), "{}", stderr(&res));
+    let dataset = Dataset::load(data).unwrap();
+    let n = dataset.split_indices(Split::TestOod).len();
+    for k in 0..n {
+        let img = image::open(out.join(format!("frame_{k:04}.png"))).unwrap();
+        assert_eq!((img.width(), img.height()), (40, 48));
+    }
+    assert!(!out.join(format!("frame_{n:04}.png")).exists());
+    let sheet = image::open(out.join("contact_sheet.png")).unwrap();
+    // Three tiles a frame (two triplets a row beyond four frames), 2 px gaps.
+    let (cols, rows) = if n > 4 { (6, n.div_ceil(2)) } else { (3, n) };
+    assert_eq!(sheet.width(), cols * (40 + 2) + 2);
+    assert_eq!(sheet.height() as usize, rows * (48 + 2) + 2);
+
+    // The poses of one subject rendered as the other, from a poses file (dataset.json's
+    // frame objects, so the dataset itself is a valid poses file): no ground truth, no sheet.
+    let poses_out = common::temp_dir("render_eval_render_poses");
+    let poses = poses_out.join("poses.json");
+    let doc: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(data.join("dataset.json")).unwrap()).unwrap();
+    let ada: Vec<_> = doc["frames"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|f| f["subject"] == 0)
+        .take(3)
+        .map(|f| serde_json::json!({"params": f["params"], "camera": f["camera"]}))
+        .collect();
+    std::fs::write(&poses, serde_json::json!({ "frames": ada }).to_string()).unwrap();
+    let frames_dir = poses_out.join("frames");
+    let res = talkin(&[
+        "render",
+        "--run",
+        s(run),
+        "--poses",
+        s(&poses),
+        "--subject",
+        "ben",
+        "--out",
+        s(&frames_dir),
+        "--smooth",
+    ]);
+    assert_eq!(res.status.code(), Some(0), "{}", stderr(&res));
+    assert!(frames_dir.join("frame_0002.png").exists());
+    assert!(!frames_dir.join("contact_sheet.png").exists());
+    // Two trained subjects: --poses must say which.
+    let res = talkin(&[
+        "render",
+        "--run",
+        s(run),
+        "--poses",
+        s(&poses),
+        "--out",
+        s(&frames_dir),
+    ]);
+    assert_eq!(res.status.code(), Some(1));
+    assert!(stderr(&res).contains("ada, ben"), "{}", stderr(&res));
+}
+
+#[test]
+fn bad_input_exits_1_naming_the_file_and_field() {
+    let (data, run) = scene();
+    let dir = common::temp_dir("render_eval_bad");
+    let json = dir.join("eval.json");
+    let check = |args: &[&str], needles: &[&str]| {
+        let res = talkin(args);
+        let err = stderr(&res);
+        assert_eq!(res.status.code(), Some(1), "{args:?}: {err}");
+        assert!(!err.contains("panicked"), "{err}");
+        for n in needles {
+            assert!(err.contains(n), "{args:?}: `{n}` not in: {err}");
+        }
+    };
+    // Unknown split.
+    check(
+        &[
+            "eval",
+            "--run",
+            s(run),
+            "--data",
+            s(data),
+            "--split",
+            "test_nope",
+            "--json",
+            s(&json),
+        ],
+        &["test_nope", "test_same"],
+    );
+    assert!(!json.exists(), "no report for a failed evaluation");
+    // Unknown subject.
+    check(
+        &[
+            "render",
+            "--run",
+            s(run),
+            "--data",
+            s(data),
+            "--split",
+            "test_same",
+            "--subject",
+            "zed",
+            "--out",
+            s(&dir.join("f")),
+        ],
+        &["zed", "ada"],
+    );
+    // A poses file with a short body_pose in its fourth frame.
+    let doc: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(data.join("dataset.json")).unwrap()).unwrap();
+    let frame = serde_json::json!({"params": doc["frames"][0]["params"], "camera": doc["frames"][0]["camera"]});
+    let mut bad = serde_json::json!({"frames": [frame, frame, frame, frame]});
+    bad["frames"][3]["params"]["body_pose"] = serde_json::json!([[0.0, 0.0, 0.0]]);
+    let poses = dir.join("poses.json");
+    std::fs::write(&poses, bad.to_string()).unwrap();
+    let render = |p: &Path| {
+        [
+            "render".to_string(),
+            "--run".into(),
+            s(run).into(),
+            "--poses".into(),
+            s(p).into(),
+            "--subject".into(),
+            "ada".into(),
+            "--out".into(),
+            s(&dir.join("g")).into(),
+        ]
+    };
+    let args = render(&poses);
+    let args: Vec<&str> = args.iter().map(String::as_str).collect();
+    check(
+        &args,
+        &["poses.json", "frames[3].params.body_pose", "21 x 3"],
+    );
+    // NaN as Python writes it: not JSON, and the message says so.
+    let mut zero_jaw = serde_json::json!({"frames": [frame, frame]});
+    zero_jaw["frames"][1]["params"]["jaw_pose"] = serde_json::json!([0.0, 0.0, 0.0]);
+    let text = zero_jaw.to_string();
+    assert!(text.contains("\"jaw_pose\":[0.0,0.0,0.0]"), "{text}");
+    let nan = dir.join("nan.json");
+    std::fs::write(
+        &nan,
+        text.replace("\"jaw_pose\":[0.0,0.0,0.0]", "\"jaw_pose\":[NaN,0.0,0.0]"),
+    )
+    .unwrap();
+    let args = render(&nan);
+    let args: Vec<&str> = args.iter().map(String::as_str).collect();
+    check(&args, &["nan.json", "NaN and Infinity are not JSON"]);
+    // A NaN that does parse (a string): the field is named.
+    let mut bad = serde_json::json!({"frames": [frame]});
+    bad["frames"][0]["params"]["expression"][4] = serde_json::json!("NaN");
+    std::fs::write(&poses, bad.to_string()).unwrap();
+    let args = render(&poses);
+    let args: Vec<&str> = args.iter().map(String::as_str).collect();
+    check(&args, &["poses.json", "frames[0].params.expression[4]"]);
+    // A missing poses file and a missing run.
+    let args = render(&dir.join("absent.json"));
+    let args: Vec<&str> = args.iter().map(String::as_str).collect();
+    check(&args, &["absent.json"]);
+    check(
+        &[
+            "eval",
+            "--run",
+            s(&dir),
+            "--data",
+            s(data),
+            "--split",
+            "test_same",
+            "--json",
+            s(&json),
+        ],
+        &["no checkpoint"],
+    );
+}
