@@ -237,9 +237,9 @@ impl Dataset {
     }
 }
 
-/// Camera of a frame: `Err(Ok(_))` for a well-shaped but degenerate camera, `Err(Err(_))`
-/// for a shape problem.
-fn parse_camera(
+/// A dataset `camera` object at `path` (frames, the render server): `Err(Ok(_))` for a
+/// well-shaped but degenerate camera, `Err(Err(_))` for a shape problem.
+pub fn parse_camera(
     v: &Value,
     path: &str,
 ) -> Result<Camera, Result<crate::camera::CameraError, ShapeError>> {
