@@ -16,6 +16,7 @@ pub mod inspect;
 pub mod json_shape;
 pub mod motion;
 pub mod sampling;
+pub mod serve;
 pub mod subject_model;
 pub mod synth;
 pub mod train;
