@@ -4,6 +4,7 @@ mod adapt;
 mod bench;
 mod demo;
 mod inspect;
+mod serve;
 mod synth;
 mod train;
 
@@ -32,6 +33,9 @@ enum Command {
     Train(train::TrainArgs),
     /// Adapt a trained run to a novel subject from a short clip (new identity code).
     Adapt(adapt::AdaptArgs),
+    /// Serve a trained run over HTTP: a page with sliders at `/`, POST /render and
+    /// /render/sequence (see the README).
+    Serve(serve::ServeArgs),
 }
 
 pub fn run(cli: Cli) -> anyhow::Result<()> {
@@ -42,5 +46,6 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Bench(a) => bench::run(a),
         Command::Train(a) => train::run(a),
         Command::Adapt(a) => adapt::run(a),
+        Command::Serve(a) => serve::run(a),
     }
 }
