@@ -19,6 +19,7 @@ pub mod json_shape;
 pub mod motion;
 pub mod sampling;
 pub mod sequence;
+pub mod serve;
 pub mod smooth;
 pub mod speed_vs_error;
 pub mod subject_model;

@@ -1,9 +1,14 @@
 use std::path::PathBuf;
+use std::sync::Arc;
 
 use anyhow::Context;
+use talkin_engine::avatar::Avatar;
+use talkin_engine::body::FrameParams;
 use talkin_engine::dataset::Dataset;
 use talkin_engine::sampling;
+use talkin_engine::serve::{Server, bench};
 
+use super::serve::LimitArgs;
 use crate::progress::Progress;
 
 #[derive(clap::Args, Debug)]
@@ -25,6 +30,9 @@ pub enum BenchCommand {
     /// The paper's ablations (w/o D_hands, w/o background, w/o jaw in e, single- vs
     /// multi-identity), each trained for the same budget and scored on held-out frames.
     Ablations(AblationArgs),
+    /// The render server under load: an in-process server on a free port, closed-loop
+    /// clients posting one frame each; throughput and p50/p99 latency per client count.
+    Serve(ServeBenchArgs),
 }
 
 #[derive(clap::Args, Debug)]
@@ -64,6 +72,27 @@ pub struct SpeedVsErrorArgs {
 }
 
 #[derive(clap::Args, Debug)]
+pub struct ServeBenchArgs {
+    /// Run directory to serve.
+    #[arg(long)]
+    pub run: PathBuf,
+    /// Concurrent client counts to measure, comma-separated.
+    #[arg(long, default_value = "1,4,16", value_delimiter = ',')]
+    pub clients: Vec<usize>,
+    /// Requests per client count.
+    #[arg(long, default_value_t = 32)]
+    pub requests: usize,
+    /// Image size of each request (WIDTHxHEIGHT; default: the server's --size).
+    #[arg(long)]
+    pub image: Option<String>,
+    #[command(flatten)]
+    pub limits: LimitArgs,
+    /// Also write the reports as JSON here.
+    #[arg(long)]
+    pub json: Option<PathBuf>,
+}
+
+#[derive(clap::Args, Debug)]
 pub struct SamplingArgs {
     /// Dataset directory.
     #[arg(long)]
@@ -78,7 +107,68 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         BenchCommand::Sampling(a) => sampling_bench(a),
         BenchCommand::SpeedVsError(a) => speed_vs_error_bench(a),
         BenchCommand::Ablations(a) => ablations_bench(a),
+        BenchCommand::Serve(a) => serve_bench(a),
     }
+}
+
+fn serve_bench(args: ServeBenchArgs) -> anyhow::Result<()> {
+    anyhow::ensure!(
+        !args.clients.is_empty() && args.clients.iter().all(|&c| c > 0) && args.requests > 0,
+        "--clients and --requests must be positive"
+    );
+    let mut config = args.limits.config()?;
+    // Every client's request waits instead of being refused: the bench measures latency
+    // under load, not the 503 path.
+    config.queue = config
+        .queue
+        .max(args.clients.iter().copied().max().unwrap_or(1));
+    let image = args
+        .image
+        .clone()
+        .unwrap_or_else(|| args.limits.size.clone());
+    let (width, height) = image
+        .split_once('x')
+        .and_then(|(w, h)| Some((w.parse::<u32>().ok()?, h.parse::<u32>().ok()?)))
+        .ok_or_else(|| anyhow::anyhow!("--image: expected WIDTHxHEIGHT, found {image}"))?;
+    let avatar =
+        Avatar::load(&args.run).with_context(|| format!("loading {}", args.run.display()))?;
+    let subject = avatar
+        .trained_subjects()
+        .first()
+        .map(|s| s.to_string())
+        .context("the run has no trained subject")?;
+    let (workers, queue) = (config.workers, config.queue);
+    let timeout = config.render_timeout * 4;
+    let server = Server::start(Arc::new(avatar), "127.0.0.1:0", config)?;
+    let mut params = FrameParams::default();
+    params.jaw_pose.x = 0.2;
+    let body = serde_json::to_vec(&serde_json::json!({
+        "subject": subject,
+        "params": params.to_json(),
+        "width": width,
+        "height": height,
+    }))?;
+    println!(
+        "bench serve: {} subject `{subject}`, {width}x{height} PNG frames, {workers} render \
+         threads, queue {queue}, {} requests per client count",
+        args.run.display(),
+        args.requests
+    );
+    // One untimed request: first-touch allocations and page faults.
+    bench::load_test(server.addr(), "/render", &body, 1, 1, timeout);
+    let reports: Vec<bench::LoadReport> = args
+        .clients
+        .iter()
+        .map(|&c| bench::load_test(server.addr(), "/render", &body, c, args.requests, timeout))
+        .collect();
+    server.shutdown()?;
+    print!("{}", bench::format_report(&reports));
+    if let Some(path) = &args.json {
+        std::fs::write(path, serde_json::to_string_pretty(&reports)?)
+            .with_context(|| format!("writing {}", path.display()))?;
+        println!("report: {}", path.display());
+    }
+    Ok(())
 }
 
 fn sampling_bench(args: SamplingArgs) -> anyhow::Result<()> {

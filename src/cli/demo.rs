@@ -5,7 +5,6 @@ use clap::Parser;
 
 use super::eval::{self, EvalArgs};
 use super::inspect::{self, InspectArgs};
-use super::render::{self, RenderArgs};
 use super::synth::{self, SynthArgs};
 use super::train::{self, DEFAULT_LPIPS_DIR, RecipeArgs, TrainArgs};
 
@@ -18,7 +17,7 @@ pub struct DemoArgs {
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// Training minutes (wall clock).
-    #[arg(long, default_value_t = 9.0)]
+    #[arg(long, default_value_t = 8.0)]
     pub minutes: f64,
 }
 
@@ -35,7 +34,7 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
     let data = args.out.join("data");
     let run_dir = args.out.join("run");
     let defaults = talkin_engine::synth::SynthConfig::default();
-    println!("== 1/5 generate the synthetic scene -> {}", data.display());
+    println!("== 1/4 generate the synthetic scene -> {}", data.display());
     synth::generate(&SynthArgs {
         out: data.clone(),
         identities: defaults.identities,
@@ -44,7 +43,7 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
         seed: args.seed,
         motion: None,
     })?;
-    println!("== 2/5 validate it and write a contact sheet");
+    println!("== 2/4 validate it and write a contact sheet");
     inspect::run(InspectArgs {
         dir: data.clone(),
         sheet: Some(args.out.join("contact_sheet.png")),
@@ -53,7 +52,7 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
     })?;
     ensure_lpips_weights(Path::new(DEFAULT_LPIPS_DIR));
     println!(
-        "== 3/5 train all identities for {} min (accelerated sampler, fast preset) -> {}",
+        "== 3/4 train all identities for {} min (accelerated sampler, fast preset) -> {}",
         args.minutes,
         run_dir.display()
     );
@@ -68,17 +67,7 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
         resume: false,
         recipe,
     })?;
-    println!("== 4/5 render test_same (ground truth | render | error)");
-    render::run(RenderArgs {
-        run: run_dir.clone(),
-        data: Some(data.clone()),
-        split: Some("test_same".into()),
-        poses: None,
-        out: args.out.join("renders_test_same"),
-        subject: None,
-        smooth: false,
-    })?;
-    println!("== 5/5 evaluate every held-out split");
+    println!("== 4/4 evaluate every held-out split (renders, metrics, a contact sheet)");
     let mut table = String::from(
         "| split | frames | PSNR | SSIM | LPIPS* | face PSNR | hands PSNR |\n|---|---|---|---|---|---|---|\n",
     );
@@ -97,6 +86,9 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
             &std::fs::read(&json).with_context(|| format!("reading {}", json.display()))?,
         )
         .with_context(|| format!("parsing {}", json.display()))?;
+        if split == "test_same" {
+            contact_sheet(&data, &report, &args.out.join("renders_test_same.png"))?;
+        }
         let num = |k: &str, d: usize| {
             report[k]
                 .as_f64()
@@ -116,7 +108,7 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
     println!(
         "contact sheets: {} (data), {} (test_same renders)",
         args.out.join("contact_sheet.png").display(),
-        args.out.join("renders_test_same/contact_sheet.png").display()
+        args.out.join("renders_test_same.png").display()
     );
     Ok(())
 }
@@ -140,4 +132,33 @@ fn ensure_lpips_weights(dir: &Path) {
              perceptual term and LPIPS is reported as null"
         );
     }
+}
+
+/// Ground truth | render | error for 12 evaluated frames spread over the split, from the
+/// renders the evaluation scored (nothing is rendered twice).
+fn contact_sheet(data: &Path, report: &serde_json::Value, file: &Path) -> anyhow::Result<()> {
+    use talkin_engine::sequence::{SHEET_MAX_FRAMES, SheetRow, comparison_sheet, write_png};
+    let dataset = talkin_engine::dataset::Dataset::load(data)?;
+    let frames = report["frames"].as_array().cloned().unwrap_or_default();
+    let n = frames.len().min(SHEET_MAX_FRAMES);
+    let mut rows = Vec::with_capacity(n);
+    for k in 0..n {
+        let f = &frames[k * frames.len() / n];
+        let (Some(index), Some(png)) = (f["frame"].as_u64(), f["render"].as_str()) else {
+            anyhow::bail!("{}: frames[{k}] lacks `frame` or `render`", file.display());
+        };
+        let truth = dataset.images(index as usize)?.rgb;
+        let render = image::open(png)
+            .with_context(|| format!("reading {png}"))?
+            .to_rgb8();
+        rows.push(SheetRow {
+            truth,
+            render,
+            outlines: Vec::new(),
+        });
+    }
+    if !rows.is_empty() {
+        write_png(&comparison_sheet(&rows), file)?;
+    }
+    Ok(())
 }

@@ -6,6 +6,7 @@ mod demo;
 mod eval;
 mod inspect;
 mod render;
+mod serve;
 mod synth;
 pub mod train;
 
@@ -38,6 +39,9 @@ enum Command {
     Render(render::RenderArgs),
     /// Render a split, score it (PSNR, SSIM, LPIPS on frame, face and hands), write JSON.
     Eval(eval::EvalArgs),
+    /// Serve a trained run over HTTP: a page with sliders at `/`, POST /render and
+    /// /render/sequence (see the README).
+    Serve(serve::ServeArgs),
 }
 
 pub fn run(cli: Cli) -> anyhow::Result<()> {
@@ -50,5 +54,6 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Adapt(a) => adapt::run(a),
         Command::Render(a) => render::run(a),
         Command::Eval(a) => eval::run(a),
+        Command::Serve(a) => serve::run(a),
     }
 }

@@ -243,9 +243,9 @@ pub(crate) fn camera_field(v: &Value, path: &str, file: &Path) -> Result<Camera,
     })
 }
 
-/// Camera of a frame: `Err(Ok(_))` for a well-shaped but degenerate camera, `Err(Err(_))`
-/// for a shape problem.
-fn parse_camera(
+/// A dataset `camera` object at `path` (frames, poses files, the render server):
+/// `Err(Ok(_))` for a well-shaped but degenerate camera, `Err(Err(_))` for a shape problem.
+pub fn parse_camera(
     v: &Value,
     path: &str,
 ) -> Result<Camera, Result<crate::camera::CameraError, ShapeError>> {

@@ -15,6 +15,7 @@ use std::path::PathBuf;
 pub use error::DatasetError;
 pub use images::{FrameImages, LABEL_NAMES, N_LABELS};
 pub(crate) use load::camera_field;
+pub use load::parse_camera;
 
 use crate::body::{FrameParams, Skeleton};
 use crate::camera::Camera;

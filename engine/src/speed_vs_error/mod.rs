@@ -82,6 +82,8 @@ pub struct Summary {
     pub accelerated_setup_s: f64,
     pub dense_setup_s: f64,
     pub lpips_note: Option<String>,
+    /// Why there is no speedup, when there is none.
+    pub note: Option<String>,
     pub points: Vec<Point>,
 }
 
@@ -235,15 +237,7 @@ pub fn speed_vs_error(
     let curve =
         |name: &str| -> Vec<&Point> { points.iter().filter(|p| p.sampler == name).collect() };
     let (acc, dense) = (curve("accelerated"), curve("dense"));
-    let best = dense
-        .iter()
-        .copied()
-        .fold(None::<&Point>, |b, p| match b {
-            Some(b) if b.psnr >= p.psnr => Some(b),
-            _ => Some(p),
-        })
-        .expect("the dense curve has points");
-    let acc_time = time_to_reach(&acc, best.psnr);
+    let (best, acc_time, note) = compare(&acc, &dense);
     let summary = Summary {
         budgets_s: opts.budgets.clone(),
         eval_split: Split::TestSame.name().into(),
@@ -252,6 +246,7 @@ pub fn speed_vs_error(
         dense_seconds_to_best: best.seconds,
         accelerated_seconds_to_dense_best: acc_time,
         speedup_to_dense_final_psnr: acc_time.map(|t| best.seconds / t.max(1e-9)),
+        note,
         accelerated_final_psnr: acc.last().map_or(f64::NAN, |p| p.psnr),
         dense_final_psnr: dense.last().map_or(f64::NAN, |p| p.psnr),
         accelerated_steps_per_s: rates[0].0,
@@ -267,13 +262,48 @@ pub fn speed_vs_error(
     Ok(summary)
 }
 
-/// The first time (seconds) the curve reaches `psnr`, linearly interpolated between
-/// consecutive points; `None` if it never does.
-pub fn time_to_reach(curve: &[&Point], psnr: f64) -> Option<f64> {
-    let first = curve.first()?;
-    if first.psnr >= psnr {
-        return Some(first.seconds);
+/// The dense run's best point after the start, the accelerated run's time to reach its
+/// PSNR, and why there is no speedup when there is none. Both runs start from the same
+/// untrained field, so the start (0 s) is nobody's achievement: a dense run that never
+/// beats it has no time to its best, and the accelerated run must climb to the target.
+pub fn compare<'p>(
+    acc: &[&'p Point],
+    dense: &[&'p Point],
+) -> (&'p Point, Option<f64>, Option<String>) {
+    let start = dense.first().map_or(f64::NEG_INFINITY, |p| p.psnr);
+    let best = dense
+        .iter()
+        .copied()
+        .filter(|p| p.seconds > 0.0)
+        .fold(None::<&Point>, |b, p| match b {
+            Some(b) if b.psnr >= p.psnr => Some(b),
+            _ => Some(p),
+        })
+        .or_else(|| dense.first().copied())
+        .expect("the dense curve has points");
+    if best.psnr <= start {
+        let note = format!(
+            "the dense run never improved on the untrained field's {start:.2} dB within the \
+             budget, so it has no time to its best PSNR"
+        );
+        return (best, None, Some(note));
     }
+    match time_to_reach(acc, best.psnr) {
+        Some(t) => (best, Some(t), None),
+        None => (
+            best,
+            None,
+            Some(format!(
+                "the accelerated run never reached the dense best {:.2} dB",
+                best.psnr
+            )),
+        ),
+    }
+}
+
+/// The first time (seconds) the curve climbs to `psnr`, linearly interpolated between
+/// consecutive points; `None` if it never does (the starting point does not count).
+pub fn time_to_reach(curve: &[&Point], psnr: f64) -> Option<f64> {
     curve.windows(2).find_map(|w| {
         let (a, b) = (w[0], w[1]);
         (b.psnr >= psnr).then(|| {
@@ -362,12 +392,55 @@ pub fn format_summary(s: &Summary) -> String {
         s.dense_seconds_to_best,
         s.accelerated_seconds_to_dense_best
             .map_or("never".into(), |t| format!("{t:.1} s")),
-        s.speedup_to_dense_final_psnr
-            .map_or("n/a (not reached)".into(), |v| format!("{v:.2}x")),
+        s.speedup_to_dense_final_psnr.map_or(
+            format!("none: {}", s.note.clone().unwrap_or_default()),
+            |v| { format!("{v:.2}x") }
+        ),
         s.accelerated_steps_per_s,
         s.dense_steps_per_s,
         s.accelerated_samples_per_ray,
         s.dense_samples_per_ray,
     ));
     t
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn p(seconds: f64, psnr: f64) -> Point {
+        Point {
+            sampler: String::new(),
+            seconds,
+            steps: 0,
+            psnr,
+            ssim: 0.0,
+            lpips: None,
+            psnr_face: None,
+            psnr_hands: None,
+            samples_per_ray: 0.0,
+        }
+    }
+
+    #[test]
+    fn speedup_is_interpolated_and_undefined_when_dense_never_improves() {
+        let acc = [p(0.0, 10.0), p(10.0, 14.0), p(20.0, 18.0)];
+        let dense = [p(0.0, 10.0), p(30.0, 12.0), p(60.0, 16.0)];
+        let (a, d): (Vec<&Point>, Vec<&Point>) = (acc.iter().collect(), dense.iter().collect());
+        let (best, t, note) = compare(&a, &d);
+        assert_eq!(best.seconds, 60.0);
+        // 16 dB lies halfway between 14 (10 s) and 18 (20 s).
+        assert!((t.unwrap() - 15.0).abs() < 1e-9 && note.is_none());
+        // A dense run that only gets worse has no time to its best.
+        let flat = [p(0.0, 10.0), p(30.0, 9.0)];
+        let f: Vec<&Point> = flat.iter().collect();
+        let (_, t, note) = compare(&a, &f);
+        assert!(t.is_none() && note.unwrap().contains("never improved"));
+        // An accelerated run that never gets there.
+        let slow = [p(0.0, 10.0), p(60.0, 11.0)];
+        let s: Vec<&Point> = slow.iter().collect();
+        let (_, t, note) = compare(&s, &d);
+        assert!(t.is_none() && note.unwrap().contains("never reached"));
+        assert_eq!(eval_marks(&[30.0, 60.0]), vec![0.0, 7.5, 15.0, 30.0, 60.0]);
+    }
 }
