@@ -18,7 +18,6 @@ use talkin::engine::avatar::Avatar;
 use talkin::engine::dataset::Dataset;
 use talkin::engine::serve::client::{self, HttpResponse};
 use talkin::engine::serve::{ServeConfig, Server};
-use talkin::engine::synth::{SynthConfig, generate};
 use talkin::engine::train::{Budget, TrainOptions, train};
 use talkin::grids::SamplerKind;
 
@@ -34,16 +33,7 @@ struct Fixture {
 fn fixture() -> &'static Fixture {
     static FIXTURE: OnceLock<Fixture> = OnceLock::new();
     FIXTURE.get_or_init(|| {
-        let data = common::temp_dir("serve_scene");
-        let cfg = SynthConfig {
-            identities: 1,
-            frames: 4,
-            size: 48,
-            seed: 1,
-            motion: None,
-        };
-        generate(&cfg, &data, &mut |_, _| {}).unwrap();
-        let dataset = Dataset::load(&data).unwrap();
+        let dataset = common::synthetic_scene("serve_scene", 1, 48, 1);
         let run = common::temp_dir("serve_run");
         let opts = TrainOptions {
             sampler: SamplerKind::Accelerated,

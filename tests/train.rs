@@ -11,7 +11,6 @@ use talkin::engine::atomic::write_atomic;
 use talkin::engine::avatar::Avatar;
 use talkin::engine::checkpoint::{self, CHECKPOINT_DIR, LATEST_FILE};
 use talkin::engine::dataset::Dataset;
-use talkin::engine::synth::{SynthConfig, generate};
 use talkin::engine::train::{Budget, LOG_FILE, StepLog, TrainOptions, Trainer, train};
 use talkin::grids::SamplerKind;
 
@@ -28,16 +27,7 @@ fn no_temp_files(dir: &Path) -> bool {
 }
 
 fn scene(name: &str) -> Dataset {
-    let data = common::temp_dir(name);
-    let cfg = SynthConfig {
-        identities: 1,
-        frames: 4,
-        size: 48,
-        seed: 1,
-        motion: None,
-    };
-    generate(&cfg, &data, &mut |_, _| {}).unwrap();
-    Dataset::load(&data).unwrap()
+    common::synthetic_scene(name, 1, 48, 1)
 }
 
 fn small_opts(sampler: SamplerKind, steps: usize) -> TrainOptions {

@@ -15,7 +15,7 @@ use serde::Serialize;
 use crate::dataset::{Dataset, Split};
 use crate::eval::{EvalOptions, EvalReport, evaluate};
 use crate::speed_vs_error::spread_frames;
-use crate::train::{Ablation, Budget, TrainError, TrainOptions, Trainer};
+use crate::train::{Ablation, Budget, TrainOptions, Trainer};
 
 /// What the benchmark is told.
 #[derive(Clone, Debug)]
@@ -42,24 +42,7 @@ pub struct AblationRow {
     pub steps: usize,
 }
 
-#[derive(Debug, thiserror::Error)]
-pub enum AblationError {
-    #[error(transparent)]
-    Train(#[from] TrainError),
-    #[error("evaluation: {0}")]
-    Eval(#[from] crate::eval::EvalError),
-    #[error("{}: {source}", file.display())]
-    Io {
-        file: PathBuf,
-        #[source]
-        source: std::io::Error,
-    },
-    #[error("option `{field}`: {problem}")]
-    BadOption {
-        field: &'static str,
-        problem: String,
-    },
-}
+pub use crate::bench_error::BenchError as AblationError;
 
 const SPLITS: [Split; 2] = [Split::TestSame, Split::TestCross];
 

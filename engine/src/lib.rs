@@ -8,6 +8,7 @@
 pub mod ablations;
 pub mod atomic;
 pub mod avatar;
+pub mod bench_error;
 pub mod body;
 pub mod camera;
 pub mod checkpoint;

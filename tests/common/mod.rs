@@ -143,3 +143,18 @@ pub fn temp_dir(name: &str) -> std::path::PathBuf {
     std::fs::create_dir_all(&dir).unwrap();
     dir
 }
+
+/// A small synthetic scene generated into `target/tmp/<name>` and loaded: `identities`
+/// subjects, 4 training frames each, `size` px high, seeded.
+pub fn synthetic_scene(name: &str, identities: usize, size: u32, seed: u64) -> Dataset {
+    let data = temp_dir(name);
+    let cfg = talkin::engine::synth::SynthConfig {
+        identities,
+        frames: 4,
+        size,
+        seed,
+        motion: None,
+    };
+    talkin::engine::synth::generate(&cfg, &data, &mut |_, _| {}).unwrap();
+    Dataset::load(&data).unwrap()
+}

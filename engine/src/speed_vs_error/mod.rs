@@ -23,11 +23,11 @@ use std::time::Instant;
 use serde::Serialize;
 use talkin_grids::SamplerKind;
 
-pub use plot::plot_psnr_vs_seconds;
+pub use plot::{Curve, plot_psnr_vs_seconds};
 
 use crate::dataset::{Dataset, Split};
 use crate::eval::{EvalOptions, evaluate};
-use crate::train::{Budget, TrainError, TrainOptions, Trainer};
+use crate::train::{Budget, TrainOptions, Trainer};
 
 /// What the benchmark is told.
 #[derive(Clone, Debug)]
@@ -87,24 +87,7 @@ pub struct Summary {
     pub points: Vec<Point>,
 }
 
-#[derive(Debug, thiserror::Error)]
-pub enum SpeedVsErrorError {
-    #[error(transparent)]
-    Train(#[from] TrainError),
-    #[error("evaluation: {0}")]
-    Eval(#[from] crate::eval::EvalError),
-    #[error("{}: {source}", file.display())]
-    Io {
-        file: PathBuf,
-        #[source]
-        source: std::io::Error,
-    },
-    #[error("option `{field}`: {problem}")]
-    BadOption {
-        field: &'static str,
-        problem: String,
-    },
-}
+pub use crate::bench_error::BenchError as SpeedVsErrorError;
 
 /// The evaluation marks for `budgets`: 0, a quarter and a half of the first budget, and
 /// every budget.
@@ -344,19 +327,18 @@ fn write_outputs(out: &Path, summary: &Summary) -> Result<(), SpeedVsErrorError>
             .expect("plain data serialises")
             .as_bytes(),
     )?;
-    let curves: Vec<(&str, [u8; 3], Vec<(f64, f64)>)> =
-        [("accelerated", [230, 90, 30]), ("dense", [40, 90, 200])]
-            .into_iter()
-            .map(|(name, colour)| {
-                let pts = summary
-                    .points
-                    .iter()
-                    .filter(|p| p.sampler == name)
-                    .map(|p| (p.seconds, p.psnr))
-                    .collect();
-                (name, colour, pts)
-            })
-            .collect();
+    let curves: Vec<Curve> = [("accelerated", [230, 90, 30]), ("dense", [40, 90, 200])]
+        .into_iter()
+        .map(|(name, colour)| {
+            let pts = summary
+                .points
+                .iter()
+                .filter(|p| p.sampler == name)
+                .map(|p| (p.seconds, p.psnr))
+                .collect();
+            (name, colour, pts)
+        })
+        .collect();
     let png = plot_psnr_vs_seconds(&curves, summary.dense_best_psnr);
     let mut bytes = Vec::new();
     png.write_to(

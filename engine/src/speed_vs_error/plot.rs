@@ -13,9 +13,11 @@ const RIGHT: f64 = 20.0;
 const TOP: f64 = 40.0;
 const BOTTOM: f64 = 60.0;
 
-/// `curves`: (name, colour, points (seconds, psnr)). `level`: a PSNR drawn as a dashed
-/// line (the dense run's best).
-pub fn plot_psnr_vs_seconds(curves: &[(&str, [u8; 3], Vec<(f64, f64)>)], level: f64) -> RgbImage {
+/// One polyline: name, colour, points (seconds, psnr).
+pub type Curve<'a> = (&'a str, [u8; 3], Vec<(f64, f64)>);
+
+/// `level`: a PSNR drawn as a dashed line (the dense run's best).
+pub fn plot_psnr_vs_seconds(curves: &[Curve], level: f64) -> RgbImage {
     let mut img = RgbImage::from_pixel(W, H, Rgb([255, 255, 255]));
     let all: Vec<(f64, f64)> = curves
         .iter()

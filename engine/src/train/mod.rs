@@ -194,24 +194,8 @@ impl<'a> Trainer<'a> {
         let field = config
             .init(&bone_prior(skeletons), &device)
             .map_err(|source| TrainError::Field { source })?;
-        std::fs::create_dir_all(out).map_err(|source| TrainError::Io {
-            file: out.to_path_buf(),
-            source,
-        })?;
-        write_recipe(out, opts, &config)?;
-        let log = open_log(&out.join(LOG_FILE), None)?;
         let slot_of = (0..n_subjects).map(Some).collect();
-        Trainer::assemble(
-            dataset,
-            out,
-            opts.clone(),
-            config,
-            field,
-            subjects,
-            frames,
-            slot_of,
-            log,
-        )
+        Trainer::start(dataset, out, opts, config, field, subjects, frames, slot_of)
     }
 
     /// Adapts the run in `base` to the subject `subject` of `dataset` (a novel identity:
@@ -295,24 +279,7 @@ impl<'a> Trainer<'a> {
         config.n_identities = field.n_identities();
         let mut slot_of = vec![None; dataset.subjects.len()];
         slot_of[s] = Some(slot);
-        std::fs::create_dir_all(out).map_err(|source| TrainError::Io {
-            file: out.to_path_buf(),
-            source,
-        })?;
-        write_recipe(out, opts, &config)?;
-        let log = open_log(&out.join(LOG_FILE), None)?;
-        let t = Trainer::assemble(
-            dataset,
-            out,
-            opts.clone(),
-            config,
-            field,
-            subjects,
-            frames,
-            slot_of,
-            log,
-        )?;
-        Ok(t)
+        Trainer::start(dataset, out, opts, config, field, subjects, frames, slot_of)
     }
 
     /// Continues the run in `run` from its newest checkpoint, with the same options.
@@ -368,6 +335,37 @@ impl<'a> Trainer<'a> {
         t.elapsed = state.elapsed_seconds;
         t.rng = SplitMix64::from_state(state.rng_state);
         Ok(t)
+    }
+
+    /// A new run directory: creates it, writes the recipe and a fresh log.
+    #[allow(clippy::too_many_arguments)]
+    fn start(
+        dataset: &'a Dataset,
+        out: &Path,
+        opts: &TrainOptions,
+        config: FieldConfig,
+        field: TalkinField,
+        subjects: Vec<SubjectSlot>,
+        frames: Vec<usize>,
+        slot_of: Vec<Option<usize>>,
+    ) -> Result<Self, TrainError> {
+        std::fs::create_dir_all(out).map_err(|source| TrainError::Io {
+            file: out.to_path_buf(),
+            source,
+        })?;
+        write_recipe(out, opts, &config)?;
+        let log = open_log(&out.join(LOG_FILE), None)?;
+        Trainer::assemble(
+            dataset,
+            out,
+            opts.clone(),
+            config,
+            field,
+            subjects,
+            frames,
+            slot_of,
+            log,
+        )
     }
 
     #[allow(clippy::too_many_arguments)]

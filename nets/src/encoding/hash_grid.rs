@@ -104,7 +104,7 @@ impl HashGrid {
         let block = res1.pow(3);
         let size = self.offsets[level + 1] - self.offsets[level];
         let dense = c[0] as usize + res1 * (c[1] as usize + res1 * c[2] as usize);
-        let local = if block <= size && size % block == 0 {
+        let local = if block <= size && size.is_multiple_of(block) {
             (dense + id as usize * block) % size
         } else {
             // size is a power of two when hashed.
