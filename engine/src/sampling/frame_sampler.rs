@@ -142,20 +142,26 @@ impl FrameSampler {
     }
 }
 
-/// The canonical grid dilated by at least `reach`, shared by every frame of a subject:
+/// The canonical grid dilated by at least `reach` (in whole cells), shared by every frame
+/// of a subject:
 /// dilating is per grid, not per frame, so the last few results are kept by fingerprint.
 fn dilated_occupancy(grid: &OccupancyGrid, reach: f32) -> Result<Arc<DilatedOccupancy>, GridError> {
     static CACHE: Mutex<Vec<Arc<DilatedOccupancy>>> = Mutex::new(Vec::new());
     let key = grid.fingerprint();
+    // A little more than asked, so frames whose steps differ slightly share one; the
+    // dilation is whole cells, so the cache is matched on the cell count: what a frame
+    // gets depends only on the grid and its own step, never on what was cached before
+    // (matching any larger reach made training depend on the order frames were seen).
+    let ask = reach * 1.25;
+    let cells = (ask / grid.cell_size().min_element()).ceil();
     let mut cache = CACHE.lock().unwrap_or_else(|e| e.into_inner());
-    if let Some(d) = cache
-        .iter()
-        .find(|d| d.source_fingerprint() == key && d.reach() >= reach)
-    {
+    if let Some(d) = cache.iter().find(|d| {
+        d.source_fingerprint() == key
+            && (d.reach() / grid.cell_size().min_element()).round() == cells
+    }) {
         return Ok(d.clone());
     }
-    // A little more than asked, so frames whose steps differ slightly share one.
-    let d = Arc::new(DilatedOccupancy::new(grid, reach * 1.25)?);
+    let d = Arc::new(DilatedOccupancy::new(grid, ask)?);
     if cache.len() >= 8 {
         cache.remove(0);
     }
