@@ -113,6 +113,11 @@ pub struct CheckpointContents<'a> {
     pub state: &'a serde_json::Value,
 }
 
+/// Held by whoever seeds the device or draws a field's initial weights: burn's device
+/// RNG is process-wide, and a draw interleaved with another thread's (tests, benches)
+/// would make the same seed give different weights.
+pub static DEVICE_RNG: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
 /// The checkpoint directory of a run.
 pub fn checkpoint_root(run: &Path) -> PathBuf {
     run.join(CHECKPOINT_DIR)
@@ -259,10 +264,11 @@ impl Checkpoint {
             .iter()
             .filter_map(|s| s.model.as_ref().map(|m| &m.skeleton))
             .collect();
-        let field = self
-            .config
-            .init(&bone_prior(skeletons), device)
-            .map_err(|e| CheckpointError::format(&self.dir.join(CONFIG_FILE), "FieldConfig", e))?;
+        let field = {
+            let _guard = DEVICE_RNG.lock().unwrap_or_else(|e| e.into_inner());
+            self.config.init(&bone_prior(skeletons), device)
+        }
+        .map_err(|e| CheckpointError::format(&self.dir.join(CONFIG_FILE), "FieldConfig", e))?;
         let record = ModuleRecord::from_bytes(Bytes::from_bytes_vec(self.model_bytes.clone()))
             .map_err(|e| CheckpointError::format(&model_file, "record", e))?;
         field

@@ -187,13 +187,21 @@ impl<'a> Trainer<'a> {
         let subjects = fit_subjects(dataset, &frames, opts.grid_resolution)?;
         fit_field_box(&mut config, &subjects);
         let device = Device::flex().autodiff();
-        device.seed(opts.seed);
         let skeletons = subjects
             .iter()
             .filter_map(|s| s.model.as_ref().map(|m| &m.skeleton));
-        let field = config
-            .init(&bone_prior(skeletons), &device)
-            .map_err(|source| TrainError::Field { source })?;
+        let field = {
+            // The device's RNG is process-wide: seeding and drawing the initial weights
+            // must not interleave with another trainer's (tests, benches in threads), or
+            // the same seed gives different weights.
+            let _guard = crate::checkpoint::DEVICE_RNG
+                .lock()
+                .unwrap_or_else(|e| e.into_inner());
+            device.seed(opts.seed);
+            config
+                .init(&bone_prior(skeletons), &device)
+                .map_err(|source| TrainError::Field { source })?
+        };
         let slot_of = (0..n_subjects).map(Some).collect();
         Trainer::start(dataset, out, opts, config, field, subjects, frames, slot_of)
     }
@@ -244,8 +252,13 @@ impl<'a> Trainer<'a> {
         }
         let checkpoint = Checkpoint::load(base)?;
         let device = Device::flex().autodiff();
-        device.seed(opts.seed);
-        let mut field = checkpoint.field(&device)?;
+        let mut field = {
+            let _guard = crate::checkpoint::DEVICE_RNG
+                .lock()
+                .unwrap_or_else(|e| e.into_inner());
+            device.seed(opts.seed);
+            checkpoint.field(&device)?
+        };
         let mut config = checkpoint.config.clone();
         let mut subjects = checkpoint.subjects.clone();
         let name = dataset.subjects[s].name.clone();
