@@ -12,20 +12,11 @@ use std::path::Path;
 
 use talkin::engine::avatar::Avatar;
 use talkin::engine::checkpoint::{self, CHECKPOINT_DIR};
-use talkin::engine::train::{Budget, LOG_FILE, TrainOptions, Trainer, train};
+use talkin::engine::train::{LOG_FILE, TrainOptions, Trainer, train};
 use talkin::grids::SamplerKind;
 
 fn small_opts(sampler: SamplerKind, steps: usize) -> TrainOptions {
-    TrainOptions {
-        sampler,
-        budget: Budget::Steps(steps),
-        seed: 3,
-        batch_rays: 256,
-        patches: 0,
-        occ_every: 4,
-        grid_resolution: 32,
-        ..TrainOptions::default()
-    }
+    common::small_train_opts(sampler, steps)
 }
 
 #[test]

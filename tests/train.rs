@@ -11,7 +11,7 @@ use talkin::engine::atomic::write_atomic;
 use talkin::engine::avatar::Avatar;
 use talkin::engine::checkpoint::{self, CHECKPOINT_DIR, LATEST_FILE};
 use talkin::engine::dataset::Dataset;
-use talkin::engine::train::{Budget, LOG_FILE, StepLog, TrainOptions, train};
+use talkin::engine::train::{LOG_FILE, StepLog, TrainOptions, train};
 use talkin::grids::SamplerKind;
 
 const STEPS: usize = 15;
@@ -31,16 +31,7 @@ fn scene(name: &str) -> Dataset {
 }
 
 fn small_opts(sampler: SamplerKind, steps: usize) -> TrainOptions {
-    TrainOptions {
-        sampler,
-        budget: Budget::Steps(steps),
-        seed: 3,
-        batch_rays: 256,
-        patches: 0,
-        occ_every: 4,
-        grid_resolution: 32,
-        ..TrainOptions::default()
-    }
+    common::small_train_opts(sampler, steps)
 }
 
 fn check_run(dataset: &Dataset, sampler: SamplerKind) {

@@ -158,3 +158,21 @@ pub fn synthetic_scene(name: &str, identities: usize, size: u32, seed: u64) -> D
     talkin::engine::synth::generate(&cfg, &data, &mut |_, _| {}).unwrap();
     Dataset::load(&data).unwrap()
 }
+
+/// Training options for tiny test runs: `steps` steps of 256 rays, no perceptual term,
+/// grid updates every 4 steps on a 32-cell grid, seed 3.
+pub fn small_train_opts(
+    sampler: talkin::grids::SamplerKind,
+    steps: usize,
+) -> talkin::engine::train::TrainOptions {
+    talkin::engine::train::TrainOptions {
+        sampler,
+        budget: talkin::engine::train::Budget::Steps(steps),
+        seed: 3,
+        batch_rays: 256,
+        patches: 0,
+        occ_every: 4,
+        grid_resolution: 32,
+        ..talkin::engine::train::TrainOptions::default()
+    }
+}

@@ -222,19 +222,7 @@ impl<'a> Trainer<'a> {
         let index_file = dataset.root.join(crate::dataset::INDEX_FILE);
         let s = dataset
             .subject_index(subject)
-            .ok_or_else(|| TrainError::BadOption {
-                field: "subject",
-                problem: format!(
-                    "{} has no subject `{subject}` (has: {})",
-                    index_file.display(),
-                    dataset
-                        .subjects
-                        .iter()
-                        .map(|s| s.name.as_str())
-                        .collect::<Vec<_>>()
-                        .join(", ")
-                ),
-            })?;
+            .ok_or_else(|| unknown_subject(dataset, "subject", subject))?;
         let mut frames: Vec<usize> = dataset
             .split_indices(Split::Train)
             .into_iter()
@@ -750,19 +738,7 @@ fn training_frames(
             .map(|n| {
                 dataset
                     .subject_index(n)
-                    .ok_or_else(|| TrainError::BadOption {
-                        field: "identities",
-                        problem: format!(
-                            "{} has no subject `{n}` (has: {})",
-                            index_file.display(),
-                            dataset
-                                .subjects
-                                .iter()
-                                .map(|s| s.name.as_str())
-                                .collect::<Vec<_>>()
-                                .join(", ")
-                        ),
-                    })
+                    .ok_or_else(|| unknown_subject(dataset, "identities", n))
             })
             .collect::<Result<_, _>>()?,
     };
@@ -775,6 +751,19 @@ fn training_frames(
         return Err(TrainError::NoTrainFrames { file: index_file });
     }
     Ok(frames)
+}
+
+/// `field` names a subject `name` the dataset does not have; the error lists those it has.
+fn unknown_subject(dataset: &Dataset, field: &'static str, name: &str) -> TrainError {
+    let has: Vec<&str> = dataset.subjects.iter().map(|s| s.name.as_str()).collect();
+    TrainError::BadOption {
+        field,
+        problem: format!(
+            "{} has no subject `{name}` (has: {})",
+            dataset.root.join(crate::dataset::INDEX_FILE).display(),
+            has.join(", ")
+        ),
+    }
 }
 
 /// A slot per dataset subject; a model (shells, grid) for those with training frames.
