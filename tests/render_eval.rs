@@ -15,35 +15,17 @@ use talkin::engine::eval::{
     self, CropKind, EvalOptions, LpipsScorer, PSNR_CAP_DB, Rect, evaluate, frame_crops, rescore_png,
 };
 use talkin::engine::sequence::split_frames;
-use talkin::engine::synth::{SynthConfig, generate};
-use talkin::engine::train::{Budget, TrainOptions, train};
+use talkin::engine::train::train;
 use talkin::grids::SamplerKind;
 
 /// A two-identity scene (40x48 px) and a run trained on it for a few steps, made once.
 fn scene() -> &'static (PathBuf, PathBuf) {
     static SCENE: OnceLock<(PathBuf, PathBuf)> = OnceLock::new();
     SCENE.get_or_init(|| {
-        let data = common::temp_dir("render_eval_data");
-        let cfg = SynthConfig {
-            identities: 2,
-            frames: 4,
-            size: 48,
-            seed: 5,
-            motion: None,
-        };
-        generate(&cfg, &data, &mut |_, _| {}).unwrap();
-        let dataset = Dataset::load(&data).unwrap();
+        let dataset = common::synthetic_scene("render_eval_data", 2, 48, 5);
+        let data = dataset.root.clone();
         let run = common::temp_dir("render_eval_run");
-        let opts = TrainOptions {
-            sampler: SamplerKind::Accelerated,
-            budget: Budget::Steps(6),
-            seed: 2,
-            batch_rays: 256,
-            patches: 0,
-            occ_every: 4,
-            grid_resolution: 32,
-            ..TrainOptions::default()
-        };
+        let opts = common::small_train_opts(SamplerKind::Accelerated, 6);
         train(&dataset, &run, &opts, &mut |_| {}).unwrap();
         (data, run)
     })

@@ -18,7 +18,7 @@ use talkin::engine::avatar::Avatar;
 use talkin::engine::dataset::Dataset;
 use talkin::engine::serve::client::{self, HttpResponse};
 use talkin::engine::serve::{ServeConfig, Server};
-use talkin::engine::train::{Budget, TrainOptions, train};
+use talkin::engine::train::{TrainOptions, train};
 use talkin::grids::SamplerKind;
 
 const WAIT: Duration = Duration::from_secs(120);
@@ -36,14 +36,9 @@ fn fixture() -> &'static Fixture {
         let dataset = common::synthetic_scene("serve_scene", 1, 48, 1);
         let run = common::temp_dir("serve_run");
         let opts = TrainOptions {
-            sampler: SamplerKind::Accelerated,
-            budget: Budget::Steps(3),
-            seed: 3,
             batch_rays: 128,
-            patches: 0,
             occ_every: 0,
-            grid_resolution: 32,
-            ..TrainOptions::default()
+            ..common::small_train_opts(SamplerKind::Accelerated, 3)
         };
         train(&dataset, &run, &opts, &mut |_| {}).unwrap();
         let avatar = Arc::new(Avatar::load(&run).unwrap());

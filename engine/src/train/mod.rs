@@ -463,7 +463,8 @@ impl Trainer<'_> {
     /// One optimizer step (and, when due, an occupancy-grid update).
     pub fn step(&mut self) -> Result<StepLog, TrainError> {
         let t0 = Instant::now();
-        let index_file = self.dataset.root.join(crate::dataset::INDEX_FILE);
+        // Only errors name the index file: no path allocated on the step's happy path.
+        let index_file = || self.dataset.root.join(crate::dataset::INDEX_FILE);
         let vstep = self.field_step();
         let lr = schedule::learning_rate(self.opts.initial_lr(), vstep);
         let i = self.frames[self.rng.below(self.frames.len() as u64) as usize];
@@ -477,7 +478,7 @@ impl Trainer<'_> {
             let fc = FrameCache::new(self.dataset, i, slot, model).map_err(|e| match e {
                 CacheError::Dataset(e) => TrainError::Dataset(e),
                 CacheError::Grid(source) => TrainError::Grid {
-                    file: index_file.clone(),
+                    file: index_file(),
                     frame: i,
                     source,
                 },
@@ -486,7 +487,7 @@ impl Trainer<'_> {
         }
         let fc = &self.cache[&i];
         let grid_err = |source| TrainError::Grid {
-            file: index_file.clone(),
+            file: index_file(),
             frame: i,
             source,
         };
