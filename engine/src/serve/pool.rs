@@ -8,8 +8,13 @@ use std::sync::{Arc, Condvar, Mutex, MutexGuard};
 use std::thread::JoinHandle;
 use std::time::Duration;
 
-/// Work for a render thread.
-pub type Job = Box<dyn FnOnce() + Send + 'static>;
+/// Work for a render thread. It returns how to hand its result over; the pool counts the
+/// job as completed before it delivers, so a client that holds a reply sees it counted in
+/// `/health`.
+pub type Job = Box<dyn FnOnce() -> Deliver + Send + 'static>;
+
+/// Hands a finished job's result to whoever waits for it.
+pub type Deliver = Box<dyn FnOnce() + Send + 'static>;
 
 /// Why a job was not accepted.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
@@ -168,11 +173,16 @@ fn worker(shared: &Shared) {
         };
         let start = std::time::Instant::now();
         // A panic in one render must not take a worker away for good.
-        let _ = std::panic::catch_unwind(std::panic::AssertUnwindSafe(job));
-        let mut s = shared.lock();
-        s.busy -= 1;
-        s.completed += 1;
-        s.job_seconds += start.elapsed().as_secs_f64();
+        let deliver = std::panic::catch_unwind(std::panic::AssertUnwindSafe(job));
+        {
+            let mut s = shared.lock();
+            s.busy -= 1;
+            s.completed += 1;
+            s.job_seconds += start.elapsed().as_secs_f64();
+        }
+        if let Ok(deliver) = deliver {
+            let _ = std::panic::catch_unwind(std::panic::AssertUnwindSafe(deliver));
+        }
     }
 }
 
@@ -187,6 +197,7 @@ mod tests {
         let job: Job = Box::new(move || {
             started.send(()).unwrap();
             let _ = gate.recv();
+            Box::new(|| {})
         });
         (job, open)
     }
@@ -236,11 +247,30 @@ mod tests {
             .unwrap();
         for _ in 0..3 {
             let done = done.clone();
-            pool.try_submit(Box::new(move || *done.lock().unwrap() += 1))
-                .unwrap();
+            pool.try_submit(Box::new(move || {
+                *done.lock().unwrap() += 1;
+                Box::new(|| {})
+            }))
+            .unwrap();
         }
         pool.shutdown();
         assert_eq!(*done.lock().unwrap(), 3);
         assert_eq!(pool.stats().completed, 4);
+    }
+
+    #[test]
+    fn a_delivered_result_is_already_counted() {
+        let pool = Pool::new(1, 0).unwrap();
+        for n in 1..=20 {
+            let (tx, rx) = mpsc::channel();
+            pool.try_submit(Box::new(move || {
+                Box::new(move || {
+                    let _ = tx.send(());
+                })
+            }))
+            .unwrap();
+            rx.recv().unwrap();
+            assert_eq!(pool.stats().completed, n);
+        }
     }
 }

@@ -16,7 +16,7 @@ use tokio::sync::oneshot;
 use super::App;
 use super::encode::{self, Encoded};
 use super::error::RequestError;
-use super::pool::Refused;
+use super::pool::{Job, Refused};
 use super::request::{self, Format};
 
 /// The web page at `/`: sliders for a few parameters, the rendered frame (no external
@@ -227,11 +227,14 @@ async fn on_pool<T: Send + 'static>(
 ) -> Result<T, RequestError> {
     let (tx, rx) = oneshot::channel();
     let deadline = Instant::now() + timeout;
-    let job = Box::new(move || {
+    let job: Job = Box::new(move || {
         if tx.is_closed() {
-            return;
+            return Box::new(|| {});
         }
-        let _ = tx.send(work(deadline));
+        let result = work(deadline);
+        Box::new(move || {
+            let _ = tx.send(result);
+        })
     });
     app.pool.try_submit(job).map_err(|r| match r {
         Refused::Full { queued } => RequestError::QueueFull {
