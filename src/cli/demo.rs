@@ -19,7 +19,17 @@ pub struct DemoArgs {
     /// Training minutes (wall clock).
     #[arg(long, default_value_t = 8.0)]
     pub minutes: f64,
+    /// Train with the paper's loss (one LPIPS patch + 0.2 MSE + 0.05 CE, 1024 rays)
+    /// instead of the short-run recipe (MSE + 0.05 CE, 512 rays a step).
+    #[arg(long)]
+    pub paper_loss: bool,
 }
+
+/// The demo's short-run recipe: in a budget of minutes the LPIPS patch (1024 correlated
+/// rays a step) and large batches cost more steps than they buy. 3-minute runs on the
+/// default scene: paper loss 11.4 dB against MSE's 15.6 dB on 6 test_same frames; batch
+/// PSNR over the last 100 steps, MSE with 1024 rays 16.8 dB, with 512 rays 17.7 dB.
+const SHORT_RUN_RECIPE: [&str; 4] = ["--patches", "0", "--batch", "512"];
 
 /// The recipe's defaults, as `talkin train` would take them, with a budget in minutes.
 #[derive(Parser)]
@@ -52,13 +62,22 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
     })?;
     ensure_lpips_weights(Path::new(DEFAULT_LPIPS_DIR));
     println!(
-        "== 3/4 train all identities for {} min (accelerated sampler, fast preset) -> {}",
+        "== 3/4 train all identities for {} min (accelerated sampler, fast preset, {}) -> {}",
         args.minutes,
+        if args.paper_loss {
+            "the paper's loss"
+        } else {
+            "short-run recipe: MSE + CE, 512 rays a step"
+        },
         run_dir.display()
     );
     let minutes = args.minutes.to_string();
     let seed = args.seed.to_string();
-    let recipe = Recipe::try_parse_from(["demo", "--minutes", &minutes, "--seed", &seed])
+    let mut argv = vec!["demo", "--minutes", &minutes, "--seed", &seed];
+    if !args.paper_loss {
+        argv.extend(SHORT_RUN_RECIPE);
+    }
+    let recipe = Recipe::try_parse_from(argv)
         .context("the demo's training options")?
         .recipe;
     train::run(TrainArgs {

@@ -8,18 +8,35 @@ use talkin_nets::TalkinField;
 use super::TrainError;
 use crate::checkpoint::SubjectSlot;
 
+/// nerfacc updates its grid every this many iterations, decaying occupancy by
+/// `ema_decay` each time; the decay here is applied per this many *virtual* steps.
+const NERFACC_UPDATE_EVERY: f64 = 16.0;
+
+/// The EMA decay for one update of a subject whose previous update was
+/// `virtual_steps_since` virtual steps ago: `ema_decay ^ (virtual_steps_since / 16)`, so
+/// occupancy forgets at the rate nerfacc's does over the paper's 400k iterations whatever
+/// the run's length. (A 0.95 decay per physical update never culled a cell in a
+/// 10-minute run: a marked cell needs ~90 updates to fall below 0.01.)
+pub(crate) fn virtual_time_decay(ema_decay: f32, virtual_steps_since: f64) -> f32 {
+    let updates = (virtual_steps_since / NERFACC_UPDATE_EVERY).max(0.0);
+    (f64::from(ema_decay).powf(updates) as f32).clamp(0.0, 1.0)
+}
+
 /// Updates one trained subject's grid (in turn) with the field's density at canonical points
 /// (the max over body, face and hand nets, so a part another net renders is never
 /// culled), times the cell size as nerfacc's `density * step`, without gradients.
+/// `virtual_per_step` is the number of virtual steps one physical step stands for now.
+/// Returns the occupied fraction of the updated subject's grid, if one was updated.
 pub(crate) fn update_grids(
     field: &TalkinField,
     subjects: &mut [SubjectSlot],
     step: u32,
+    virtual_per_step: f64,
     opts: &OccUpdateOpts,
     face_dim: usize,
-) -> Result<(), TrainError> {
+) -> Result<Option<f64>, TrainError> {
     if opts.n == 0 || !step.is_multiple_of(opts.n) {
-        return Ok(());
+        return Ok(None);
     }
     // One subject per update, in turn: an update evaluates every occupied cell and a
     // random quarter of the rest with every net (~250k points per subject at 128 cells),
@@ -28,9 +45,16 @@ pub(crate) fn update_grids(
         .filter(|&s| subjects[s].model.is_some())
         .collect();
     if trained.is_empty() {
-        return Ok(());
+        return Ok(None);
     }
     let turn = trained[(step / opts.n) as usize % trained.len()];
+    // Each subject is updated every `n * trained` physical steps.
+    let since = f64::from(opts.n) * trained.len() as f64 * virtual_per_step;
+    let opts = OccUpdateOpts {
+        ema_decay: virtual_time_decay(opts.ema_decay, since),
+        ..*opts
+    };
+    let mut occupied = None;
     for (subject, slot) in subjects.iter_mut().enumerate() {
         if subject != turn {
             continue;
@@ -43,13 +67,14 @@ pub(crate) fn update_grids(
         let density = |points: &[Vec3]| canonical_density(field, subject, points, scale, face_dim);
         model
             .grid
-            .update_every_n_steps(step, density, opts)
+            .update_every_n_steps(step, density, &opts)
             .map_err(|source| TrainError::Occupancy {
                 subject: name,
                 source,
             })?;
+        occupied = Some(model.grid.num_occupied() as f64 / model.grid.num_cells() as f64);
     }
-    Ok(())
+    Ok(occupied)
 }
 
 /// `max(sigma_body, sigma_face, sigma_hands) * scale` at canonical points of `subject`
@@ -104,4 +129,21 @@ fn canonical_density(
         .into_iter()
         .map(|d| if d.is_finite() { d } else { f32::MAX })
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn decay_follows_virtual_time() {
+        // At the paper's scale (one virtual step a step) 16 steps decay once.
+        assert!((virtual_time_decay(0.95, 16.0) - 0.95).abs() < 1e-6);
+        assert!((virtual_time_decay(0.95, 192.0) - 0.95f32.powi(12)).abs() < 1e-6);
+        // A short run's update spans thousands of virtual steps: marks are forgotten.
+        assert!(virtual_time_decay(0.95, 100_000.0) < 1e-6);
+        assert_eq!(virtual_time_decay(0.95, 0.0), 1.0);
+        assert_eq!(virtual_time_decay(0.95, -5.0), 1.0);
+        assert_eq!(virtual_time_decay(0.95, f64::INFINITY), 0.0);
+    }
 }

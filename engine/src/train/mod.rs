@@ -48,7 +48,8 @@ pub const MSE_WEIGHT: f32 = 0.2;
 pub const LOG_FILE: &str = "train_log.csv";
 /// The recipe (options and the derived schedule) inside the run directory.
 pub const RECIPE_FILE: &str = "recipe.json";
-const LOG_HEADER: &str = "step,seconds,loss,mse,psnr,rays,samples,rays_per_s,samples_per_s,lr";
+const LOG_HEADER: &str =
+    "step,seconds,loss,mse,psnr,rays,samples,rays_per_s,samples_per_s,lr,grid_occupied";
 
 /// One row of the training log.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -68,6 +69,8 @@ pub struct StepLog {
     pub lr: f64,
     /// Run progress in [0, 1].
     pub progress: f64,
+    /// Occupied fraction of the canonical grid last updated (1 before any update).
+    pub grid_occupied: f64,
 }
 
 /// What a run did.
@@ -166,6 +169,8 @@ pub struct Trainer<'a> {
     since_checkpoint: f64,
     log: std::io::BufWriter<std::fs::File>,
     occ_opts: OccUpdateOpts,
+    /// Occupied fraction of the grid last updated, for the log.
+    grid_occupied: f64,
     /// Per dataset subject: its identity code and subject slot.
     slot_of: Vec<Option<usize>>,
 }
@@ -416,6 +421,7 @@ impl<'a> Trainer<'a> {
             since_checkpoint: 0.0,
             log,
             occ_opts,
+            grid_occupied: 1.0,
             slot_of,
         })
     }
@@ -574,13 +580,17 @@ impl Trainer<'_> {
                 } else {
                     0
                 };
-            grid_update::update_grids(
+            let virtual_per_step = self.field_step() as f64 / self.step as f64;
+            if let Some(occupied) = grid_update::update_grids(
                 &self.field.valid(),
                 &mut self.subjects,
                 self.step as u32,
+                virtual_per_step,
                 &self.occ_opts,
                 face_dim,
-            )?;
+            )? {
+                self.grid_occupied = occupied;
+            }
         }
 
         let secs = t0.elapsed().as_secs_f64().max(1e-9);
@@ -598,11 +608,12 @@ impl Trainer<'_> {
             samples_per_s: n_samples as f64 / secs,
             lr,
             progress: self.progress(),
+            grid_occupied: self.grid_occupied,
         };
         let log_file = self.out.join(LOG_FILE);
         writeln!(
             self.log,
-            "{},{:.3},{},{},{},{},{},{:.1},{:.1},{:e}",
+            "{},{:.3},{},{},{},{},{},{:.1},{:.1},{:e},{:.4}",
             entry.step,
             entry.seconds,
             entry.loss,
@@ -612,7 +623,8 @@ impl Trainer<'_> {
             entry.samples,
             entry.rays_per_s,
             entry.samples_per_s,
-            entry.lr
+            entry.lr,
+            entry.grid_occupied
         )
         .map_err(|source| TrainError::Io {
             file: log_file.clone(),
