@@ -17,6 +17,10 @@ use crate::{Capsule, GridError};
 /// 0.95 and threshold 0.01, about 90 evaluations).
 pub const MARKED_OCCUPANCY: f32 = 1.0;
 
+/// Occupancy of a cell outside the grid's support (see
+/// [`OccupancyGrid::restrict_to_marked`]): never evaluated, never occupied.
+pub const OUTSIDE_SUPPORT: f32 = -1.0;
+
 /// Options of [`OccupancyGrid::update_every_n_steps`], nerfacc's defaults.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct OccUpdateOpts {
@@ -348,8 +352,9 @@ impl OccupancyGrid {
     ) -> Result<OccUpdateReport, GridError> {
         check_opts(opts)?;
         let cells = self.num_cells();
+        let in_support = |occupancy: &[f32], i: usize| occupancy[i] >= 0.0;
         let selected: Vec<usize> = if step < opts.warmup_steps {
-            (0..cells).collect()
+            (0..cells).filter(|&i| in_support(&self.occupancy, i)).collect()
         } else {
             let mut chosen = self.bitfield.clone();
             let mut rng = SplitMix::new(opts.seed, u64::from(step) << 32);
@@ -358,6 +363,9 @@ impl OccupancyGrid {
                 chosen[i / 64] |= 1 << (i % 64);
             }
             ones(&chosen, cells)
+                .into_iter()
+                .filter(|&i| in_support(&self.occupancy, i))
+                .collect()
         };
         let jitter_seed = opts.seed ^ 0x6A09_E667_F3BC_C908 ^ u64::from(step);
         let mut points = Vec::with_capacity(opts.chunk.min(selected.len()));
@@ -386,11 +394,16 @@ impl OccupancyGrid {
                 self.occupancy[i] = (self.occupancy[i] * opts.ema_decay).max(d);
             }
         }
-        let mean = self.occupancy.iter().map(|&o| o as f64).sum::<f64>() / cells as f64;
+        let (sum, supported) = self
+            .occupancy
+            .iter()
+            .filter(|&&o| o >= 0.0)
+            .fold((0.0f64, 0usize), |(s, n), &o| (s + f64::from(o), n + 1));
+        let mean = sum / supported.max(1) as f64;
         let threshold = (mean as f32).min(opts.occ_thre);
         self.bitfield.iter_mut().for_each(|w| *w = 0);
         for i in 0..cells {
-            if self.occupancy[i] > threshold {
+            if self.occupancy[i] >= 0.0 && self.occupancy[i] > threshold {
                 self.bitfield[i / 64] |= 1 << (i % 64);
             }
         }
@@ -402,6 +415,25 @@ impl OccupancyGrid {
             threshold,
             occupied: self.num_occupied(),
         })
+    }
+
+    /// Makes the cells occupied now the grid's support and every other cell
+    /// [`OUTSIDE_SUPPORT`]: updates never evaluate nor occupy them. For a grid marked from
+    /// capsules that bound every sample the sampler can produce, this saves evaluating
+    /// the field where no sample can ever land (an update otherwise evaluates every cell
+    /// the field's untrained density happens to fill). [`OccupancyGrid::mark`] and
+    /// [`OccupancyGrid::mark_capsules`] bring cells back into the support.
+    pub fn restrict_to_marked(&mut self) {
+        for i in 0..self.num_cells() {
+            if !self.is_cell_occupied(i) {
+                self.occupancy[i] = OUTSIDE_SUPPORT;
+            }
+        }
+    }
+
+    /// Cells in the support (every cell unless [`OccupancyGrid::restrict_to_marked`]).
+    pub fn num_supported(&self) -> usize {
+        self.occupancy.iter().filter(|&&o| o >= 0.0).count()
     }
 
     /// Grows the occupied set by `k` cells along every axis (a (2k+1)^3 box), by three
@@ -657,5 +689,39 @@ mod tests {
         assert_eq!(single.num_occupied(), 27);
         assert!(single.is_occupied(Vec3::splat(0.01) + 0.1));
         assert!(!single.is_occupied(Vec3::splat(0.01) + 0.2));
+    }
+
+    #[test]
+    fn cells_outside_the_support_are_never_evaluated_nor_occupied() {
+        let mut grid = OccupancyGrid::new(Vec3::ZERO, Vec3::ONE, [4, 4, 4]).unwrap();
+        grid.mark(&[Vec3::splat(0.1), Vec3::splat(0.9)]);
+        grid.restrict_to_marked();
+        assert_eq!(grid.num_supported(), 2);
+        let opts = OccUpdateOpts {
+            warmup_steps: 10,
+            ema_decay: 0.0,
+            ..OccUpdateOpts::default()
+        };
+        // The field says everything is dense: only the support may turn on.
+        let mut asked = 0;
+        let report = grid
+            .update(0, |p| {
+                asked += p.len();
+                vec![5.0; p.len()]
+            }, &opts)
+            .unwrap();
+        assert_eq!((asked, report.evaluated, report.occupied), (2, 2, 2));
+        // After warm-up too (occupied cells plus a random quarter of all cells).
+        let report = grid.update(20, |p| vec![5.0; p.len()], &opts).unwrap();
+        assert_eq!((report.evaluated, report.occupied), (2, 2));
+        // An empty field culls the support; it can come back.
+        let report = grid.update(20, |p| vec![0.0; p.len()], &opts).unwrap();
+        assert_eq!(report.occupied, 0);
+        let report = grid.update(20, |p| vec![5.0; p.len()], &opts).unwrap();
+        assert!(report.occupied <= 2);
+        assert_eq!(grid.num_supported(), 2);
+        // Marking brings a cell into the support.
+        grid.mark(&[Vec3::new(0.1, 0.9, 0.1)]);
+        assert_eq!(grid.num_supported(), 3);
     }
 }

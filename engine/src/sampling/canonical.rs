@@ -58,6 +58,8 @@ impl CanonicalGrid {
         for set in capsule_sets.iter().chain(std::iter::once(&reach)) {
             grid.mark_capsules(set, grow)?;
         }
+        // No sample can land outside these capsules: updates need not look there.
+        grid.restrict_to_marked();
         Ok(grid)
     }
 }
