@@ -354,7 +354,9 @@ impl OccupancyGrid {
         let cells = self.num_cells();
         let in_support = |occupancy: &[f32], i: usize| occupancy[i] >= 0.0;
         let selected: Vec<usize> = if step < opts.warmup_steps {
-            (0..cells).filter(|&i| in_support(&self.occupancy, i)).collect()
+            (0..cells)
+                .filter(|&i| in_support(&self.occupancy, i))
+                .collect()
         } else {
             let mut chosen = self.bitfield.clone();
             let mut rng = SplitMix::new(opts.seed, u64::from(step) << 32);
@@ -705,10 +707,14 @@ mod tests {
         // The field says everything is dense: only the support may turn on.
         let mut asked = 0;
         let report = grid
-            .update(0, |p| {
-                asked += p.len();
-                vec![5.0; p.len()]
-            }, &opts)
+            .update(
+                0,
+                |p| {
+                    asked += p.len();
+                    vec![5.0; p.len()]
+                },
+                &opts,
+            )
             .unwrap();
         assert_eq!((asked, report.evaluated, report.occupied), (2, 2, 2));
         // After warm-up too (occupied cells plus a random quarter of all cells).
