@@ -61,6 +61,13 @@ fn check_run(dataset: &Dataset, sampler: SamplerKind) {
         // 128 samples on every ray that meets the box: most of the batch.
         assert!(logs[0].samples >= 128 * 100, "{:?}", logs[0]);
     }
+    // The occupancy grid is updated every `occ_every` (4) steps, accelerated only; an
+    // update can occupy at most the support (the capsule marks), never the whole box.
+    let every = small_opts(sampler, STEPS).occ_every as usize;
+    for l in logs {
+        let updated = sampler == SamplerKind::Accelerated && l.step >= every;
+        assert_eq!(l.grid_occupied < 1.0, updated, "{l:?}");
+    }
 
     // The log: a header and one row per step.
     let csv = std::fs::read_to_string(out.join(LOG_FILE)).unwrap();

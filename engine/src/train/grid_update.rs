@@ -24,7 +24,8 @@ pub(crate) fn virtual_time_decay(ema_decay: f32, virtual_steps_since: f64) -> f3
 
 /// Updates one trained subject's grid (in turn) with the field's density at canonical points
 /// (the max over body, face and hand nets, so a part another net renders is never
-/// culled), times the cell size as nerfacc's `density * step`, without gradients.
+/// culled), times the cell size as nerfacc's `density * step`, without gradients. The
+/// caller calls it when an update is due (`step` a multiple of `opts.n`).
 /// `virtual_per_step` is the number of virtual steps one physical step stands for now.
 /// Returns the occupied fraction of the updated subject's grid, if one was updated.
 pub(crate) fn update_grids(
@@ -35,7 +36,7 @@ pub(crate) fn update_grids(
     opts: &OccUpdateOpts,
     face_dim: usize,
 ) -> Result<Option<f64>, TrainError> {
-    if opts.n == 0 || !step.is_multiple_of(opts.n) {
+    if opts.n == 0 {
         return Ok(None);
     }
     // One subject per update, in turn: an update evaluates every occupied cell and a
@@ -67,7 +68,7 @@ pub(crate) fn update_grids(
         let density = |points: &[Vec3]| canonical_density(field, subject, points, scale, face_dim);
         model
             .grid
-            .update_every_n_steps(step, density, &opts)
+            .update(step, density, &opts)
             .map_err(|source| TrainError::Occupancy {
                 subject: name,
                 source,

@@ -573,7 +573,12 @@ impl Trainer<'_> {
         self.field = self.optim.step(lr, field, grads);
         self.step += 1;
 
-        if self.opts.sampler == SamplerKind::Accelerated && self.opts.occ_every > 0 {
+        // Checked here, before `valid()` builds the gradient-free view of the field: an
+        // update is due one step in `occ_every`.
+        if self.opts.sampler == SamplerKind::Accelerated
+            && self.opts.occ_every > 0
+            && self.step.is_multiple_of(self.opts.occ_every as usize)
+        {
             let face_dim = talkin_nets::field::EXPRESSION_DIM
                 + if self.config.face_uses_jaw {
                     talkin_nets::field::JAW_DIM
@@ -610,7 +615,8 @@ impl Trainer<'_> {
             progress: self.progress(),
             grid_occupied: self.grid_occupied,
         };
-        let log_file = self.out.join(LOG_FILE);
+        // Only errors name the log file: no path allocated on the step's happy path.
+        let log_file = || self.out.join(LOG_FILE);
         writeln!(
             self.log,
             "{},{:.3},{},{},{},{},{},{:.1},{:.1},{:e},{:.4}",
@@ -627,13 +633,13 @@ impl Trainer<'_> {
             entry.grid_occupied
         )
         .map_err(|source| TrainError::Io {
-            file: log_file.clone(),
+            file: log_file(),
             source,
         })?;
         // Readable while it runs (`tail -f`), without a syscall per step.
         if self.step.is_multiple_of(25) {
             self.log.flush().map_err(|source| TrainError::Io {
-                file: log_file,
+                file: log_file(),
                 source,
             })?;
         }
