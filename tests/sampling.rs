@@ -1,11 +1,16 @@
 //! The accelerated sampler on a small synthetic scene: no training pixel's true surface
-//! point is lost, and it needs far fewer samples than the dense baseline.
+//! point is lost, and it needs far fewer samples than the dense baseline; the initial
+//! grid is carved to the training surfaces when depth is known.
 
 mod common;
 
-use talkin::engine::dataset::Dataset;
-use talkin::engine::sampling::bench_sampling;
+use talkin::engine::body::canonical_params;
+use talkin::engine::dataset::{Dataset, Split};
+use talkin::engine::sampling::{
+    CanonicalGrid, bench_sampling, canonical_surface_points, fit_subject_margins, shell_capsules,
+};
 use talkin::engine::synth::{SynthConfig, generate};
+use talkin::grids::{MarginFitOpts, Part};
 
 #[test]
 fn accelerated_sampling_keeps_every_training_surface_point() {
@@ -37,4 +42,61 @@ fn accelerated_sampling_keeps_every_training_surface_point() {
     for (part, cover) in &report.coverage_by_part {
         assert!(cover.train_coverage >= 0.9999, "{part}: {cover:?}");
     }
+}
+
+/// With depth, the body and arm cells of the initial grid are carved to the training
+/// surfaces: a subset of the capsule grid, far smaller, still holding every training
+/// surface point and every hand capsule (novel finger poses are never carved away).
+#[test]
+fn the_initial_grid_is_carved_to_the_training_surfaces_when_depth_is_known() {
+    let dataset = common::synthetic_scene("carve_scene", 1, 96, 5);
+    let train = dataset.split_indices(Split::Train);
+    let shells = fit_subject_margins(&dataset, 0, &MarginFitOpts::default())
+        .unwrap()
+        .shells;
+    let points = canonical_surface_points(&dataset, &train, &shells)
+        .unwrap()
+        .expect("synthetic frames have depth");
+    assert!(points.len() > 1000, "{}", points.len());
+    let skeleton = &dataset.subjects[0].skeleton;
+    let params = || train.iter().map(|&i| &dataset.frames[i].params);
+    let full = CanonicalGrid::initial(skeleton, params(), &shells, 64, None).unwrap();
+    let carved = CanonicalGrid::initial(skeleton, params(), &shells, 64, Some(&points)).unwrap();
+    for i in 0..carved.num_cells() {
+        assert!(
+            !carved.is_cell_occupied(i) || full.is_cell_occupied(i),
+            "cell {i}"
+        );
+    }
+    assert!(
+        carved.num_occupied() * 4 < full.num_occupied() * 3,
+        "carved {} of {}",
+        carved.num_occupied(),
+        full.num_occupied()
+    );
+    for p in &points {
+        assert!(!full.is_occupied(*p) || carved.is_occupied(*p), "{p}");
+    }
+    let canonical = skeleton.pose(&canonical_params());
+    for c in shell_capsules(skeleton, &canonical) {
+        if c.part == Part::Hands {
+            assert!(carved.is_occupied(c.a.lerp(c.b, 0.5)), "{c:?}");
+        }
+    }
+}
+
+/// Without depth there is nothing to carve with: no surface points, and the grid keeps
+/// the capsules.
+#[test]
+fn frames_without_depth_give_no_surface_points() {
+    let dataset = common::write_tiny_dataset(&common::temp_dir("carve_no_depth"));
+    let train = dataset.split_indices(Split::Train);
+    let shells = fit_subject_margins(&dataset, 0, &MarginFitOpts::default())
+        .unwrap()
+        .shells;
+    assert!(
+        canonical_surface_points(&dataset, &train, &shells)
+            .unwrap()
+            .is_none()
+    );
 }

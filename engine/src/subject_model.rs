@@ -9,7 +9,9 @@ use talkin_nets::skinning::BoneSegment;
 use crate::body::skeleton::body_ancestor;
 use crate::body::{PosedSkeleton, Skeleton, canonical_params, limb_capsules};
 use crate::dataset::{Dataset, DatasetError};
-use crate::sampling::{CanonicalGrid, CapsuleShells, fit_subject_margins};
+use crate::sampling::{
+    CanonicalGrid, CapsuleShells, canonical_surface_points, fit_subject_margins,
+};
 
 /// One trained subject.
 #[derive(Clone, Debug)]
@@ -48,11 +50,13 @@ impl SubjectModel {
     ) -> Result<SubjectModel, SubjectModelError> {
         let s = &dataset.subjects[subject];
         let margins = fit_subject_margins(dataset, subject, &MarginFitOpts::default())?;
+        let surface = canonical_surface_points(dataset, train_frames, &margins.shells)?;
         let grid = CanonicalGrid::initial(
             &s.skeleton,
             train_frames.iter().map(|&i| &dataset.frames[i].params),
             &margins.shells,
             grid_resolution,
+            surface.as_deref(),
         )
         .map_err(|source| SubjectModelError::Grid {
             subject: s.name.clone(),

@@ -325,6 +325,27 @@ impl OccupancyGrid {
         Ok(())
     }
 
+    /// Cell-wise intersection with a grid over the same box and resolution: a cell stays
+    /// occupied only if occupied in both; cells it clears get occupancy 0 (outside the
+    /// support they stay [`OUTSIDE_SUPPORT`]).
+    pub fn intersect(&mut self, other: &OccupancyGrid) -> Result<(), GridError> {
+        if self.aabb_min != other.aabb_min
+            || self.aabb_max != other.aabb_max
+            || self.resolution != other.resolution
+        {
+            return Err(GridError::GridMismatch);
+        }
+        for (a, b) in self.bitfield.iter_mut().zip(&other.bitfield) {
+            *a &= b;
+        }
+        for i in 0..self.occupancy.len() {
+            if !self.is_cell_occupied(i) && self.occupancy[i] > 0.0 {
+                self.occupancy[i] = 0.0;
+            }
+        }
+        Ok(())
+    }
+
     /// nerfacc's `update_every_n_steps`: updates when `step % opts.n == 0` and returns
     /// what it did, `None` on other steps. `density_fn` maps canonical points to
     /// densities (same length, finite), in chunks of at most `opts.chunk` points.
@@ -684,6 +705,17 @@ mod tests {
         assert_eq!(g.num_occupied(), marked + 1);
         assert!(g.is_occupied(vec3(0.0, 0.5, 0.0)));
         assert!(g.union(&grid(10)).is_err());
+        // Intersection keeps what both hold: of the arm, only the marked point's cell.
+        let mut both = g.clone();
+        let mut point = grid(20);
+        point.mark(&[arm.a, vec3(0.0, 0.5, 0.0) + Vec3::X]);
+        both.intersect(&point).unwrap();
+        assert_eq!(both.num_occupied(), 1);
+        assert!(both.is_occupied(arm.a));
+        assert!(both.intersect(&grid(10)).is_err());
+        // Restricted, the cleared cells leave the support.
+        both.restrict_to_marked();
+        assert_eq!(both.num_supported(), 1);
         // Dilation by one cell grows a single cell into a 3x3x3 block.
         let mut single = grid(20);
         single.mark(&[Vec3::splat(0.01)]);

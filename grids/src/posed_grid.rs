@@ -446,7 +446,8 @@ impl PosedGrid {
     }
 
     /// Per ray, the stretches `[t_in, t_out]` inside cells that some grown capsule comes
-    /// near, by a 3D-DDA walk (f64), appended to `out`.
+    /// near and that the canonical grid may keep or that hold a core (a bin there may end
+    /// the ray), up to the first solid cell, by a 3D-DDA walk (f64), appended to `out`.
     fn runs(&self, ray: &Ray, out: &mut Vec<(f32, f32)>) {
         let max = self.min + self.res.as_vec3() * self.cell;
         let Some((t0, t1)) = clip_to_box(ray, self.min, max) else {
@@ -486,7 +487,8 @@ impl PosedGrid {
             };
             let t_exit = t_next[axis].min(t1);
             let i = ((c[0] * res[1] + c[1]) * res[2] + c[2]) as usize;
-            if self.flags[i] & NEAR != 0 {
+            let f = self.flags[i];
+            if f & NEAR != 0 && f & (OCCUPIED | SOLID | CORE_NEAR) != 0 {
                 run = Some(match run {
                     Some((a, _)) => (a, t_exit),
                     None => (t, t_exit),
@@ -494,7 +496,8 @@ impl PosedGrid {
             } else if let Some((a, b)) = run.take() {
                 out.push((a as f32, b as f32));
             }
-            if t_next[axis] >= t1 {
+            // Sampling ends in a solid cell at the latest: nothing behind it is kept.
+            if t_next[axis] >= t1 || f & SOLID != 0 {
                 break;
             }
             t = t_exit;

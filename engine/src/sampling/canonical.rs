@@ -11,6 +11,12 @@ use super::margins::CapsuleShells;
 use crate::body::skeleton::body_ancestor;
 use crate::body::{FrameParams, Skeleton, canonical_params, joint};
 
+/// How far (metres) the carved grid reaches past the training surface points of the
+/// body and arms, for what the training frames did not show: cloth that swings further,
+/// skin that the nearest-bone map places differently in a wider pose. The sampler's
+/// cull adds its own reach (half a posed cell diagonal + a bin) on top.
+pub const SURFACE_REACH_M: f32 = 0.02;
+
 /// A subject's canonical occupancy grid, initialised from its skeleton.
 pub struct CanonicalGrid;
 
@@ -20,12 +26,16 @@ impl CanonicalGrid {
     /// LBS over the 22 body joints does not undo them, so the grid holds their union), plus
     /// each wrist's reach (a sphere of the hand's length) so novel finger poses are never
     /// culled. Marks are grown by one cell diagonal against discretisation.
-    /// `resolution` is the cell count along the longest axis.
+    /// `resolution` is the cell count along the longest axis. With `surface` (canonical
+    /// surface points of the training frames, see
+    /// [`super::canonical_surface_points`]), the body and arm cells are carved to those
+    /// points grown by [`SURFACE_REACH_M`]; hand and head cells keep their capsules.
     pub fn initial<'a>(
         skeleton: &Skeleton,
         frames: impl IntoIterator<Item = &'a FrameParams>,
         shells: &CapsuleShells,
         resolution: u32,
+        surface: Option<&[Vec3]>,
     ) -> Result<OccupancyGrid, GridError> {
         let mut capsule_sets = vec![canonical_capsules(skeleton, &canonical_params(), shells)];
         for params in frames {
@@ -57,6 +67,20 @@ impl CanonicalGrid {
         let grow = cell * 3f32.sqrt();
         for set in capsule_sets.iter().chain(std::iter::once(&reach)) {
             grid.mark_capsules(set, grow)?;
+        }
+        if let Some(points) = surface {
+            let mut carved = OccupancyGrid::new(lo, hi, res)?;
+            carved.mark(points);
+            carved.dilate((SURFACE_REACH_M / cell).ceil() as u32);
+            for set in capsule_sets.iter().chain(std::iter::once(&reach)) {
+                let kept: Vec<Capsule> = set
+                    .iter()
+                    .filter(|c| !super::CARVED_PARTS.contains(&c.part))
+                    .copied()
+                    .collect();
+                carved.mark_capsules(&kept, grow)?;
+            }
+            grid.intersect(&carved)?;
         }
         // No sample can land outside these capsules: updates need not look there.
         grid.restrict_to_marked();

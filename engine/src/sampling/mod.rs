@@ -4,12 +4,14 @@
 
 mod bench;
 mod canonical;
+mod carve;
 mod frame;
 mod frame_sampler;
 mod margins;
 
 pub use bench::{GRID_RESOLUTION, PartCoverage, SamplingReport, bench_sampling, format_report};
-pub use canonical::{CanonicalGrid, PosedToCanonical};
+pub use canonical::{CanonicalGrid, PosedToCanonical, SURFACE_REACH_M};
+pub use carve::{CARVED_PARTS, canonical_surface_points};
 pub use frame::{FrameScene, capsule_bounds, foreground_rays, median_dense_step, shell_capsules};
 pub use frame_sampler::{DENSE_SAMPLES_PER_RAY, FrameSampler};
 pub use margins::{CapsuleShells, SubjectMargins, fit_subject_margins};
