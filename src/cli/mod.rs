@@ -28,8 +28,8 @@ enum Command {
     Inspect(inspect::InspectArgs),
     /// Benchmarks that report speed next to what it costs.
     Bench(bench::BenchArgs),
-    /// The main job on the built-in synthetic scene: generate, inspect (and, as the engine
-    /// grows, train, render and evaluate).
+    /// The main job on the built-in synthetic scene: generate, inspect, train, render and
+    /// evaluate, then print a results table.
     Demo(demo::DemoArgs),
     /// Train the TalkinNeRF field on a dataset (one or many identities; --resume).
     Train(train::TrainArgs),
