@@ -3,7 +3,9 @@
 //! into canonical space it says where the body and arms are, so the grid need not keep
 //! the whole of their data-fitted capsules (a round capsule around a flat chest holds
 //! mostly air). Hands and head keep their capsule marks: novel finger poses and
-//! expressions move their surfaces in canonical space.
+//! expressions move their surfaces in canonical space. What no training frame saw (the
+//! back, for a camera that stays in front) is carved away too: the avatar is meant to be
+//! rendered from the viewpoints it was trained from.
 
 use glam::Vec3;
 use rayon::prelude::*;
@@ -18,7 +20,8 @@ use crate::dataset::{Dataset, DatasetError};
 pub const CARVED_PARTS: [Part; 2] = [Part::Body, Part::Arms];
 
 /// Canonical surface points of the body and arms over `frames` (dataset indices of one
-/// subject's training frames), `None` if a frame has no depth. A surface point is mapped
+/// subject's training frames), `None` if a frame has no depth or no frame shows a body or
+/// arm pixel. A surface point is mapped
 /// through every bone whose grown capsule holds it: the sampler's cull tries every
 /// candidate bone of a sample, so each of them must find the surface where it puts it.
 pub fn canonical_surface_points(
@@ -30,10 +33,12 @@ pub fn canonical_surface_points(
         .par_iter()
         .map(|&i| frame_surface_points(dataset, i, shells))
         .collect::<Result<_, _>>()?;
+    // No frames, or frames without a body or arm pixel, say nothing: nothing to carve.
     Ok(per_frame
         .into_iter()
         .collect::<Option<Vec<_>>>()
-        .map(|v| v.concat()))
+        .map(|v| v.concat())
+        .filter(|points| !points.is_empty()))
 }
 
 fn frame_surface_points(

@@ -4,6 +4,7 @@ use burn::prelude::*;
 use glam::Vec3;
 use talkin_grids::OccUpdateOpts;
 use talkin_nets::TalkinField;
+use talkin_nets::field::{N_SEG_CLASSES, SEG_HANDS, SEG_HEAD};
 
 use super::TrainError;
 use crate::checkpoint::SubjectSlot;
@@ -78,9 +79,15 @@ pub(crate) fn update_grids(
     Ok(occupied)
 }
 
-/// `max(sigma_body, sigma_face, sigma_hands) * scale` at canonical points of `subject`
-/// (neutral expression and hand pose; no non-rigid offsets). Non-finite densities count
-/// as occupied (never cull what cannot be judged).
+/// The density the renderer would give canonical points of `subject` (neutral
+/// expression and hand pose; no non-rigid offsets), times `scale` as nerfacc's
+/// `density * step`: F_body's, and where F_body's segmentation routes a point to the face
+/// or the hands, the larger of F_body's and that net's (the renderer uses the routed
+/// net's where the point is a candidate of that part, F_body's elsewhere). The face and
+/// hand nets are never trained outside their regions, so their density there says
+/// nothing; taking it everywhere (as this once did) kept every cell occupied: an
+/// untrained net's softplus(0) times a 14 mm cell is just above nerfacc's 0.01.
+/// Non-finite densities count as occupied (never cull what cannot be judged).
 fn canonical_density(
     field: &TalkinField,
     subject: usize,
@@ -96,45 +103,138 @@ fn canonical_density(
     let flat: Vec<f32> = points.iter().flat_map(|p| p.to_array()).collect();
     let x = Tensor::<2>::from_data(TensorData::new(flat, [n, 3]), &device);
     let unit = field.to_unit(x);
-    let id = field
-        .identity
-        .val()
-        .select(
-            0,
-            Tensor::<1, Int>::from_data(TensorData::new(vec![subject as i32], [1]), &device),
-        )
-        .repeat_dim(0, n);
-    let raw_sigma = |raw: Tensor<2>| raw.narrow(1, 0, 1).squeeze_dim::<1>(1);
-    let mut sigma = raw_sigma(field.body.forward(
-        unit.clone(),
-        subject,
-        vec![id.clone()],
-        usize::MAX,
-    ));
-    if let Some(face) = &field.face {
-        let e = Tensor::<2>::zeros([n, face_dim], &device);
-        let s = raw_sigma(face.forward(unit.clone(), subject, vec![e, id.clone()], usize::MAX));
-        sigma = sigma.max_pair(s);
-    }
-    if let Some(hands) = &field.hands {
-        let s = raw_sigma(hands.forward(unit, subject, vec![id], usize::MAX));
-        sigma = sigma.max_pair(s);
-    }
-    // softplus after the max (monotone, so the same as the max of the densities).
-    let relu = sigma.clone().clamp_min(0.0);
-    let sigma = relu + sigma.abs().neg().exp().log1p();
-    sigma
-        .mul_scalar(scale)
-        .try_to_vec_as::<f32>()
-        .unwrap_or_else(|_| vec![f32::MAX; n])
-        .into_iter()
-        .map(|d| if d.is_finite() { d } else { f32::MAX })
+    let id_of = |rows: usize| {
+        field
+            .identity
+            .val()
+            .select(
+                0,
+                Tensor::<1, Int>::from_data(TensorData::new(vec![subject as i32], [1]), &device),
+            )
+            .repeat_dim(0, rows)
+    };
+    let host = |t: Tensor<2>| t.try_to_vec_as::<f32>().ok();
+    let body = field
+        .body
+        .forward(unit.clone(), subject, vec![id_of(n)], usize::MAX);
+    let (Some(body_sigma), Some(seg)) = (
+        host(body.clone().narrow(1, 0, 1)),
+        host(body.narrow(1, 4, N_SEG_CLASSES)),
+    ) else {
+        return vec![f32::MAX; n];
+    };
+    let routed_sigma = |net: &talkin_nets::field::RadianceNet, rows: &[usize], face: bool| {
+        let idx = Tensor::<1, Int>::from_data(
+            TensorData::new(rows.iter().map(|&i| i as i32).collect(), [rows.len()]),
+            &device,
+        );
+        let mut cond = Vec::new();
+        if face {
+            cond.push(Tensor::<2>::zeros([rows.len(), face_dim], &device));
+        }
+        cond.push(id_of(rows.len()));
+        let raw = net.forward(unit.clone().select(0, idx), subject, cond, usize::MAX);
+        host(raw.narrow(1, 0, 1)).unwrap_or_else(|| vec![f32::MAX; rows.len()])
+    };
+    let raw = route_density(
+        &body_sigma,
+        &seg,
+        |rows| field.face.as_ref().map(|net| routed_sigma(net, rows, true)),
+        |rows| {
+            field
+                .hands
+                .as_ref()
+                .map(|net| routed_sigma(net, rows, false))
+        },
+    );
+    raw.into_iter()
+        .map(|r| {
+            // softplus (monotone, so after the max as well as before)
+            let d = r.max(0.0) + (-r.abs()).exp().ln_1p();
+            let d = d * scale;
+            if d.is_finite() { d } else { f32::MAX }
+        })
         .collect()
+}
+
+/// Raw densities routed as the renderer routes them: `body` (one per point), replaced by
+/// the max of itself and `face(rows)` / `hands(rows)` at the rows whose segmentation
+/// logits (`seg`, [`N_SEG_CLASSES`] per point) pick the head / the hands. A net that does
+/// not exist returns `None` and leaves F_body's density.
+pub(crate) fn route_density(
+    body: &[f32],
+    seg: &[f32],
+    face: impl FnOnce(&[usize]) -> Option<Vec<f32>>,
+    hands: impl FnOnce(&[usize]) -> Option<Vec<f32>>,
+) -> Vec<f32> {
+    let label = |i: usize| {
+        let row = &seg[i * N_SEG_CLASSES..(i + 1) * N_SEG_CLASSES];
+        (1..N_SEG_CLASSES).fold(0, |best, j| if row[j] > row[best] { j } else { best })
+    };
+    let labels: Vec<usize> = (0..body.len()).map(label).collect();
+    let mut out = body.to_vec();
+    let rows_of =
+        |class: usize| -> Vec<usize> { (0..body.len()).filter(|&i| labels[i] == class).collect() };
+    let face_rows = rows_of(SEG_HEAD);
+    let hand_rows = rows_of(SEG_HANDS);
+    for (rows, sigma) in [
+        (
+            &face_rows,
+            (!face_rows.is_empty()).then(|| face(&face_rows)).flatten(),
+        ),
+        (
+            &hand_rows,
+            (!hand_rows.is_empty()).then(|| hands(&hand_rows)).flatten(),
+        ),
+    ] {
+        if let Some(sigma) = sigma {
+            for (&i, &s) in rows.iter().zip(&sigma) {
+                // NaN from a net keeps the point (f32::max would drop it).
+                out[i] = if s.is_nan() { f32::MAX } else { out[i].max(s) };
+            }
+        }
+    }
+    out
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn density_is_routed_as_the_renderer_routes_it() {
+        // Four points labelled background, body, hands, head (logits: one-hot-ish).
+        let mut seg = vec![0.0f32; 4 * N_SEG_CLASSES];
+        for (i, class) in [0, 1, SEG_HANDS, SEG_HEAD].into_iter().enumerate() {
+            seg[i * N_SEG_CLASSES + class] = 5.0;
+        }
+        let body = [-3.0, 2.0, -1.0, -2.0];
+        let asked = std::cell::RefCell::new(Vec::new());
+        let out = route_density(
+            &body,
+            &seg,
+            |rows| {
+                asked.borrow_mut().push(("face", rows.to_vec()));
+                Some(vec![7.0])
+            },
+            |rows| {
+                asked.borrow_mut().push(("hands", rows.to_vec()));
+                Some(vec![-4.0])
+            },
+        );
+        let asked = asked.into_inner();
+        // The face net speaks only for the head point, the hands net only for the hand
+        // point (and a lower density there never lowers F_body's).
+        assert_eq!(out, vec![-3.0, 2.0, -1.0, 7.0]);
+        assert_eq!(asked, vec![("face", vec![3]), ("hands", vec![2])]);
+        // No nets: F_body's density throughout; NaN from a net keeps the point.
+        assert_eq!(
+            route_density(&body, &seg, |_| None, |_| None),
+            body.to_vec()
+        );
+        let nan = route_density(&body, &seg, |_| Some(vec![f32::NAN]), |_| None);
+        assert_eq!(nan[3], f32::MAX);
+    }
 
     #[test]
     fn decay_follows_virtual_time() {
