@@ -1,6 +1,7 @@
 //! Wiring the grids crate to the human: per-frame capsules and rays, the margins the
-//! training masks decide, the canonical occupancy grid and the posed-to-canonical map
-//! that culls samples, and the sampling benchmark.
+//! training masks decide, the canonical occupancy grid (carved to the training surfaces
+//! when depth is known) and the posed-to-canonical map that culls samples, and the
+//! sampling benchmark.
 
 mod bench;
 mod canonical;
