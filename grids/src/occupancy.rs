@@ -307,15 +307,20 @@ impl OccupancyGrid {
         Ok(())
     }
 
-    /// Cell-wise union with a grid over the same box and resolution: bits OR-ed,
-    /// occupancy max-ed.
-    pub fn union(&mut self, other: &OccupancyGrid) -> Result<(), GridError> {
+    fn check_same_layout(&self, other: &OccupancyGrid) -> Result<(), GridError> {
         if self.aabb_min != other.aabb_min
             || self.aabb_max != other.aabb_max
             || self.resolution != other.resolution
         {
             return Err(GridError::GridMismatch);
         }
+        Ok(())
+    }
+
+    /// Cell-wise union with a grid over the same box and resolution: bits OR-ed,
+    /// occupancy max-ed.
+    pub fn union(&mut self, other: &OccupancyGrid) -> Result<(), GridError> {
+        self.check_same_layout(other)?;
         for (a, b) in self.bitfield.iter_mut().zip(&other.bitfield) {
             *a |= b;
         }
@@ -329,12 +334,7 @@ impl OccupancyGrid {
     /// occupied only if occupied in both; cells it clears get occupancy 0 (outside the
     /// support they stay [`OUTSIDE_SUPPORT`]).
     pub fn intersect(&mut self, other: &OccupancyGrid) -> Result<(), GridError> {
-        if self.aabb_min != other.aabb_min
-            || self.aabb_max != other.aabb_max
-            || self.resolution != other.resolution
-        {
-            return Err(GridError::GridMismatch);
-        }
+        self.check_same_layout(other)?;
         for (a, b) in self.bitfield.iter_mut().zip(&other.bitfield) {
             *a &= b;
         }
