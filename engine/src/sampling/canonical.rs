@@ -13,8 +13,9 @@ use crate::body::{FrameParams, Skeleton, canonical_params, joint};
 
 /// How far (metres) the carved grid reaches past the training surface points of the
 /// body and arms, for what the training frames did not show: cloth that swings further,
-/// skin that the nearest-bone map places differently in a wider pose. The sampler's
-/// cull adds its own reach (half a posed cell diagonal + a bin) on top.
+/// skin that slides against its bones in a wider pose. Measured on the default scene's
+/// held-out splits: no reach lost 26 surface points, 1 cm lost 1, 2 cm none. The
+/// sampler's cull adds its own reach (half a posed cell diagonal + a bin) on top.
 pub const SURFACE_REACH_M: f32 = 0.02;
 
 /// A subject's canonical occupancy grid, initialised from its skeleton.
