@@ -31,7 +31,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     // Scene generation is set-up, outside every timed part.
     generate(&cfg, &dir, &mut |_, _| {})?;
     let dataset = Dataset::load(&dir)?;
-    let report = bench_sampling(&dataset, &mut |_, _| {})?;
+    let report = bench_sampling(&dataset, None, &mut |_, _| {})?;
     println!("{}", format_report(&report));
     Ok(())
 }

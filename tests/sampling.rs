@@ -4,13 +4,14 @@
 
 mod common;
 
+use glam::Vec3;
 use talkin::engine::body::canonical_params;
 use talkin::engine::dataset::{Dataset, Split};
 use talkin::engine::sampling::{
     CanonicalGrid, bench_sampling, canonical_surface_points, fit_subject_margins, shell_capsules,
 };
 use talkin::engine::synth::{SynthConfig, generate};
-use talkin::grids::{MarginFitOpts, Part};
+use talkin::grids::{MarginFitOpts, OccupancyGrid, Part};
 
 #[test]
 fn accelerated_sampling_keeps_every_training_surface_point() {
@@ -24,7 +25,7 @@ fn accelerated_sampling_keeps_every_training_surface_point() {
     };
     generate(&cfg, &dir, &mut |_, _| {}).unwrap();
     let dataset = Dataset::load(&dir).unwrap();
-    let report = bench_sampling(&dataset, &mut |_, _| {}).unwrap();
+    let report = bench_sampling(&dataset, None, &mut |_, _| {}).unwrap();
     assert!(report.foreground_rays > 1000, "{report:?}");
     assert_eq!(report.surface_checked_rays, report.foreground_rays);
     assert_eq!(report.surface_misses_by_split["train"], 0, "{report:?}");
@@ -99,4 +100,21 @@ fn frames_without_depth_give_no_surface_points() {
             .unwrap()
             .is_none()
     );
+}
+
+/// Grids from elsewhere (a run trained on other data) are refused by name, not used.
+#[test]
+fn trained_grids_must_match_the_dataset() {
+    let dataset = common::synthetic_scene("bench_trained_grids", 1, 64, 2);
+    let other = OccupancyGrid::new(Vec3::ZERO, Vec3::ONE, [8, 8, 8]).unwrap();
+    let err = bench_sampling(&dataset, Some(&[other.clone()]), &mut |_, _| {}).unwrap_err();
+    let msg = err.to_string();
+    assert!(
+        msg.contains("subjects[0]") && msg.contains("trained on this dataset"),
+        "{msg}"
+    );
+    let err = bench_sampling(&dataset, Some(&[other.clone(), other]), &mut |_, _| {})
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("2 trained grids for 1 subjects"), "{err}");
 }

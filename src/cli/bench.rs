@@ -100,6 +100,10 @@ pub struct SamplingArgs {
     /// Also write the report as JSON here.
     #[arg(long)]
     pub json: Option<PathBuf>,
+    /// Cull with this run's canonical grids (after its occupancy updates) instead of the
+    /// initial ones; the run must have been trained on `--data`.
+    #[arg(long)]
+    pub run: Option<PathBuf>,
 }
 
 pub fn run(args: BenchArgs) -> anyhow::Result<()> {
@@ -173,8 +177,12 @@ fn serve_bench(args: ServeBenchArgs) -> anyhow::Result<()> {
 
 fn sampling_bench(args: SamplingArgs) -> anyhow::Result<()> {
     let dataset = Dataset::load(&args.data)?;
+    let trained = match &args.run {
+        None => None,
+        Some(run) => Some(trained_grids(run, &dataset)?),
+    };
     let mut progress: Option<Progress> = None;
-    let report = sampling::bench_sampling(&dataset, &mut |done, total| {
+    let report = sampling::bench_sampling(&dataset, trained.as_deref(), &mut |done, total| {
         progress
             .get_or_insert_with(|| Progress::new("sampling frames", total))
             .update(done, "")
@@ -186,6 +194,34 @@ fn sampling_bench(args: SamplingArgs) -> anyhow::Result<()> {
         println!("report: {}", path.display());
     }
     Ok(())
+}
+
+/// The run's canonical grid of every dataset subject, matched by name.
+fn trained_grids(
+    run: &std::path::Path,
+    dataset: &Dataset,
+) -> anyhow::Result<Vec<talkin_grids::OccupancyGrid>> {
+    let checkpoint = talkin_engine::checkpoint::Checkpoint::load(run)?;
+    dataset
+        .subjects
+        .iter()
+        .map(|subject| {
+            checkpoint
+                .subjects
+                .iter()
+                .find(|slot| slot.name == subject.name)
+                .and_then(|slot| slot.model.as_ref())
+                .map(|model| model.grid.clone())
+                .with_context(|| {
+                    format!(
+                        "{}: no trained model for subject `{}` of {}",
+                        checkpoint.dir.display(),
+                        subject.name,
+                        dataset.root.display()
+                    )
+                })
+        })
+        .collect()
 }
 
 fn speed_vs_error_bench(args: SpeedVsErrorArgs) -> anyhow::Result<()> {

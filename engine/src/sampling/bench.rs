@@ -42,6 +42,9 @@ pub struct PartCoverage {
 /// speed ratios' median is given beside them because shared machines are noisy.
 #[derive(Clone, Debug, Serialize)]
 pub struct SamplingReport {
+    /// Which canonical grids culled: `initial` (built from the training frames) or
+    /// `trained` (a run's, after its occupancy updates).
+    pub grids: String,
     pub frames: usize,
     pub foreground_rays: usize,
     pub dense_samples_per_ray: f64,
@@ -73,12 +76,29 @@ pub struct SamplingReport {
     pub accelerated_step_m: f32,
 }
 
-/// Runs both samplers over every frame (after fitting margins and building each
-/// subject's canonical grid from its training frames).
+/// Runs both samplers over every frame, after fitting margins and building each
+/// subject's initial canonical grid from its training frames. With `trained` (one grid
+/// per dataset subject, e.g. a run's after its occupancy updates), the accelerated
+/// sampler culls with those instead; each must cover the box the initial grid covers
+/// (the same data fits the same shells), else it is an error.
 pub fn bench_sampling(
     dataset: &Dataset,
+    trained: Option<&[OccupancyGrid]>,
     progress: &mut dyn FnMut(usize, usize),
 ) -> Result<SamplingReport, DatasetError> {
+    if let Some(t) = trained
+        && t.len() != dataset.subjects.len()
+    {
+        return Err(DatasetError::Invalid {
+            file: dataset.root.join(crate::dataset::INDEX_FILE),
+            field: "subjects".into(),
+            problem: format!(
+                "{} trained grids for {} subjects",
+                t.len(),
+                dataset.subjects.len()
+            ),
+        });
+    }
     let mut subject_margins: Vec<SubjectMargins> = Vec::new();
     let mut grids: Vec<OccupancyGrid> = Vec::new();
     let train = dataset.split_indices(Split::Train);
@@ -98,6 +118,24 @@ pub fn bench_sampling(
             surface.as_deref(),
         )
         .map_err(|e| grid_error(dataset, 0, e))?;
+        let grid = match trained.map(|t| &t[s]) {
+            None => grid,
+            Some(t) if t.aabb() == grid.aabb() && t.resolution() == grid.resolution() => t.clone(),
+            Some(t) => {
+                return Err(DatasetError::Invalid {
+                    file: dataset.root.join(crate::dataset::INDEX_FILE),
+                    field: format!("subjects[{s}]"),
+                    problem: format!(
+                        "the trained grid covers {:?} at {:?} cells, this dataset's {:?} at \
+                         {:?}: was the run trained on this dataset?",
+                        t.aabb(),
+                        t.resolution(),
+                        grid.aabb(),
+                        grid.resolution()
+                    ),
+                });
+            }
+        };
         subject_margins.push(m);
         grids.push(grid);
     }
@@ -244,6 +282,12 @@ pub fn bench_sampling(
     }
     let per_ray = |n: usize| n as f64 / totals.rays.max(1) as f64;
     Ok(SamplingReport {
+        grids: if trained.is_some() {
+            "trained"
+        } else {
+            "initial"
+        }
+        .to_string(),
         frames: dataset.frames.len(),
         foreground_rays: totals.rays,
         dense_samples_per_ray: per_ray(totals.dense_samples),
@@ -310,10 +354,11 @@ pub fn format_report(r: &SamplingReport) -> String {
     use std::fmt::Write;
     let _ = writeln!(
         s,
-        "{} frames, {} foreground rays, accelerated step {:.2} mm",
+        "{} frames, {} foreground rays, accelerated step {:.2} mm, {} grids",
         r.frames,
         r.foreground_rays,
-        1e3 * r.accelerated_step_m
+        1e3 * r.accelerated_step_m,
+        r.grids
     );
     let _ = writeln!(s, "{:<28} {:>14} {:>14}", "", "dense", "accelerated");
     let _ = writeln!(
