@@ -107,7 +107,8 @@ fn frames_without_depth_give_no_surface_points() {
 fn trained_grids_must_match_the_dataset() {
     let dataset = common::synthetic_scene("bench_trained_grids", 1, 64, 2);
     let other = OccupancyGrid::new(Vec3::ZERO, Vec3::ONE, [8, 8, 8]).unwrap();
-    let err = bench_sampling(&dataset, Some(&[other.clone()]), &mut |_, _| {}).unwrap_err();
+    let err =
+        bench_sampling(&dataset, Some(std::slice::from_ref(&other)), &mut |_, _| {}).unwrap_err();
     let msg = err.to_string();
     assert!(
         msg.contains("subjects[0]") && msg.contains("trained on this dataset"),
