@@ -613,8 +613,9 @@ impl TalkinField {
     }
 }
 
-/// Row-wise argmax of a row-major `[n, c]` host matrix (first maximum wins).
-fn argmax_rows(values: &[f32], c: usize) -> Vec<usize> {
+/// Row-wise argmax of a row-major `[n, c]` host matrix (first maximum wins): how
+/// segmentation logits become the labels that route samples.
+pub fn argmax_rows(values: &[f32], c: usize) -> Vec<usize> {
     values
         .chunks_exact(c)
         .map(|row| {

@@ -4,7 +4,7 @@ use burn::prelude::*;
 use glam::Vec3;
 use talkin_grids::OccUpdateOpts;
 use talkin_nets::TalkinField;
-use talkin_nets::field::{N_SEG_CLASSES, SEG_HANDS, SEG_HEAD};
+use talkin_nets::field::{N_SEG_CLASSES, SEG_HANDS, SEG_HEAD, argmax_rows};
 
 use super::TrainError;
 use crate::checkpoint::SubjectSlot;
@@ -24,8 +24,8 @@ pub(crate) fn virtual_time_decay(ema_decay: f32, virtual_steps_since: f64) -> f3
 }
 
 /// Updates one trained subject's grid (in turn) with the field's density at canonical points
-/// (the max over body, face and hand nets, so a part another net renders is never
-/// culled), times the cell size as nerfacc's `density * step`, without gradients. The
+/// as the renderer routes it ([`route_density`]), times the cell size as nerfacc's
+/// `density * step`, without gradients. The
 /// caller calls it when an update is due (`step` a multiple of `opts.n`).
 /// `virtual_per_step` is the number of virtual steps one physical step stands for now.
 /// Returns the occupied fraction of the updated subject's grid, if one was updated.
@@ -167,11 +167,7 @@ pub(crate) fn route_density(
     face: impl FnOnce(&[usize]) -> Option<Vec<f32>>,
     hands: impl FnOnce(&[usize]) -> Option<Vec<f32>>,
 ) -> Vec<f32> {
-    let label = |i: usize| {
-        let row = &seg[i * N_SEG_CLASSES..(i + 1) * N_SEG_CLASSES];
-        (1..N_SEG_CLASSES).fold(0, |best, j| if row[j] > row[best] { j } else { best })
-    };
-    let labels: Vec<usize> = (0..body.len()).map(label).collect();
+    let labels = argmax_rows(seg, N_SEG_CLASSES);
     let mut out = body.to_vec();
     let rows_of =
         |class: usize| -> Vec<usize> { (0..body.len()).filter(|&i| labels[i] == class).collect() };
