@@ -5,6 +5,7 @@
 //! only ever sees a density callback: it knows nothing of networks.
 
 use glam::{UVec3, Vec3};
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::intersect::{distance_to_segment, validate_capsules};
@@ -348,11 +349,12 @@ impl OccupancyGrid {
 
     /// nerfacc's `update_every_n_steps`: updates when `step % opts.n == 0` and returns
     /// what it did, `None` on other steps. `density_fn` maps canonical points to
-    /// densities (same length, finite), in chunks of at most `opts.chunk` points.
+    /// densities (same length, finite), in chunks of at most `opts.chunk` points, several
+    /// chunks at once on rayon threads.
     pub fn update_every_n_steps(
         &mut self,
         step: u32,
-        density_fn: impl FnMut(&[Vec3]) -> Vec<f32>,
+        density_fn: impl Fn(&[Vec3]) -> Vec<f32> + Sync,
         opts: &OccUpdateOpts,
     ) -> Result<Option<OccUpdateReport>, GridError> {
         if opts.n == 0 || !step.is_multiple_of(opts.n) {
@@ -368,7 +370,7 @@ impl OccupancyGrid {
     pub fn update(
         &mut self,
         step: u32,
-        mut density_fn: impl FnMut(&[Vec3]) -> Vec<f32>,
+        density_fn: impl Fn(&[Vec3]) -> Vec<f32> + Sync,
         opts: &OccUpdateOpts,
     ) -> Result<OccUpdateReport, GridError> {
         check_opts(opts)?;
@@ -391,19 +393,30 @@ impl OccupancyGrid {
                 .collect()
         };
         let jitter_seed = opts.seed ^ 0x6A09_E667_F3BC_C908 ^ u64::from(step);
-        let mut points = Vec::with_capacity(opts.chunk.min(selected.len()));
-        for batch in selected.chunks(opts.chunk) {
-            points.clear();
-            points.extend(batch.iter().map(|&i| {
-                let mut rng = SplitMix::new(jitter_seed, i as u64);
-                let frac = Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32());
-                self.cell_point(i, frac)
-            }));
-            let density = density_fn(&points);
-            if density.len() != points.len() {
+        // Chunks are evaluated in parallel (each chunk's points and densities depend on
+        // nothing but its cells, so the result is the same on any number of threads):
+        // network inference runs mostly on one core, and an update is ~13% of a
+        // training run's time when evaluated in turn.
+        let batches: Vec<&[usize]> = selected.chunks(opts.chunk).collect();
+        let densities: Vec<Vec<f32>> = batches
+            .par_iter()
+            .map(|batch| {
+                let points: Vec<Vec3> = batch
+                    .iter()
+                    .map(|&i| {
+                        let mut rng = SplitMix::new(jitter_seed, i as u64);
+                        let frac = Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32());
+                        self.cell_point(i, frac)
+                    })
+                    .collect();
+                density_fn(&points)
+            })
+            .collect();
+        for (batch, density) in batches.iter().zip(&densities) {
+            if density.len() != batch.len() {
                 return Err(GridError::LengthMismatch {
                     what: "density_fn output",
-                    expected: points.len(),
+                    expected: batch.len(),
                     got: density.len(),
                 });
             }
@@ -413,7 +426,7 @@ impl OccupancyGrid {
                     index: batch[bad],
                 });
             }
-            for (&i, &d) in batch.iter().zip(&density) {
+            for (&i, &d) in batch.iter().zip(density) {
                 self.occupancy[i] = (self.occupancy[i] * opts.ema_decay).max(d);
             }
         }
@@ -572,12 +585,13 @@ mod tests {
                 dilation: step % 2,
                 ..Default::default()
             };
-            let mut seen: Vec<(Vec3, f32)> = Vec::new();
+            let seen: std::sync::Mutex<Vec<(Vec3, f32)>> = Default::default();
             let report = g
                 .update_every_n_steps(
                     step,
                     |p| {
                         let d = ball(p);
+                        let mut seen = seen.lock().unwrap();
                         seen.extend(p.iter().copied().zip(d.iter().copied()));
                         d
                     },
@@ -591,7 +605,7 @@ mod tests {
                 assert!(report.evaluated < g.num_cells());
             }
             // The invariant: every evaluated point denser than the threshold is occupied.
-            for (p, d) in &seen {
+            for (p, d) in seen.lock().unwrap().iter() {
                 if *d > report.threshold {
                     assert!(g.is_occupied(*p), "step {step}: dropped {p} with {d}");
                 }
@@ -725,6 +739,34 @@ mod tests {
         assert!(!single.is_occupied(Vec3::splat(0.01) + 0.2));
     }
 
+    /// Chunks are evaluated on several threads: the result must not depend on how the
+    /// cells are split.
+    #[test]
+    fn updates_do_not_depend_on_the_chunking() {
+        let wavy = |p: &[Vec3]| -> Vec<f32> {
+            p.iter()
+                .map(|p| (7.0 * p.x).sin() * (5.0 * p.y).cos() + p.z)
+                .collect()
+        };
+        let (mut a, mut b) = (grid(24), grid(24));
+        for step in [0, 40, 80] {
+            let small = OccUpdateOpts {
+                chunk: 37,
+                warmup_steps: 10,
+                ..Default::default()
+            };
+            let whole = OccUpdateOpts {
+                chunk: 1 << 20,
+                ..small
+            };
+            let ra = a.update(step, wavy, &small).unwrap();
+            let rb = b.update(step, wavy, &whole).unwrap();
+            assert_eq!(ra, rb, "step {step}");
+        }
+        assert_eq!(a.occupancy, b.occupancy);
+        assert_eq!(a.bitfield, b.bitfield);
+    }
+
     #[test]
     fn cells_outside_the_support_are_never_evaluated_nor_occupied() {
         let mut grid = OccupancyGrid::new(Vec3::ZERO, Vec3::ONE, [4, 4, 4]).unwrap();
@@ -737,18 +779,21 @@ mod tests {
             ..OccUpdateOpts::default()
         };
         // The field says everything is dense: only the support may turn on.
-        let mut asked = 0;
+        let asked = std::sync::atomic::AtomicUsize::new(0);
         let report = grid
             .update(
                 0,
                 |p| {
-                    asked += p.len();
+                    asked.fetch_add(p.len(), std::sync::atomic::Ordering::Relaxed);
                     vec![5.0; p.len()]
                 },
                 &opts,
             )
             .unwrap();
-        assert_eq!((asked, report.evaluated, report.occupied), (2, 2, 2));
+        assert_eq!(
+            (asked.into_inner(), report.evaluated, report.occupied),
+            (2, 2, 2)
+        );
         // After warm-up too (occupied cells plus a random quarter of all cells).
         let report = grid.update(20, |p| vec![5.0; p.len()], &opts).unwrap();
         assert_eq!((report.evaluated, report.occupied), (2, 2));
