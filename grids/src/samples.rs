@@ -115,6 +115,33 @@ impl PackedSamples {
         out
     }
 
+    /// Rays `0..k` and rays `k..` as two packings (e.g. one half-batch per thread).
+    ///
+    /// # Panics
+    /// If `k` exceeds [`PackedSamples::num_rays`].
+    pub fn split_at_ray(&self, k: usize) -> (PackedSamples, PackedSamples) {
+        assert!(k <= self.num_rays(), "split past the last ray");
+        let cut = self.ray_offsets[k] as usize;
+        let head = PackedSamples {
+            ray_offsets: self.ray_offsets[..=k].to_vec(),
+            t_start: self.t_start[..cut].to_vec(),
+            t_end: self.t_end[..cut].to_vec(),
+            part_mask: self.part_mask[..cut].to_vec(),
+            bone_mask: self.bone_mask[..cut].to_vec(),
+        };
+        let tail = PackedSamples {
+            ray_offsets: self.ray_offsets[k..]
+                .iter()
+                .map(|o| o - cut as u32)
+                .collect(),
+            t_start: self.t_start[cut..].to_vec(),
+            t_end: self.t_end[cut..].to_vec(),
+            part_mask: self.part_mask[cut..].to_vec(),
+            bone_mask: self.bone_mask[cut..].to_vec(),
+        };
+        (head, tail)
+    }
+
     /// Checks the packed layout: offsets start at 0, never decrease and end at the
     /// sample count; every array has that length; every sample has
     /// `t_start <= t_end`, and a ray's samples are sorted and do not overlap.
@@ -200,4 +227,43 @@ pub(crate) fn stratified_bins(
         prev = b;
     }
     emit(prev, t1);
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn split_at_ray_gives_both_halves_with_their_own_offsets() {
+        let sample = |t: f32, bone: u64| Sample {
+            t_start: t,
+            t_end: t + 0.5,
+            part_mask: 1,
+            bone_mask: bone,
+        };
+        // Rays with 2, 0 and 3 samples.
+        let all = PackedSamples::from_parts(
+            vec![0, 2, 2, 5],
+            vec![
+                sample(0.0, 1),
+                sample(1.0, 2),
+                sample(0.0, 3),
+                sample(1.0, 4),
+                sample(2.0, 5),
+            ],
+        );
+        for k in 0..=3 {
+            let (a, b) = all.split_at_ray(k);
+            a.check_layout().unwrap();
+            b.check_layout().unwrap();
+            assert_eq!((a.num_rays(), b.num_rays()), (k, 3 - k));
+            assert_eq!(a.num_samples() + b.num_samples(), 5);
+            for i in 0..3 {
+                let (half, j) = if i < k { (&a, i) } else { (&b, i - k) };
+                let got: Vec<u64> = half.range(j).map(|s| half.bone_mask[s]).collect();
+                let want: Vec<u64> = all.range(i).map(|s| all.bone_mask[s]).collect();
+                assert_eq!(got, want, "k {k}, ray {i}");
+            }
+        }
+    }
 }

@@ -11,6 +11,7 @@
 
 mod batch;
 mod grid_update;
+mod half_batch;
 mod options;
 mod rng;
 pub mod schedule;
@@ -20,14 +21,14 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
+use burn::optim::{AdamConfig, ModuleOptimizer};
 use burn::prelude::*;
 use burn::tensor::Bytes;
 use glam::Vec3;
 use serde::{Deserialize, Serialize};
 use talkin_grids::{GridError, OccUpdateOpts};
-use talkin_nets::loss::{Backbone, LossError, PerceptualLoss, mse, seg_cross_entropy};
-use talkin_nets::{FieldConfig, FieldInput, NetsError, TalkinField};
+use talkin_nets::loss::{Backbone, LossError, PerceptualLoss};
+use talkin_nets::{FieldConfig, NetsError, TalkinField};
 
 pub use batch::PATCH;
 pub use options::{Ablation, Budget, TrainOptions};
@@ -39,6 +40,7 @@ use crate::checkpoint::{Checkpoint, CheckpointContents, CheckpointError, Subject
 use crate::dataset::{Dataset, DatasetError, Split};
 use crate::subject_model::{SubjectModel, SubjectModelError, bone_prior};
 use batch::{BatchSpec, CacheError, FrameCache, draw_batch};
+use half_batch::{StepBatch, StepLoss, loss_and_grads};
 
 /// Weight of the segmentation cross-entropy.
 pub const SEG_WEIGHT: f32 = 0.05;
@@ -519,56 +521,32 @@ impl Trainer<'_> {
             .map_err(grid_err)?;
         let n_rays = batch.rays.len();
         let n_samples = samples.num_samples();
-        let device = self.field.identity.val().device();
-
-        let points: Vec<[f32; 3]> = samples
-            .midpoints_in_world(&batch.rays)
-            .into_iter()
-            .map(|p| p.to_array())
-            .collect();
-        let layout = crate::avatar::packed_layout(&samples);
-        let input = FieldInput {
-            points: &points,
-            bone_masks: &samples.bone_mask,
-            part_masks: &samples.part_mask,
-            frame: &fc.conditions,
-            step: vstep,
-        };
-        let output = self
-            .field
-            .forward(&input)
-            .map_err(|source| TrainError::Field { source })?;
-        let rendered = output
-            .render(&layout.view())
-            .map_err(|source| TrainError::Field { source })?;
-        let rgb = rendered.rgb_over(self.dataset.background); // [r, 3]
-        let target = Tensor::<2>::from_data(TensorData::new(batch.rgb, [n_rays, 3]), &device);
-        let labels = Tensor::<1, Int>::from_data(TensorData::new(batch.labels, [n_rays]), &device);
-        let l_mse = mse(rgb.clone(), target.clone());
-        let l_seg = seg_cross_entropy(rendered.seg_logits, labels);
-        let mut loss = l_seg.mul_scalar(SEG_WEIGHT);
-        match (&self.perceptual, batch.patches) {
-            (Some(p), k) if k > 0 => {
-                let side = PATCH as usize;
-                let to_images = |t: Tensor<2>| {
-                    t.narrow(0, 0, k * side * side)
-                        .reshape([k, side, side, 3])
-                        .permute([0, 3, 1, 2])
-                };
-                let l_p = p.forward(to_images(rgb), to_images(target)).mean();
-                loss = loss + l_p + l_mse.clone().mul_scalar(MSE_WEIGHT);
-            }
-            _ => loss = loss + l_mse.clone(),
-        }
-        let loss_value = scalar(&loss);
-        let mse_value = scalar(&l_mse);
+        let StepLoss {
+            loss: loss_value,
+            mse: mse_value,
+            grads,
+        } = loss_and_grads(
+            &self.field,
+            self.perceptual.as_ref(),
+            StepBatch {
+                rays: &batch.rays,
+                samples,
+                rgb: &batch.rgb,
+                labels: &batch.labels,
+                patches: batch.patches,
+                patch_side: PATCH as usize,
+                frame: &fc.conditions,
+                step: vstep,
+                background: self.dataset.background,
+            },
+        )
+        .map_err(|source| TrainError::Field { source })?;
         if !loss_value.is_finite() {
             return Err(TrainError::NonFinite {
                 step: self.step + 1,
                 loss: loss_value,
             });
         }
-        let grads = GradientsParams::from_grads(loss.backward(), &self.field);
         let field = self.field.clone();
         self.field = self.optim.step(lr, field, grads);
         self.step += 1;
