@@ -168,6 +168,95 @@ impl Seg {
     }
 }
 
+/// Radius padding of [`z_span`] for sets that must cover every cell the exact centre
+/// test holds (NEAR, CORE_NEAR: dropping one could lose a surface point), and for sets
+/// that must hold no cell it rejects (INSIDE, SOLID: a wrong SOLID cell would end a ray
+/// early). 0.1 mm against float rounding in the interval's solve; cells are ~1 cm.
+const COVER: f64 = 1e-4;
+const SHRINK: f64 = -1e-4;
+
+/// The `z` range of the line `(x, y, z)` within `radius + pad` of capsule `c`'s segment
+/// (`None` if it never comes that close): a capsule is convex, so the line meets it in
+/// one interval, the union of its meetings with the two end spheres and the cylinder
+/// between them. Solved in f64.
+fn z_span(c: &Capsule, x: f32, y: f32, radius: f32, pad: f64) -> Option<(f64, f64)> {
+    let r = radius as f64 + pad;
+    if !(r > 0.0) {
+        return None;
+    }
+    let (a, b) = (c.a.as_dvec3(), c.b.as_dvec3());
+    let (x, y) = (x as f64, y as f64);
+    let mut span: Option<(f64, f64)> = None;
+    let mut add = |lo: f64, hi: f64| {
+        span = Some(match span {
+            None => (lo, hi),
+            Some((l, h)) => (l.min(lo), h.max(hi)),
+        });
+    };
+    for end in [a, b] {
+        let q = r * r - (x - end.x).powi(2) - (y - end.y).powi(2);
+        if q >= 0.0 {
+            add(end.z - q.sqrt(), end.z + q.sqrt());
+        }
+    }
+    let ab = b - a;
+    let len = ab.length();
+    if len > 0.0 {
+        // w(z) = P(z) - a = w0 + z e_z; along the axis p + z uz, across it f(z).
+        let u = ab / len;
+        let w0 = glam::DVec3::new(x - a.x, y - a.y, -a.z);
+        let p = w0.dot(u);
+        let qa = 1.0 - u.z * u.z;
+        let qb = 2.0 * (w0.z - p * u.z);
+        let qc = w0.length_squared() - p * p - r * r;
+        // Where the line is within r of the infinite axis.
+        let across = if qa < 1e-12 {
+            // Parallel to the axis: the distance to it does not change along z.
+            (qc <= 0.0).then_some((f64::NEG_INFINITY, f64::INFINITY))
+        } else {
+            let disc = qb * qb - 4.0 * qa * qc;
+            (disc >= 0.0).then(|| {
+                let root = disc.sqrt();
+                ((-qb - root) / (2.0 * qa), (-qb + root) / (2.0 * qa))
+            })
+        };
+        // Where its projection falls between the ends.
+        let along = if u.z.abs() < 1e-12 {
+            (0.0..=len)
+                .contains(&p)
+                .then_some((f64::NEG_INFINITY, f64::INFINITY))
+        } else {
+            let (z0, z1) = (-p / u.z, (len - p) / u.z);
+            Some((z0.min(z1), z0.max(z1)))
+        };
+        if let (Some((a0, a1)), Some((b0, b1))) = (across, along) {
+            let (lo, hi) = (a0.max(b0), a1.min(b1));
+            if lo <= hi {
+                add(lo, hi);
+            }
+        }
+    }
+    span
+}
+
+#[allow(clippy::reversed_empty_ranges)]
+/// The cells `lo..=hi` along z whose centres (`z_min + (k + 0.5) cell`) lie in `span`.
+fn cells_in(
+    span: (f64, f64),
+    z_min: f32,
+    cell: f32,
+    lo: u32,
+    hi: u32,
+) -> std::ops::RangeInclusive<u32> {
+    let (z_min, cell) = (z_min as f64, cell as f64);
+    let first = ((span.0 - z_min) / cell - 0.5).ceil().max(lo as f64);
+    let last = ((span.1 - z_min) / cell - 0.5).floor().min(hi as f64);
+    if first > last {
+        return 1..=0;
+    }
+    first as u32..=last as u32
+}
+
 /// One frame's posed sampling grid. See the module docs.
 pub struct PosedGrid {
     min: Vec3,
@@ -291,24 +380,34 @@ impl PosedGrid {
             .enumerate()
             .for_each(|(x, ((flags, parts), bones))| {
                 let x = x as u32;
+                // Per capsule and (x, y) column, the cells whose centres lie within a
+                // radius are a z-range (a line meets a capsule in one interval): solved
+                // once per column instead of testing every cell of the capsule's box.
+                let cx = min.x + (x as f32 + 0.5) * cell;
                 for c in capsules {
                     let (lo, hi) = range(c, h + half_bin);
                     if x < lo.x || x > hi.x {
                         continue;
                     }
-                    let seg = Seg::new(c);
                     let near = c.radius + h + half_bin;
-                    let near2 = near * near;
                     let inside = c.radius - h;
-                    let inside2 = if inside > 0.0 { inside * inside } else { -1.0 };
                     for y in lo.y..=hi.y {
-                        for z in lo.z..=hi.z {
-                            let d2 = seg.dist2(centre(x, y, z));
-                            if d2 <= near2 {
-                                let i = (y * res.z + z) as usize;
-                                flags[i] |= NEAR | if d2 <= inside2 { INSIDE } else { 0 };
-                                parts[i] |= c.part.bit();
-                                bones[i] |= 1u64 << c.bone;
+                        let cy = min.y + (y as f32 + 0.5) * cell;
+                        let Some(span) = z_span(c, cx, cy, near, COVER) else {
+                            continue;
+                        };
+                        let row = (y * res.z) as usize;
+                        for z in cells_in(span, min.z, cell, lo.z, hi.z) {
+                            let i = row + z as usize;
+                            flags[i] |= NEAR;
+                            parts[i] |= c.part.bit();
+                            bones[i] |= 1u64 << c.bone;
+                        }
+                        if inside > 0.0
+                            && let Some(span) = z_span(c, cx, cy, inside, SHRINK)
+                        {
+                            for z in cells_in(span, min.z, cell, lo.z, hi.z) {
+                                flags[row + z as usize] |= INSIDE;
                             }
                         }
                     }
@@ -318,18 +417,24 @@ impl PosedGrid {
                     if x < lo.x || x > hi.x {
                         continue;
                     }
-                    let seg = Seg::new(c);
-                    let near2 = (c.radius + h) * (c.radius + h);
                     let solid = c.radius - h;
-                    let solid2 = if solid > 0.0 { solid * solid } else { -1.0 };
                     for y in lo.y..=hi.y {
-                        for z in lo.z..=hi.z {
-                            let d2 = seg.dist2(centre(x, y, z));
-                            let i = (y * res.z + z) as usize;
-                            if d2 <= solid2 {
-                                flags[i] |= SOLID;
-                            } else if d2 <= near2 {
-                                flags[i] |= CORE_NEAR;
+                        let cy = min.y + (y as f32 + 0.5) * cell;
+                        let Some(span) = z_span(c, cx, cy, c.radius + h, COVER) else {
+                            continue;
+                        };
+                        let row = (y * res.z) as usize;
+                        let solid_span = if solid > 0.0 {
+                            z_span(c, cx, cy, solid, SHRINK)
+                        } else {
+                            None
+                        };
+                        for z in cells_in(span, min.z, cell, lo.z, hi.z) {
+                            flags[row + z as usize] |= CORE_NEAR;
+                        }
+                        if let Some(span) = solid_span {
+                            for z in cells_in(span, min.z, cell, lo.z, hi.z) {
+                                flags[row + z as usize] |= SOLID;
                             }
                         }
                     }
@@ -747,6 +852,88 @@ mod tests {
         };
         assert!(grid.sample(&[bad], &opts).is_err());
         assert!(PosedGrid::build(&capsules, &cores, None, f32::NAN, step).is_err());
+    }
+
+    /// The column solve against the per-point distance test, for capsules in every
+    /// orientation (along z, across it, oblique, spheres), on lines through and past
+    /// them: a z in the span is within the radius (up to the padding) and a z within the
+    /// radius is in the span.
+    #[test]
+    fn z_spans_match_the_distance_test() {
+        let mut rng = SplitMix::new(17, 2);
+        let mut capsules = vec![
+            // Along z, across it, a sphere.
+            Capsule {
+                a: vec3(0.0, 0.0, -0.2),
+                b: vec3(0.0, 0.0, 0.3),
+                radius: 0.1,
+                part: crate::Part::Body,
+                bone: 0,
+            },
+            Capsule {
+                a: vec3(-0.3, 0.1, 0.05),
+                b: vec3(0.3, 0.1, 0.05),
+                radius: 0.05,
+                part: crate::Part::Arms,
+                bone: 1,
+            },
+            Capsule {
+                a: vec3(0.1, 0.1, 0.1),
+                b: vec3(0.1, 0.1, 0.1),
+                radius: 0.07,
+                part: crate::Part::Hands,
+                bone: 2,
+            },
+        ];
+        for _ in 0..40 {
+            let p = |rng: &mut SplitMix| {
+                vec3(rng.next_f32(), rng.next_f32(), rng.next_f32()) * 0.6 - 0.3
+            };
+            let (a, b) = (p(&mut rng), p(&mut rng));
+            capsules.push(Capsule {
+                a,
+                b,
+                radius: 0.02 + 0.1 * rng.next_f32(),
+                part: crate::Part::Body,
+                bone: 3,
+            });
+        }
+        let mut inside = 0;
+        for c in &capsules {
+            let seg = Seg::new(c);
+            for _ in 0..60 {
+                let (x, y) = (0.8 * rng.next_f32() - 0.4, 0.8 * rng.next_f32() - 0.4);
+                let cover = z_span(c, x, y, c.radius, COVER);
+                let shrink = z_span(c, x, y, c.radius, SHRINK);
+                for k in 0..400 {
+                    let z = -0.5 + k as f32 / 400.0;
+                    let d = seg.dist2(vec3(x, y, z)).sqrt();
+                    let within = |s: Option<(f64, f64)>| {
+                        s.is_some_and(|(lo, hi)| lo <= z as f64 && z as f64 <= hi)
+                    };
+                    if d <= c.radius {
+                        inside += 1;
+                        assert!(within(cover), "{c:?} ({x}, {y}, {z}) at {d} not covered");
+                    }
+                    if within(shrink) {
+                        assert!(
+                            d <= c.radius,
+                            "{c:?} ({x}, {y}, {z}) at {d} in the shrunk span"
+                        );
+                    }
+                    if within(cover) {
+                        assert!(d <= c.radius + 2e-4, "{c:?} ({x}, {y}, {z}) at {d} covered");
+                    }
+                }
+            }
+        }
+        assert!(inside > 10_000, "only {inside} points inside");
+        // Cell ranges: centres inside the span, clamped to the asked cells.
+        assert_eq!(cells_in((0.0, 1.0), 0.0, 0.1, 0, 100), 0..=9);
+        assert_eq!(cells_in((0.04, 0.26), 0.0, 0.1, 0, 100), 0..=2);
+        assert!(cells_in((0.06, 0.14), 0.0, 0.1, 0, 100).is_empty());
+        assert_eq!(cells_in((-5.0, 5.0), 0.0, 0.1, 3, 7), 3..=7);
+        assert!(cells_in((2.0, 3.0), 0.0, 0.1, 0, 5).is_empty());
     }
 
     #[test]
