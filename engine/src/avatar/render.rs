@@ -5,6 +5,7 @@ use std::time::Instant;
 
 use burn::prelude::*;
 use image::{GrayImage, RgbImage};
+use rayon::prelude::*;
 use talkin_grids::{PackedSamples, Ray, SamplerKind};
 use talkin_nets::FieldInput;
 use talkin_nets::render::OwnedRaySamples;
@@ -18,6 +19,14 @@ use crate::sampling::{FrameSampler, FrameScene};
 pub const RENDER_CHUNK_RAYS: usize = 8192;
 /// Largest image a render accepts (pixels): 4096 x 4096.
 pub const MAX_RENDER_PIXELS: u64 = 4096 * 4096;
+
+/// One chunk of a frame's rays, rendered.
+struct ChunkOut {
+    rgb: Vec<f32>,
+    opacity: Vec<f32>,
+    labels: Vec<u8>,
+    samples: usize,
+}
 
 /// A rendered image.
 #[derive(Clone, Debug)]
@@ -113,74 +122,26 @@ impl Avatar {
         let rays = pixel_rays(camera)?;
         let frame_sampler = FrameSampler::new(scene, &model.shells, &rays)?;
 
+        // Chunks render in parallel (the field's inference runs on about one core);
+        // each chunk's jitter seed is its index, so the image is the same on any number
+        // of threads.
+        let chunks: Vec<ChunkOut> = rays
+            .par_chunks(RENDER_CHUNK_RAYS)
+            .enumerate()
+            .map(|(c, chunk)| {
+                self.render_chunk(&frame_sampler, kind, &model.grid, &conditions, chunk, c)
+            })
+            .collect::<Result<_, _>>()?;
         let n = rays.len();
         let mut rgb = Vec::with_capacity(3 * n);
         let mut opacity = Vec::with_capacity(n);
         let mut labels = Vec::with_capacity(n);
         let mut total_samples = 0;
-        for (c, chunk) in rays.chunks(RENDER_CHUNK_RAYS).enumerate() {
-            let samples = frame_sampler.sample(kind, chunk, &model.grid, c as u64)?;
-            total_samples += samples.num_samples();
-            if samples.num_samples() == 0 {
-                for _ in chunk {
-                    rgb.extend_from_slice(&self.background);
-                    opacity.push(0.0);
-                    labels.push(0);
-                }
-                continue;
-            }
-            let points: Vec<[f32; 3]> = samples
-                .midpoints_in_world(chunk)
-                .into_iter()
-                .map(|p| p.to_array())
-                .collect();
-            let input = FieldInput {
-                points: &points,
-                bone_masks: &samples.bone_mask,
-                part_masks: &samples.part_mask,
-                frame: &conditions,
-                step: self.field_step,
-            };
-            let output = self.field.forward(&input)?;
-            let layout = packed_layout(&samples);
-            let rendered = output.render(&layout.view())?;
-            let to_vec = |t: Tensor<2>| t.try_to_vec_as::<f32>().unwrap_or_default();
-            let chunk_rgb = to_vec(rendered.rgb_over(self.background));
-            let chunk_alpha = rendered
-                .opacity
-                .clone()
-                .try_to_vec_as::<f32>()
-                .unwrap_or_default();
-            let seg = to_vec(rendered.seg_logits.clone());
-            if chunk_rgb.len() != 3 * chunk.len() || chunk_alpha.len() != chunk.len() {
-                return Err(AvatarError::BadInput {
-                    what: "render".into(),
-                    problem: "the field returned the wrong number of values".into(),
-                });
-            }
-            let classes = seg.len() / chunk.len().max(1);
-            for (r, &alpha) in chunk_alpha.iter().enumerate() {
-                let logits = &seg[r * classes..(r + 1) * classes];
-                let label = if alpha < 0.5 || classes == 0 {
-                    0
-                } else {
-                    // Argmax among the person classes.
-                    (1..classes)
-                        .max_by(|&a, &b| logits[a].total_cmp(&logits[b]))
-                        .unwrap_or(0) as u8
-                };
-                labels.push(label);
-            }
-            if chunk_rgb.iter().chain(&chunk_alpha).any(|v| !v.is_finite()) {
-                return Err(AvatarError::BadInput {
-                    what: "render".into(),
-                    problem: "the field produced a non-finite colour or opacity \
-                              (a diverged checkpoint?)"
-                        .into(),
-                });
-            }
-            rgb.extend_from_slice(&chunk_rgb);
-            opacity.extend_from_slice(&chunk_alpha);
+        for c in chunks {
+            rgb.extend_from_slice(&c.rgb);
+            opacity.extend_from_slice(&c.opacity);
+            labels.extend_from_slice(&c.labels);
+            total_samples += c.samples;
         }
         Ok(RenderedFrame {
             width: camera.width,
@@ -190,6 +151,86 @@ impl Avatar {
             labels,
             samples: total_samples,
             seconds: start.elapsed().as_secs_f64(),
+        })
+    }
+
+    /// One chunk of a frame's rays (`c`: the chunk's index, its jitter seed).
+    fn render_chunk(
+        &self,
+        frame_sampler: &FrameSampler,
+        kind: SamplerKind,
+        grid: &talkin_grids::OccupancyGrid,
+        conditions: &talkin_nets::FrameConditions,
+        chunk: &[Ray],
+        c: usize,
+    ) -> Result<ChunkOut, AvatarError> {
+        let samples = frame_sampler.sample(kind, chunk, grid, c as u64)?;
+        if samples.num_samples() == 0 {
+            return Ok(ChunkOut {
+                rgb: chunk.iter().flat_map(|_| self.background).collect(),
+                opacity: vec![0.0; chunk.len()],
+                labels: vec![0; chunk.len()],
+                samples: 0,
+            });
+        }
+        let points: Vec<[f32; 3]> = samples
+            .midpoints_in_world(chunk)
+            .into_iter()
+            .map(|p| p.to_array())
+            .collect();
+        let input = FieldInput {
+            points: &points,
+            bone_masks: &samples.bone_mask,
+            part_masks: &samples.part_mask,
+            frame: conditions,
+            step: self.field_step,
+        };
+        let output = self.field.forward(&input)?;
+        let layout = packed_layout(&samples);
+        let rendered = output.render(&layout.view())?;
+        let to_vec = |t: Tensor<2>| t.try_to_vec_as::<f32>().unwrap_or_default();
+        let rgb = to_vec(rendered.rgb_over(self.background));
+        let opacity = rendered
+            .opacity
+            .clone()
+            .try_to_vec_as::<f32>()
+            .unwrap_or_default();
+        let seg = to_vec(rendered.seg_logits.clone());
+        if rgb.len() != 3 * chunk.len() || opacity.len() != chunk.len() {
+            return Err(AvatarError::BadInput {
+                what: "render".into(),
+                problem: "the field returned the wrong number of values".into(),
+            });
+        }
+        if rgb.iter().chain(&opacity).any(|v| !v.is_finite()) {
+            return Err(AvatarError::BadInput {
+                what: "render".into(),
+                problem: "the field produced a non-finite colour or opacity \
+                          (a diverged checkpoint?)"
+                    .into(),
+            });
+        }
+        let classes = seg.len() / chunk.len().max(1);
+        let labels = opacity
+            .iter()
+            .enumerate()
+            .map(|(r, &alpha)| {
+                let logits = &seg[r * classes..(r + 1) * classes];
+                if alpha < 0.5 || classes == 0 {
+                    0
+                } else {
+                    // Argmax among the person classes.
+                    (1..classes)
+                        .max_by(|&a, &b| logits[a].total_cmp(&logits[b]))
+                        .unwrap_or(0) as u8
+                }
+            })
+            .collect();
+        Ok(ChunkOut {
+            rgb,
+            opacity,
+            labels,
+            samples: samples.num_samples(),
         })
     }
 }
