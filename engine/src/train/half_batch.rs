@@ -56,8 +56,7 @@ pub(crate) fn loss_and_grads(
     let n = batch.rays.len();
     let patch_rays = batch.patches * batch.patch_side * batch.patch_side;
     let Some(k) = split_point(n, patch_rays) else {
-        let (loss, mse, grads) = half(field, false, perceptual, &batch, 0..n, &batch.samples)?;
-        return Ok(StepLoss { loss, mse, grads });
+        return half(field, false, perceptual, &batch, 0..n, &batch.samples);
     };
     let (head, tail) = batch.samples.split_at_ray(k);
     let (a, b) = std::thread::scope(|scope| {
@@ -69,17 +68,17 @@ pub(crate) fn loss_and_grads(
     let a = a.unwrap_or_else(|p| std::panic::resume_unwind(p))?;
     let b = b?;
     let mut sum = GradientsAccumulator::new();
-    sum.accumulate(field, a.2);
-    sum.accumulate(field, b.2);
+    sum.accumulate(field, a.grads);
+    sum.accumulate(field, b.grads);
     Ok(StepLoss {
-        loss: a.0 + b.0,
-        mse: a.1 + b.1,
+        loss: a.loss + b.loss,
+        mse: a.mse + b.mse,
         grads: sum.grads(),
     })
 }
 
-/// Rays `range` of the batch (sampled as `samples`): their weighted loss, weighted MSE
-/// and gradients. `fork`: run on a fork of the field (needed when another thread runs
+/// Rays `range` of the batch (sampled as `samples`): their loss and MSE weighted by
+/// their share of the rays, and the gradients. `fork`: run on a fork of the field (needed when another thread runs
 /// the other half at the same time).
 fn half(
     field: &TalkinField,
@@ -88,7 +87,7 @@ fn half(
     batch: &StepBatch,
     range: std::ops::Range<usize>,
     samples: &PackedSamples,
-) -> Result<(f32, f32, GradientsParams), NetsError> {
+) -> Result<StepLoss, NetsError> {
     let device = field.identity.val().device();
     let forked;
     let field = if fork {
@@ -146,10 +145,19 @@ fn half(
         }
         _ => pixel,
     };
-    let loss_value = scalar(&loss);
-    let mse_value = weight * scalar(&l_mse);
-    let grads = GradientsParams::from_grads(loss.backward(), field);
-    Ok((loss_value, mse_value, grads))
+    let (loss_value, mse_value) = (scalar(&loss), weight * scalar(&l_mse));
+    // A half whose rays all missed every capsule (e.g. an LPIPS patch beside the person)
+    // has no samples: its loss is a constant, with no gradient to take.
+    let grads = if loss.is_tracked() {
+        GradientsParams::from_grads(loss.backward(), field)
+    } else {
+        GradientsParams::new()
+    };
+    Ok(StepLoss {
+        loss: loss_value,
+        mse: mse_value,
+        grads,
+    })
 }
 
 #[cfg(test)]
@@ -214,64 +222,78 @@ mod tests {
             })
             .collect();
         let field = config.init(&prior, &device).unwrap();
-        let rays: Vec<Ray> = (0..9)
-            .map(|i| {
-                let origin = Vec3::new(-0.4 + 0.1 * i as f32, -0.5 + 0.12 * i as f32, 2.0);
-                Ray::new(origin, Vec3::NEG_Z, 0.0, f32::INFINITY).unwrap()
-            })
-            .collect();
-        let dense = DenseOpts {
-            samples_per_ray: 12,
-            jitter: false,
-            seed: 0,
+        // Rays 0-3 miss the box (no samples), so with `first_half_empty` the first half
+        // has no gradient: its loss is a constant.
+        let make_rays = |first_half_empty: bool| -> Vec<Ray> {
+            (0..9)
+                .map(|i| {
+                    let x = if first_half_empty && i < 4 {
+                        3.0
+                    } else {
+                        -0.4 + 0.1 * i as f32
+                    };
+                    let origin = Vec3::new(x, -0.5 + 0.12 * i as f32, 2.0);
+                    Ray::new(origin, Vec3::NEG_Z, 0.0, f32::INFINITY).unwrap()
+                })
+                .collect()
         };
-        let samples = sample_dense(&rays, Vec3::splat(-0.5), Vec3::splat(0.5), &dense).unwrap();
-        let rgb: Vec<f32> = (0..27).map(|i| (i * 7 % 10) as f32 / 10.0).collect();
-        let labels: Vec<i32> = (0..9).map(|i| i % 5).collect();
-        let mut identity = [0.0f32; 16];
-        for i in 0..4 {
-            identity[i * 5] = 1.0;
+        for first_half_empty in [false, true] {
+            let rays = make_rays(first_half_empty);
+            let dense = DenseOpts {
+                samples_per_ray: 12,
+                jitter: false,
+                seed: 0,
+            };
+            let samples = sample_dense(&rays, Vec3::splat(-0.5), Vec3::splat(0.5), &dense).unwrap();
+            assert_eq!(split_point(9, 0), Some(4));
+            assert_eq!(samples.ray_offsets[4] == 0, first_half_empty);
+            let rgb: Vec<f32> = (0..27).map(|i| (i * 7 % 10) as f32 / 10.0).collect();
+            let labels: Vec<i32> = (0..9).map(|i| i % 5).collect();
+            let mut identity = [0.0f32; 16];
+            for i in 0..4 {
+                identity[i * 5] = 1.0;
+            }
+            let frame = FrameConditions {
+                identity: 0,
+                canonical_from_posed: vec![identity; N_BODY_JOINTS],
+                body_pose: vec![0.05; 63],
+                expression: [0.1; EXPRESSION_DIM],
+                jaw: [0.2, 0.0, 0.0],
+                hand_pose: vec![0.0; HAND_POSE_DIM],
+            };
+            let batch = || StepBatch {
+                rays: &rays,
+                samples: samples.clone(),
+                rgb: &rgb,
+                labels: &labels,
+                patches: 0,
+                patch_side: 32,
+                frame: &frame,
+                step: 0,
+                background: [1.0; 3],
+            };
+            let whole_batch = batch();
+            let whole = half(&field, false, None, &whole_batch, 0..9, &samples).unwrap();
+            let split = loss_and_grads(&field, None, batch()).unwrap();
+            assert!(
+                (whole.loss - split.loss).abs() <= 1e-5 * whole.loss.abs(),
+                "{} vs {}",
+                whole.loss,
+                split.loss
+            );
+            assert!((whole.mse - split.mse).abs() <= 1e-5 * whole.mse.abs());
+            let mut same = SameGrads {
+                a: &whole.grads,
+                b: &split.grads,
+                compared: 0,
+            };
+            field.visit(&mut same);
+            assert!(
+                same.compared >= 5,
+                "only {} parameters had gradients",
+                same.compared
+            );
         }
-        let frame = FrameConditions {
-            identity: 0,
-            canonical_from_posed: vec![identity; N_BODY_JOINTS],
-            body_pose: vec![0.05; 63],
-            expression: [0.1; EXPRESSION_DIM],
-            jaw: [0.2, 0.0, 0.0],
-            hand_pose: vec![0.0; HAND_POSE_DIM],
-        };
-        let batch = || StepBatch {
-            rays: &rays,
-            samples: samples.clone(),
-            rgb: &rgb,
-            labels: &labels,
-            patches: 0,
-            patch_side: 32,
-            frame: &frame,
-            step: 0,
-            background: [1.0; 3],
-        };
-        let whole_batch = batch();
-        let whole = half(&field, false, None, &whole_batch, 0..9, &samples).unwrap();
-        let split = loss_and_grads(&field, None, batch()).unwrap();
-        assert!(
-            (whole.0 - split.loss).abs() <= 1e-5 * whole.0.abs(),
-            "{} vs {}",
-            whole.0,
-            split.loss
-        );
-        assert!((whole.1 - split.mse).abs() <= 1e-5 * whole.1.abs());
-        let mut same = SameGrads {
-            a: &whole.2,
-            b: &split.grads,
-            compared: 0,
-        };
-        field.visit(&mut same);
-        assert!(
-            same.compared >= 5,
-            "only {} parameters had gradients",
-            same.compared
-        );
     }
 
     #[test]
