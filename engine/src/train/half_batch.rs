@@ -167,10 +167,14 @@ mod tests {
     use talkin_grids::{DenseOpts, sample_dense};
     use talkin_nets::FieldConfig;
     use talkin_nets::encoding::{EncodingConfig, HashGridConfig};
-    use talkin_nets::field::{EXPRESSION_DIM, HAND_POSE_DIM};
-    use talkin_nets::skinning::{BoneSegment, N_BODY_JOINTS, SkinningConfig};
+    use talkin_nets::skinning::SkinningConfig;
 
     use super::*;
+    use crate::avatar::frame_conditions;
+    use crate::body::canonical_params;
+    use crate::sampling::{FrameScene, capsule_bounds};
+    use crate::subject_model::bone_prior;
+    use crate::synth::body::default_rest_joints;
 
     /// Compares every parameter's gradient in two gradient sets.
     struct SameGrads<'a> {
@@ -211,28 +215,27 @@ mod tests {
                 .with_log2_hashmap_size(12),
         );
         config.skinning = SkinningConfig::new().with_resolution(8);
-        let prior: Vec<BoneSegment> = (0..N_BODY_JOINTS)
-            .map(|b| {
-                let y = -1.0 + b as f32 * 0.09;
-                BoneSegment {
-                    bone: b,
-                    a: [-0.3, y, 0.0],
-                    b: [0.3, y + 0.05, 0.0],
-                }
-            })
-            .collect();
+        // A synthetic subject in its canonical pose, as training builds it.
+        let skeleton = default_rest_joints(0);
+        let prior = bone_prior([&skeleton]);
+        let params = canonical_params();
+        let canonical = skeleton.pose(&params);
+        let scene = FrameScene::new(&skeleton, &canonical, &params);
+        let frame = frame_conditions(0, &params, &scene);
+        let (lo, hi) = capsule_bounds(&scene.capsules, 0.02);
         let field = config.init(&prior, &device).unwrap();
-        // Rays 0-3 miss the box (no samples), so with `first_half_empty` the first half
-        // has no gradient: its loss is a constant.
+        // Rays across the body's box, along -z; rays 0-3 miss the box (no samples) with
+        // `first_half_empty`, so the first half has no gradient: its loss is a constant.
         let make_rays = |first_half_empty: bool| -> Vec<Ray> {
             (0..9)
                 .map(|i| {
+                    let u = (i as f32 + 0.5) / 9.0;
                     let x = if first_half_empty && i < 4 {
-                        3.0
+                        hi.x + 3.0
                     } else {
-                        -0.4 + 0.1 * i as f32
+                        lo.x + u * (hi.x - lo.x)
                     };
-                    let origin = Vec3::new(x, -0.5 + 0.12 * i as f32, 2.0);
+                    let origin = Vec3::new(x, lo.y + u * (hi.y - lo.y), hi.z + 2.0);
                     Ray::new(origin, Vec3::NEG_Z, 0.0, f32::INFINITY).unwrap()
                 })
                 .collect()
@@ -244,23 +247,11 @@ mod tests {
                 jitter: false,
                 seed: 0,
             };
-            let samples = sample_dense(&rays, Vec3::splat(-0.5), Vec3::splat(0.5), &dense).unwrap();
+            let samples = sample_dense(&rays, lo, hi, &dense).unwrap();
             assert_eq!(split_point(9, 0), Some(4));
             assert_eq!(samples.ray_offsets[4] == 0, first_half_empty);
             let rgb: Vec<f32> = (0..27).map(|i| (i * 7 % 10) as f32 / 10.0).collect();
             let labels: Vec<i32> = (0..9).map(|i| i % 5).collect();
-            let mut identity = [0.0f32; 16];
-            for i in 0..4 {
-                identity[i * 5] = 1.0;
-            }
-            let frame = FrameConditions {
-                identity: 0,
-                canonical_from_posed: vec![identity; N_BODY_JOINTS],
-                body_pose: vec![0.05; 63],
-                expression: [0.1; EXPRESSION_DIM],
-                jaw: [0.2, 0.0, 0.0],
-                hand_pose: vec![0.0; HAND_POSE_DIM],
-            };
             let batch = || StepBatch {
                 rays: &rays,
                 samples: samples.clone(),
