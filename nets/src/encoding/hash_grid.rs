@@ -7,12 +7,140 @@
 use burn::prelude::*;
 use burn::tensor::Distribution;
 
+use super::hash_fused::{self, Corners};
 use crate::util::{floats, host, ints};
 
 /// instant-ngp's spatial-hash primes (the first is 1 for cache coherence along x).
 const PRIMES: [u32; 3] = [1, 2_654_435_761, 805_459_861];
 /// Mixes the identity into the spatial hash (a fourth coordinate).
 const IDENTITY_PRIME: u32 = 3_674_653_429;
+
+/// Table row of integer vertex `c` of identity `id` on `level` of a grid with these
+/// per-level `resolutions` and row `offsets`: dense levels hold one block per identity
+/// (an identity added after training wraps onto the others' blocks), hashed levels hash
+/// the identity with the vertex.
+fn vertex_row(
+    resolutions: &[usize],
+    offsets: &[usize],
+    level: usize,
+    c: [u32; 3],
+    id: u32,
+) -> usize {
+    let res1 = resolutions[level] + 1;
+    let block = res1.pow(3);
+    let size = offsets[level + 1] - offsets[level];
+    let dense = c[0] as usize + res1 * (c[1] as usize + res1 * c[2] as usize);
+    let local = if block <= size && size.is_multiple_of(block) {
+        (dense + id as usize * block) % size
+    } else {
+        // size is a power of two when hashed.
+        let h = c[0].wrapping_mul(PRIMES[0])
+            ^ c[1].wrapping_mul(PRIMES[1])
+            ^ c[2].wrapping_mul(PRIMES[2])
+            ^ id.wrapping_mul(IDENTITY_PRIME);
+        h as usize & (size - 1)
+    };
+    offsets[level] + local
+}
+
+/// The table rows of one identity's cell corners, level by level, with the per-level
+/// arithmetic of [`vertex_row`] (divisions, the dense/hashed choice) done once per call.
+pub(crate) struct CellRows {
+    levels: Vec<LevelRows>,
+}
+
+enum LevelRows {
+    /// `offset + (x + res1 (y + res1 z) + shift) mod size`, `shift < size`, every index
+    /// `< res1^3 <= size`.
+    Dense {
+        offset: u32,
+        res1: u32,
+        size: u32,
+        shift: u32,
+    },
+    /// `offset + (x P0 ^ y P1 ^ z P2 ^ id P3) & mask`.
+    Hashed {
+        offset: u32,
+        mask: u32,
+        id_hash: u32,
+    },
+}
+
+impl CellRows {
+    pub(crate) fn new(resolutions: &[usize], offsets: &[usize], id: u32) -> CellRows {
+        let levels = (0..resolutions.len())
+            .map(|level| {
+                let res1 = resolutions[level] + 1;
+                let block = res1.pow(3);
+                let size = offsets[level + 1] - offsets[level];
+                let offset = offsets[level] as u32;
+                if block <= size && size.is_multiple_of(block) {
+                    LevelRows::Dense {
+                        offset,
+                        res1: res1 as u32,
+                        size: size as u32,
+                        shift: ((id as usize * block) % size) as u32,
+                    }
+                } else {
+                    LevelRows::Hashed {
+                        offset,
+                        mask: size as u32 - 1,
+                        id_hash: id.wrapping_mul(IDENTITY_PRIME),
+                    }
+                }
+            })
+            .collect();
+        CellRows { levels }
+    }
+
+    /// Rows of the 8 corners of the cell with lower corner `c` on `level`; corner `k` is
+    /// `c + (k & 1, k >> 1 & 1, k >> 2)`.
+    #[inline]
+    pub(crate) fn rows(&self, level: usize, c: [u32; 3]) -> [u32; 8] {
+        let mut out = [0u32; 8];
+        match self.levels[level] {
+            LevelRows::Dense {
+                offset,
+                res1,
+                size,
+                shift,
+            } => {
+                let base = c[0] + res1 * (c[1] + res1 * c[2]) + shift;
+                for (k, o) in out.iter_mut().enumerate() {
+                    let k = k as u32;
+                    let mut i = base + (k & 1) + res1 * ((k >> 1) & 1) + res1 * res1 * (k >> 2);
+                    if i >= size {
+                        i -= size;
+                    }
+                    *o = offset + i;
+                }
+            }
+            LevelRows::Hashed {
+                offset,
+                mask,
+                id_hash,
+            } => {
+                let hx = [
+                    c[0].wrapping_mul(PRIMES[0]),
+                    (c[0] + 1).wrapping_mul(PRIMES[0]),
+                ];
+                let hy = [
+                    c[1].wrapping_mul(PRIMES[1]),
+                    (c[1] + 1).wrapping_mul(PRIMES[1]),
+                ];
+                let hz = [
+                    c[2].wrapping_mul(PRIMES[2]),
+                    (c[2] + 1).wrapping_mul(PRIMES[2]),
+                ];
+                for (k, o) in out.iter_mut().enumerate() {
+                    let h = hx[k & 1] ^ hy[(k >> 1) & 1] ^ hz[k >> 2] ^ id_hash;
+                    *o = offset + (h & mask);
+                }
+            }
+        }
+        out
+    }
+}
 
 /// Configuration of [`HashGrid`] (tiny-cuda-nn's `HashGrid` fields).
 #[derive(Config, Debug)]
@@ -96,25 +224,9 @@ impl HashGrid {
         *self.offsets.last().unwrap_or(&0)
     }
 
-    /// Table row of integer vertex `c` of identity `id` on `level`: dense levels hold
-    /// one block per identity (an identity added after training wraps onto the others'
-    /// blocks), hashed levels hash the identity with the vertex.
+    /// Table row of integer vertex `c` of identity `id` on `level` (see [`vertex_row`]).
     fn vertex_index(&self, level: usize, c: [u32; 3], id: u32) -> usize {
-        let res1 = self.resolutions[level] + 1;
-        let block = res1.pow(3);
-        let size = self.offsets[level + 1] - self.offsets[level];
-        let dense = c[0] as usize + res1 * (c[1] as usize + res1 * c[2] as usize);
-        let local = if block <= size && size.is_multiple_of(block) {
-            (dense + id as usize * block) % size
-        } else {
-            // size is a power of two when hashed.
-            let h = c[0].wrapping_mul(PRIMES[0])
-                ^ c[1].wrapping_mul(PRIMES[1])
-                ^ c[2].wrapping_mul(PRIMES[2])
-                ^ id.wrapping_mul(IDENTITY_PRIME);
-            h as usize & (size - 1)
-        };
-        self.offsets[level] + local
+        vertex_row(&self.resolutions, &self.offsets, level, c, id)
     }
 
     /// Host-side lower cell corners `[n, L, 3]` and the 8 vertex rows `[n, L, 8]` of each
@@ -158,6 +270,25 @@ impl HashGrid {
             return Tensor::zeros([0, l * f], &device);
         }
         let x = x.clamp(0.0, 1.0);
+        let table = self.table.val();
+        let (resolutions, offsets) = (&self.resolutions, &self.offsets);
+        let id = identity as u32;
+        match hash_fused::encode(&table, &x, |points| {
+            let cells = CellRows::new(resolutions, offsets, id);
+            Corners::new(points, resolutions, offsets, f, &|l, c| cells.rows(l, c))
+        }) {
+            Some(out) => out,
+            None => self.forward_composed(table, x, identity),
+        }
+    }
+
+    /// [`HashGrid::forward`] as composed tensor ops, for backends without the fused op
+    /// (`x` already clamped, `n > 0`).
+    fn forward_composed(&self, table: Tensor<2>, x: Tensor<2>, identity: usize) -> Tensor<2> {
+        let [n, _] = x.dims();
+        let l = self.resolutions.len();
+        let f = self.n_features;
+        let device = x.device();
         let (lower, rows) = self.corners(&host(&x), identity as u32);
         let res: Vec<f32> = self.resolutions.iter().map(|&r| r as f32).collect();
         let res = floats(res, [1, l, 1], &device); // [1, L, 1]
@@ -171,9 +302,7 @@ impl HashGrid {
             * axis(1).reshape([n, l, 1, 2, 1])
             * axis(2).reshape([n, l, 2, 1, 1]); // [n, L, z, y, x]
         let weights = weights.reshape([n, l, 8, 1]);
-        let features = self
-            .table
-            .val()
+        let features = table
             .select(0, ints(rows, &device)) // [n L 8, F]
             .reshape([n, l, 8, f]);
         (features * weights).sum_dim(2).reshape([n, l * f]) // [n, L F]
@@ -242,6 +371,107 @@ pub(crate) mod tests {
             for (j, v) in r.iter().enumerate() {
                 assert!((y[i * 8 + j] as f64 - v).abs() < 1e-5, "{i} {j}");
             }
+        }
+    }
+
+    /// Points in and around the unit cube: cell boundaries, the faces, outside (clamped).
+    fn awkward_points() -> Vec<[f32; 3]> {
+        let mut pts = vec![
+            [0.0, 0.0, 0.0],
+            [1.0, 1.0, 1.0],
+            [0.5, 0.25, 0.75],
+            [-0.2, 0.4, 1.3],
+            [1.0, 0.0, 0.999_999],
+        ];
+        let mut s = 12345u32;
+        for _ in 0..200 {
+            let mut p = [0f32; 3];
+            for v in p.iter_mut() {
+                s = s.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+                *v = (s >> 8) as f32 / (1u32 << 24) as f32;
+            }
+            pts.push(p);
+        }
+        pts
+    }
+
+    /// The fused CPU op and the composed tensor ops (kept for other backends) give the same
+    /// encoding and the same gradients for the table and the points, for every identity
+    /// (and one past them);
+    /// and on Flex the fused op is the one `forward` takes.
+    #[test]
+    fn fused_op_matches_composed_ops() {
+        let device = Device::flex().autodiff();
+        let grid = HashGridConfig::new()
+            .with_n_levels(5)
+            .with_log2_hashmap_size(10)
+            .with_base_resolution(3)
+            .with_per_level_scale(1.7)
+            .with_init_scale(1.0)
+            .with_n_identities(2)
+            .init(&device);
+        let pts = awkward_points();
+        let n = pts.len();
+        let out_dim = grid.output_dim();
+        let coeff: Vec<f32> = (0..n * out_dim)
+            .map(|i| ((i * 7 % 13) as f32 - 6.0) / 6.0)
+            .collect();
+        let c = floats(coeff, [n, out_dim], &device);
+        // Identity 3 of a 2-identity grid wraps onto the others' dense blocks.
+        for id in [0, 1, 3] {
+            let run = |fused: bool| {
+                let x =
+                    floats(pts.iter().flatten().copied().collect(), [n, 3], &device).require_grad();
+                let clamped = x.clone().clamp(0.0, 1.0);
+                let table = grid.table.val();
+                let out = if fused {
+                    let (res, off, f) = (&grid.resolutions, &grid.offsets, grid.n_features);
+                    hash_fused::encode(&table, &clamped, |points| {
+                        let cells = CellRows::new(res, off, id as u32);
+                        Corners::new(points, res, off, f, &|l, c| cells.rows(l, c))
+                    })
+                    .expect("Flex autodiff tensors take the fused op")
+                } else {
+                    grid.forward_composed(table, clamped, id)
+                };
+                let grads = (out.clone() * c.clone()).sum().backward();
+                (
+                    host(&out),
+                    host(&grid.table.grad(&grads).expect("table grad")),
+                    host(&x.grad(&grads).expect("point grad")),
+                )
+            };
+            let (fused, composed) = (run(true), run(false));
+            for (what, a, b) in [
+                ("encoding", &fused.0, &composed.0),
+                ("table gradient", &fused.1, &composed.1),
+                ("point gradient", &fused.2, &composed.2),
+            ] {
+                assert_eq!(a.len(), b.len(), "{what}");
+                for (i, (u, v)) in a.iter().zip(b.iter()).enumerate() {
+                    assert!(
+                        (u - v).abs() <= 1e-4 * (1.0 + v.abs()),
+                        "identity {id}, {what}[{i}]: fused {u}, composed {v}"
+                    );
+                }
+            }
+            // Clamped coordinates carry no point gradient.
+            assert_eq!(fused.2[3 * 3], 0.0);
+            assert_eq!(fused.2[3 * 3 + 2], 0.0);
+        }
+        // Without autodiff (rendering) the fused op is taken too.
+        let plain = Device::flex();
+        let grid = HashGridConfig::new().with_n_levels(3).init(&plain);
+        let x = floats(vec![0.3, 0.6, 0.9], [1, 3], &plain);
+        let (res, off) = (&grid.resolutions, &grid.offsets);
+        let fused = hash_fused::encode(&grid.table.val(), &x, |points| {
+            let cells = CellRows::new(res, off, 0);
+            Corners::new(points, res, off, 2, &|l, c| cells.rows(l, c))
+        })
+        .expect("Flex tensors take the fused op");
+        let composed = grid.forward_composed(grid.table.val(), x, 0);
+        for (u, v) in host(&fused).iter().zip(host(&composed).iter()) {
+            assert!((u - v).abs() < 1e-6, "{u} {v}");
         }
     }
 

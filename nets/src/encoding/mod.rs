@@ -2,6 +2,7 @@
 //! multiresolution hash grid, behind one [`Encoding`] that presets choose by config.
 
 pub mod frequency;
+mod hash_fused;
 pub mod hash_grid;
 
 use burn::prelude::*;
