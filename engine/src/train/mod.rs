@@ -10,6 +10,7 @@
 //! end; `Trainer::resume` continues a run exactly where its checkpoint left it.
 
 mod batch;
+mod fused_adam;
 mod grid_update;
 mod half_batch;
 mod options;
@@ -21,7 +22,7 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use burn::optim::{AdamConfig, ModuleOptimizer};
+use burn::optim::ModuleOptimizer;
 use burn::prelude::*;
 use burn::tensor::Bytes;
 use glam::Vec3;
@@ -40,6 +41,7 @@ use crate::checkpoint::{Checkpoint, CheckpointContents, CheckpointError, Subject
 use crate::dataset::{Dataset, DatasetError, Split};
 use crate::subject_model::{SubjectModel, SubjectModelError, bone_prior};
 use batch::{BatchSpec, CacheError, FrameCache, draw_batch};
+use fused_adam::FusedAdam;
 use half_batch::{StepBatch, StepLoss, loss_and_grads};
 
 /// Weight of the segmentation cross-entropy.
@@ -332,8 +334,7 @@ impl<'a> Trainer<'a> {
             state.slot_of.clone(),
             log,
         )?;
-        t.optim = adam(&t.opts)
-            .init()
+        t.optim = optimizer(&t.opts)
             .from_bytes(Bytes::from_bytes_vec(optim_bytes))
             .map_err(|e| TrainError::Resume {
                 file: checkpoint.optimizer_file(),
@@ -405,7 +406,7 @@ impl<'a> Trainer<'a> {
             warmup_steps: 0,
             ..OccUpdateOpts::default()
         };
-        let optim = adam(&opts).init();
+        let optim = optimizer(&opts);
         Ok(Trainer {
             dataset,
             out: out.to_path_buf(),
@@ -867,16 +868,14 @@ fn open_log(
 /// Adam as the recipe says: the paper's defaults (betas 0.9, 0.999, eps 1e-8) for the
 /// `paper` preset; instant-ngp's (0.9, 0.99, 1e-15) for the hash-grid `fast` preset,
 /// whose sparse, tiny table gradients an eps of 1e-5 (burn's default) all but freezes.
-fn adam(opts: &TrainOptions) -> AdamConfig {
+/// Fused into one pass per parameter ([`fused_adam`]).
+fn optimizer(opts: &TrainOptions) -> ModuleOptimizer {
     let (beta_2, epsilon) = if opts.preset == "paper" {
         (0.999, 1e-8)
     } else {
         (0.99, 1e-15)
     };
-    AdamConfig::new()
-        .with_beta_1(0.9)
-        .with_beta_2(beta_2)
-        .with_epsilon(epsilon)
+    ModuleOptimizer::from(FusedAdam::new(0.9, beta_2, epsilon))
 }
 
 /// Reads a one-element tensor.
