@@ -136,6 +136,15 @@ pub fn run_trainer(trainer: Trainer, data: &std::path::Path) -> anyhow::Result<(
         })
         .with_context(|| format!("training on {}", data.display()))?;
     let n = report.logs.len();
+    if n == 0 {
+        // A resumed run whose budget was already spent: no step to average.
+        println!(
+            "trained 0 steps: the run's budget was already spent\nlog: {}\ncheckpoint: {}",
+            report.log_file.display(),
+            report.checkpoint.display()
+        );
+        return Ok(());
+    }
     let tail = &report.logs[n.saturating_sub(20)..];
     let mean = |f: &dyn Fn(&train::StepLog) -> f64| {
         tail.iter().map(f).sum::<f64>() / tail.len().max(1) as f64
