@@ -397,8 +397,7 @@ pub(crate) mod tests {
 
     /// The fused CPU op and the composed tensor ops (kept for other backends) give the same
     /// encoding and the same gradients for the table and the points, for every identity
-    /// (and one past them);
-    /// and on Flex the fused op is the one `forward` takes.
+    /// and one past them; and on Flex the fused op is the one `forward` takes.
     #[test]
     fn fused_op_matches_composed_ops() {
         let device = Device::flex().autodiff();
