@@ -44,7 +44,10 @@ fn vertex_row(
 }
 
 /// The table rows of one identity's cell corners, level by level, with the per-level
-/// arithmetic of [`vertex_row`] (divisions, the dense/hashed choice) done once per call.
+/// arithmetic of [`vertex_row`] (divisions, the dense/hashed choice) done once per call:
+/// the fused op's fast path. [`vertex_row`] stays the plain statement of the indexing
+/// (the composed path and the f64 reference use it), so the two are checked against each
+/// other (`fused_op_matches_composed_ops`).
 pub(crate) struct CellRows {
     levels: Vec<LevelRows>,
 }
