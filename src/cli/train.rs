@@ -138,31 +138,27 @@ pub fn run_trainer(trainer: Trainer, data: &std::path::Path) -> anyhow::Result<(
     let n = report.logs.len();
     if n == 0 {
         // A resumed run whose budget was already spent: no step to average.
+        println!("trained 0 steps: the run's budget was already spent");
+    } else {
+        let tail = &report.logs[n.saturating_sub(20)..];
+        let mean = |f: &dyn Fn(&train::StepLog) -> f64| {
+            tail.iter().map(f).sum::<f64>() / tail.len() as f64
+        };
         println!(
-            "trained 0 steps: the run's budget was already spent\nlog: {}\ncheckpoint: {}",
-            report.log_file.display(),
-            report.checkpoint.display()
+            "trained {} steps ({} sampler, {} preset) in {:.1} s: {:.2} steps/s; last {} \
+             steps: loss {:.4}, batch psnr {:.2} dB, {:.0} rays/s, {:.0} samples/s",
+            n,
+            opts.sampler.name(),
+            opts.preset,
+            report.seconds,
+            n as f64 / report.seconds.max(1e-9),
+            tail.len(),
+            mean(&|l| f64::from(l.loss)),
+            mean(&|l| f64::from(l.psnr)),
+            mean(&|l| l.rays_per_s),
+            mean(&|l| l.samples_per_s),
         );
-        return Ok(());
     }
-    let tail = &report.logs[n.saturating_sub(20)..];
-    let mean = |f: &dyn Fn(&train::StepLog) -> f64| {
-        tail.iter().map(f).sum::<f64>() / tail.len().max(1) as f64
-    };
-    println!(
-        "trained {} steps ({} sampler, {} preset) in {:.1} s: {:.2} steps/s; last {} steps: \
-         loss {:.4}, batch psnr {:.2} dB, {:.0} rays/s, {:.0} samples/s",
-        n,
-        opts.sampler.name(),
-        opts.preset,
-        report.seconds,
-        n as f64 / report.seconds.max(1e-9),
-        tail.len(),
-        mean(&|l| f64::from(l.loss)),
-        mean(&|l| f64::from(l.psnr)),
-        mean(&|l| l.rays_per_s),
-        mean(&|l| l.samples_per_s),
-    );
     println!(
         "log: {}\ncheckpoint: {}",
         report.log_file.display(),

@@ -3,9 +3,10 @@
 //! Composed of tensor ops, the encoding made `[n, L, 8, F]` intermediates (weights,
 //! gathered rows, their product and its gradients) and, in backward, a zeroed table-sized
 //! tensor for every `select`: ~48% of a training step's CPU time (perf, `fast` preset).
-//! Fused, forward interpolates each point's levels in one pass, and backward writes the
-//! table gradient level by level (levels own disjoint rows, so they run in parallel) and
-//! the point gradient from the stored cell fractions. Other backends (wgpu) keep the
+//! Fused, forward interpolates each point's levels in one pass (and, when the points need
+//! a gradient, the output's Jacobian by the point, while the rows are in cache); backward
+//! writes the table gradient level by level (levels own disjoint rows, so they run in
+//! parallel) and the point gradient from that Jacobian. Other backends (wgpu) keep the
 //! composed ops in [`super::hash_grid`]; both are tested against the same f64 reference.
 
 use std::sync::Arc;
