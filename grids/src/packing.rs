@@ -1,26 +1,40 @@
 //! Parallel production of packed (ragged) per-ray output without per-ray allocation:
-//! rays are cut into chunks, each chunk appends into one buffer, chunks are concatenated.
+//! rays are cut into chunks, each chunk appends into its own buffer, chunks are
+//! concatenated.
 
 use rayon::prelude::*;
+
+use crate::samples::{PackedSamples, Sample};
 
 /// Rays per rayon task: large enough to amortise the task, small enough to balance.
 const CHUNK: usize = 128;
 
+/// A chunk's output buffer.
+pub(crate) trait ChunkBuffer: Default + Send {
+    fn len(&self) -> usize;
+}
+
+impl<T: Send> ChunkBuffer for Vec<T> {
+    fn len(&self) -> usize {
+        Vec::len(self)
+    }
+}
+
 /// Runs `f(scratch, ray_index, out)` for every ray in parallel, where `f` appends that
-/// ray's items to `out`. Returns the per-ray offsets (`n + 1` entries) and all items,
-/// ray after ray. `init` makes one scratch per worker.
-pub(crate) fn par_pack<S, T, I, F>(n: usize, init: I, f: F) -> (Vec<u32>, Vec<T>)
+/// ray's items to `out`. Returns the per-ray offsets (`n + 1` entries) and the chunks'
+/// buffers in ray order. `init` makes one scratch per worker.
+fn par_chunks<S, B, I, F>(n: usize, init: I, f: F) -> (Vec<u32>, Vec<B>)
 where
-    T: Send,
+    B: ChunkBuffer,
     I: Fn() -> S + Sync + Send,
-    F: Fn(&mut S, usize, &mut Vec<T>) + Sync + Send,
+    F: Fn(&mut S, usize, &mut B) + Sync + Send,
 {
-    let chunks: Vec<(Vec<u32>, Vec<T>)> = (0..n.div_ceil(CHUNK))
+    let chunks: Vec<(Vec<u32>, B)> = (0..n.div_ceil(CHUNK))
         .into_par_iter()
         .map_init(&init, |scratch, chunk| {
             let rays = chunk * CHUNK..n.min((chunk + 1) * CHUNK);
             let mut counts = Vec::with_capacity(rays.len());
-            let mut items = Vec::new();
+            let mut items = B::default();
             for i in rays {
                 let before = items.len();
                 f(scratch, i, &mut items);
@@ -35,15 +49,92 @@ where
         "more than 2^32 packed items: offsets are u32"
     );
     let mut offsets = Vec::with_capacity(n + 1);
-    let mut all = Vec::with_capacity(total);
     let mut running = 0u32;
     offsets.push(0);
+    let mut buffers = Vec::with_capacity(chunks.len());
     for (counts, items) in chunks {
         for c in counts {
             running += c;
             offsets.push(running);
         }
+        buffers.push(items);
+    }
+    (offsets, buffers)
+}
+
+/// [`par_chunks`] with items in one vector.
+pub(crate) fn par_pack<S, T, I, F>(n: usize, init: I, f: F) -> (Vec<u32>, Vec<T>)
+where
+    T: Send,
+    I: Fn() -> S + Sync + Send,
+    F: Fn(&mut S, usize, &mut Vec<T>) + Sync + Send,
+{
+    let (offsets, chunks) = par_chunks(n, init, f);
+    let mut all = Vec::with_capacity(*offsets.last().unwrap_or(&0) as usize);
+    for items in chunks {
         all.extend(items);
     }
     (offsets, all)
+}
+
+/// Samples as they are produced: one vector per field, so they are packed with copies
+/// of plain arrays and never regrouped.
+#[derive(Default)]
+pub(crate) struct SampleColumns {
+    t_start: Vec<f32>,
+    t_end: Vec<f32>,
+    part_mask: Vec<u8>,
+    bone_mask: Vec<u64>,
+}
+
+impl SampleColumns {
+    #[inline]
+    pub(crate) fn push(&mut self, s: Sample) {
+        self.t_start.push(s.t_start);
+        self.t_end.push(s.t_end);
+        self.part_mask.push(s.part_mask);
+        self.bone_mask.push(s.bone_mask);
+    }
+}
+
+impl ChunkBuffer for SampleColumns {
+    fn len(&self) -> usize {
+        self.t_start.len()
+    }
+}
+
+/// [`par_chunks`] for samples: the chunks are copied into the packed arrays in parallel.
+pub(crate) fn par_pack_samples<S, I, F>(n: usize, init: I, f: F) -> PackedSamples
+where
+    I: Fn() -> S + Sync + Send,
+    F: Fn(&mut S, usize, &mut SampleColumns) + Sync + Send,
+{
+    let (ray_offsets, chunks) = par_chunks(n, init, f);
+    let total = *ray_offsets.last().unwrap_or(&0) as usize;
+    let mut out = PackedSamples {
+        ray_offsets,
+        t_start: vec![0.0; total],
+        t_end: vec![0.0; total],
+        part_mask: vec![0; total],
+        bone_mask: vec![0; total],
+    };
+    let mut pieces = Vec::with_capacity(chunks.len());
+    let (mut t_start, mut t_end) = (&mut out.t_start[..], &mut out.t_end[..]);
+    let (mut part_mask, mut bone_mask) = (&mut out.part_mask[..], &mut out.bone_mask[..]);
+    for chunk in &chunks {
+        let k = chunk.len();
+        let (a, rest_a) = std::mem::take(&mut t_start).split_at_mut(k);
+        let (b, rest_b) = std::mem::take(&mut t_end).split_at_mut(k);
+        let (c, rest_c) = std::mem::take(&mut part_mask).split_at_mut(k);
+        let (d, rest_d) = std::mem::take(&mut bone_mask).split_at_mut(k);
+        (t_start, t_end, part_mask, bone_mask) = (rest_a, rest_b, rest_c, rest_d);
+        pieces.push((chunk, a, b, c, d));
+    }
+    pieces.into_par_iter().for_each(|(chunk, a, b, c, d)| {
+        a.copy_from_slice(&chunk.t_start);
+        b.copy_from_slice(&chunk.t_end);
+        c.copy_from_slice(&chunk.part_mask);
+        d.copy_from_slice(&chunk.bone_mask);
+    });
+    out
 }

@@ -1,9 +1,10 @@
 //! A per-frame grid over posed space that answers, per cell and once per frame, what the
 //! capsule BVH, the solid cores and the canonical occupancy grid would answer per sample:
 //! may a capsule be here (and which parts and bones), is the cell solid (behind a
-//! surface), and may the canonical grid hold density here. Sampling is then a 3D-DDA walk
-//! over the cells plus one byte lookup per sample; only samples in cells that straddle a
-//! capsule or core surface run exact point tests.
+//! surface), and may the canonical grid hold density here. Sampling ([`walk`]) is then a
+//! 3D-DDA walk over the cells that records the ones worth sampling, and bins that read
+//! their cell from that record; only samples in cells that straddle a capsule or core
+//! surface run exact point tests.
 //!
 //! Everything is conservative: a sample is dropped only if it provably lies outside every
 //! grown capsule, behind a core, or (through every candidate bone's map) in no occupied
@@ -14,11 +15,9 @@ use glam::{Affine3A, UVec3, Vec3};
 use rayon::prelude::*;
 
 use crate::intersect::validate_capsules;
-use crate::packing::par_pack;
-use crate::ray::{clip_to_box, validate_rays};
-use crate::rng::SplitMix;
-use crate::samples::{PackedSamples, Sample};
-use crate::{AcceleratedOpts, Capsule, GridError, OccupancyGrid, Ray};
+use crate::{Capsule, GridError, OccupancyGrid};
+
+mod walk;
 
 /// Some grown capsule comes within `radius + half cell diagonal + half the longest bin`.
 const NEAR: u8 = 1;
@@ -175,68 +174,87 @@ impl Seg {
 const COVER: f64 = 1e-4;
 const SHRINK: f64 = -1e-4;
 
-/// The `z` range of the line `(x, y, z)` within `radius + pad` of capsule `c`'s segment
-/// (`None` if it never comes that close): a capsule is convex, so the line meets it in
-/// one interval, the union of its meetings with the two end spheres and the cylinder
-/// between them. Solved in f64.
-fn z_span(c: &Capsule, x: f32, y: f32, radius: f32, pad: f64) -> Option<(f64, f64)> {
-    let r = radius as f64 + pad;
-    if !(r > 0.0) {
-        return None;
+/// A capsule's segment prepared (f64) for [`Columns::z_span`], solved for many columns.
+struct Columns {
+    a: glam::DVec3,
+    b: glam::DVec3,
+    /// Unit axis and length (`len == 0`: a sphere).
+    u: glam::DVec3,
+    len: f64,
+}
+
+impl Columns {
+    fn new(c: &Capsule) -> Columns {
+        let (a, b) = (c.a.as_dvec3(), c.b.as_dvec3());
+        let len = (b - a).length();
+        let u = if len > 0.0 {
+            (b - a) / len
+        } else {
+            glam::DVec3::ZERO
+        };
+        Columns { a, b, u, len }
     }
-    let (a, b) = (c.a.as_dvec3(), c.b.as_dvec3());
-    let (x, y) = (x as f64, y as f64);
-    let mut span: Option<(f64, f64)> = None;
-    let mut add = |lo: f64, hi: f64| {
-        span = Some(match span {
-            None => (lo, hi),
-            Some((l, h)) => (l.min(lo), h.max(hi)),
-        });
-    };
-    for end in [a, b] {
-        let q = r * r - (x - end.x).powi(2) - (y - end.y).powi(2);
-        if q >= 0.0 {
-            add(end.z - q.sqrt(), end.z + q.sqrt());
+
+    /// The `z` range of the line `(x, y, z)` within `radius + pad` of the segment
+    /// (`None` if it never comes that close): a capsule is convex, so the line meets it
+    /// in one interval, the union of its meetings with the two end spheres and the
+    /// cylinder between them. Solved in f64.
+    fn z_span(&self, x: f32, y: f32, radius: f32, pad: f64) -> Option<(f64, f64)> {
+        let r = radius as f64 + pad;
+        if !(r > 0.0) {
+            return None;
         }
-    }
-    let ab = b - a;
-    let len = ab.length();
-    if len > 0.0 {
-        // w(z) = P(z) - a = w0 + z e_z; along the axis p + z uz, across it f(z).
-        let u = ab / len;
-        let w0 = glam::DVec3::new(x - a.x, y - a.y, -a.z);
-        let p = w0.dot(u);
-        let qa = 1.0 - u.z * u.z;
-        let qb = 2.0 * (w0.z - p * u.z);
-        let qc = w0.length_squared() - p * p - r * r;
-        // Where the line is within r of the infinite axis.
-        let across = if qa < 1e-12 {
-            // Parallel to the axis: the distance to it does not change along z.
-            (qc <= 0.0).then_some((f64::NEG_INFINITY, f64::INFINITY))
-        } else {
-            let disc = qb * qb - 4.0 * qa * qc;
-            (disc >= 0.0).then(|| {
-                let root = disc.sqrt();
-                ((-qb - root) / (2.0 * qa), (-qb + root) / (2.0 * qa))
-            })
+        let (a, u, len) = (self.a, self.u, self.len);
+        let (x, y) = (x as f64, y as f64);
+        let mut span: Option<(f64, f64)> = None;
+        let mut add = |lo: f64, hi: f64| {
+            span = Some(match span {
+                None => (lo, hi),
+                Some((l, h)) => (l.min(lo), h.max(hi)),
+            });
         };
-        // Where its projection falls between the ends.
-        let along = if u.z.abs() < 1e-12 {
-            (0.0..=len)
-                .contains(&p)
-                .then_some((f64::NEG_INFINITY, f64::INFINITY))
-        } else {
-            let (z0, z1) = (-p / u.z, (len - p) / u.z);
-            Some((z0.min(z1), z0.max(z1)))
-        };
-        if let (Some((a0, a1)), Some((b0, b1))) = (across, along) {
-            let (lo, hi) = (a0.max(b0), a1.min(b1));
-            if lo <= hi {
-                add(lo, hi);
+        for end in [a, self.b] {
+            let q = r * r - (x - end.x).powi(2) - (y - end.y).powi(2);
+            if q >= 0.0 {
+                add(end.z - q.sqrt(), end.z + q.sqrt());
             }
         }
+        if len > 0.0 {
+            // w(z) = P(z) - a = w0 + z e_z; along the axis p + z uz, across it f(z).
+            let w0 = glam::DVec3::new(x - a.x, y - a.y, -a.z);
+            let p = w0.dot(u);
+            let qa = 1.0 - u.z * u.z;
+            let qb = 2.0 * (w0.z - p * u.z);
+            let qc = w0.length_squared() - p * p - r * r;
+            // Where the line is within r of the infinite axis.
+            let across = if qa < 1e-12 {
+                // Parallel to the axis: the distance to it does not change along z.
+                (qc <= 0.0).then_some((f64::NEG_INFINITY, f64::INFINITY))
+            } else {
+                let disc = qb * qb - 4.0 * qa * qc;
+                (disc >= 0.0).then(|| {
+                    let root = disc.sqrt();
+                    ((-qb - root) / (2.0 * qa), (-qb + root) / (2.0 * qa))
+                })
+            };
+            // Where its projection falls between the ends.
+            let along = if u.z.abs() < 1e-12 {
+                (0.0..=len)
+                    .contains(&p)
+                    .then_some((f64::NEG_INFINITY, f64::INFINITY))
+            } else {
+                let (z0, z1) = (-p / u.z, (len - p) / u.z);
+                Some((z0.min(z1), z0.max(z1)))
+            };
+            if let (Some((a0, a1)), Some((b0, b1))) = (across, along) {
+                let (lo, hi) = (a0.max(b0), a1.min(b1));
+                if lo <= hi {
+                    add(lo, hi);
+                }
+            }
+        }
+        span
     }
-    span
 }
 
 #[allow(clippy::reversed_empty_ranges)]
@@ -373,6 +391,17 @@ impl PosedGrid {
                 b.min((res - 1).as_vec3()).max(Vec3::ZERO).as_uvec3(),
             )
         };
+        // Per capsule (and core): its column solver and cell range, once per build.
+        let prepared = |list: &[Capsule], reach: f32| -> Vec<(Capsule, Columns, UVec3, UVec3)> {
+            list.iter()
+                .map(|c| {
+                    let (lo, hi) = range(c, reach);
+                    (*c, Columns::new(c), lo, hi)
+                })
+                .collect()
+        };
+        let capsule_columns = prepared(capsules, h + half_bin);
+        let core_columns = prepared(cores, h);
         flags
             .par_chunks_mut(slab)
             .zip(parts.par_chunks_mut(slab))
@@ -384,8 +413,8 @@ impl PosedGrid {
                 // radius are a z-range (a line meets a capsule in one interval): solved
                 // once per column instead of testing every cell of the capsule's box.
                 let cx = min.x + (x as f32 + 0.5) * cell;
-                for c in capsules {
-                    let (lo, hi) = range(c, h + half_bin);
+                for (c, columns, lo, hi) in &capsule_columns {
+                    let (lo, hi) = (*lo, *hi);
                     if x < lo.x || x > hi.x {
                         continue;
                     }
@@ -393,18 +422,20 @@ impl PosedGrid {
                     let inside = c.radius - h;
                     for y in lo.y..=hi.y {
                         let cy = min.y + (y as f32 + 0.5) * cell;
-                        let Some(span) = z_span(c, cx, cy, near, COVER) else {
+                        let Some(span) = columns.z_span(cx, cy, near, COVER) else {
                             continue;
                         };
                         let row = (y * res.z) as usize;
-                        for z in cells_in(span, min.z, cell, lo.z, hi.z) {
-                            let i = row + z as usize;
-                            flags[i] |= NEAR;
-                            parts[i] |= c.part.bit();
-                            bones[i] |= 1u64 << c.bone;
+                        let cells = cells_in(span, min.z, cell, lo.z, hi.z);
+                        let zs = row + *cells.start() as usize..row + *cells.end() as usize + 1;
+                        if !cells.is_empty() {
+                            let (part, bone) = (c.part.bit(), 1u64 << c.bone);
+                            flags[zs.clone()].iter_mut().for_each(|f| *f |= NEAR);
+                            parts[zs.clone()].iter_mut().for_each(|p| *p |= part);
+                            bones[zs].iter_mut().for_each(|b| *b |= bone);
                         }
                         if inside > 0.0
-                            && let Some(span) = z_span(c, cx, cy, inside, SHRINK)
+                            && let Some(span) = columns.z_span(cx, cy, inside, SHRINK)
                         {
                             for z in cells_in(span, min.z, cell, lo.z, hi.z) {
                                 flags[row + z as usize] |= INSIDE;
@@ -412,20 +443,20 @@ impl PosedGrid {
                         }
                     }
                 }
-                for c in cores {
-                    let (lo, hi) = range(c, h);
+                for (c, columns, lo, hi) in &core_columns {
+                    let (lo, hi) = (*lo, *hi);
                     if x < lo.x || x > hi.x {
                         continue;
                     }
                     let solid = c.radius - h;
                     for y in lo.y..=hi.y {
                         let cy = min.y + (y as f32 + 0.5) * cell;
-                        let Some(span) = z_span(c, cx, cy, c.radius + h, COVER) else {
+                        let Some(span) = columns.z_span(cx, cy, c.radius + h, COVER) else {
                             continue;
                         };
                         let row = (y * res.z) as usize;
                         let solid_span = if solid > 0.0 {
-                            z_span(c, cx, cy, solid, SHRINK)
+                            columns.z_span(cx, cy, solid, SHRINK)
                         } else {
                             None
                         };
@@ -549,142 +580,6 @@ impl PosedGrid {
         }
         false
     }
-
-    /// Per ray, the stretches `[t_in, t_out]` inside cells that some grown capsule comes
-    /// near and that the canonical grid may keep or that hold a core (a bin there may end
-    /// the ray), up to the first solid cell, by a 3D-DDA walk (f64), appended to `out`.
-    fn runs(&self, ray: &Ray, out: &mut Vec<(f32, f32)>) {
-        let max = self.min + self.res.as_vec3() * self.cell;
-        let Some((t0, t1)) = clip_to_box(ray, self.min, max) else {
-            return;
-        };
-        let (t0, t1) = (t0 as f64, t1 as f64);
-        let cell = self.cell as f64;
-        let o = (ray.origin - self.min).as_dvec3();
-        let d = ray.direction.as_dvec3();
-        let p0 = (o + d * t0) / cell;
-        let res = [self.res.x as i64, self.res.y as i64, self.res.z as i64];
-        let mut c = [0i64; 3];
-        let mut step = [0i64; 3];
-        let mut t_next = [f64::INFINITY; 3];
-        let mut t_delta = [f64::INFINITY; 3];
-        for k in 0..3 {
-            c[k] = (p0[k].floor() as i64).clamp(0, res[k] - 1);
-            if d[k] > 0.0 {
-                step[k] = 1;
-                t_next[k] = ((c[k] + 1) as f64 * cell - o[k]) / d[k];
-                t_delta[k] = cell / d[k];
-            } else if d[k] < 0.0 {
-                step[k] = -1;
-                t_next[k] = (c[k] as f64 * cell - o[k]) / d[k];
-                t_delta[k] = -cell / d[k];
-            }
-        }
-        let mut t = t0;
-        let mut run: Option<(f64, f64)> = None;
-        loop {
-            let axis = if t_next[0] <= t_next[1] && t_next[0] <= t_next[2] {
-                0
-            } else if t_next[1] <= t_next[2] {
-                1
-            } else {
-                2
-            };
-            let t_exit = t_next[axis].min(t1);
-            let i = ((c[0] * res[1] + c[1]) * res[2] + c[2]) as usize;
-            let f = self.flags[i];
-            if f & NEAR != 0 && f & (OCCUPIED | SOLID | CORE_NEAR) != 0 {
-                run = Some(match run {
-                    Some((a, _)) => (a, t_exit),
-                    None => (t, t_exit),
-                });
-            } else if let Some((a, b)) = run.take() {
-                out.push((a as f32, b as f32));
-            }
-            // Sampling ends in a solid cell at the latest: nothing behind it is kept.
-            if t_next[axis] >= t1 || f & SOLID != 0 {
-                break;
-            }
-            t = t_exit;
-            c[axis] += step[axis];
-            if c[axis] < 0 || c[axis] >= res[axis] {
-                break;
-            }
-            t_next[axis] += t_delta[axis];
-        }
-        if let Some((a, b)) = run {
-            out.push((a as f32, b as f32));
-        }
-    }
-
-    /// Samples every ray: stretches in cells near a grown capsule are cut into bins of at
-    /// most `opts.step` (stratified jitter as [`crate::sample_in_capsules`]); a bin is
-    /// kept if it may hold a point of a grown capsule the canonical grid keeps
-    /// ([`PosedGrid::keeps`]), with its cell's candidate parts and bones; the ray ends
-    /// after the first bin whose midpoint is inside a core. `opts.step` must not exceed
-    /// the `max_step` the grid was built for.
-    pub fn sample(&self, rays: &[Ray], opts: &AcceleratedOpts) -> Result<PackedSamples, GridError> {
-        validate_rays(rays)?;
-        if !(opts.step.is_finite() && opts.step > 0.0 && opts.step <= self.max_step) {
-            return Err(GridError::BadOption {
-                field: "step",
-                value: opts.step,
-                expected: "finite, > 0 and <= the posed grid's max_step",
-            });
-        }
-        let (offsets, samples) = par_pack(rays.len(), Vec::new, |runs, i, out| {
-            runs.clear();
-            let ray = &rays[i];
-            self.runs(ray, runs);
-            let mut rng = SplitMix::new(opts.seed, i as u64);
-            'ray: for &(t_a, t_b) in runs.iter() {
-                let length = t_b - t_a;
-                if !(length > 0.0) {
-                    continue;
-                }
-                let n = (length / opts.step * (1.0 - 1e-5)).ceil().max(1.0) as u32;
-                let width = length / n as f32;
-                let mut prev = t_a;
-                for k in 1..=n {
-                    let b = if k == n {
-                        t_b
-                    } else {
-                        let shift = if opts.jitter {
-                            0.9 * (rng.next_f32() - 0.5)
-                        } else {
-                            0.0
-                        };
-                        (t_a + (k as f32 + shift) * width).clamp(prev, t_b)
-                    };
-                    let (a, mid, half) = (prev, 0.5 * (prev + b), 0.5 * (b - prev));
-                    prev = b;
-                    let p = ray.at(mid);
-                    let Some(c) = self.cell_index(p) else {
-                        continue;
-                    };
-                    let f = self.flags[c];
-                    if f & NEAR == 0 {
-                        continue;
-                    }
-                    let keep = f & OCCUPIED != 0
-                        && half > 0.0
-                        && (f & INSIDE != 0 || self.near_capsule(p, half, self.bones[c]));
-                    if keep {
-                        out.push(Sample {
-                            t_start: a,
-                            t_end: b,
-                            part_mask: self.parts[c],
-                            bone_mask: self.bones[c],
-                        });
-                    }
-                    if f & SOLID != 0 || (f & CORE_NEAR != 0 && self.in_core(p, self.bones[c])) {
-                        break 'ray;
-                    }
-                }
-            }
-        });
-        Ok(PackedSamples::from_parts(offsets, samples))
-    }
 }
 
 #[cfg(test)]
@@ -692,7 +587,8 @@ mod tests {
     use glam::{Quat, vec3};
 
     use super::*;
-    use crate::{Part, ray_capsule, sample_in_front_of_cores};
+    use crate::rng::SplitMix;
+    use crate::{AcceleratedOpts, PackedSamples, Part, Ray, ray_capsule, sample_in_front_of_cores};
 
     /// Three limbs of different bones, their cores, and per bone a rigid map.
     fn scene() -> (Vec<Capsule>, Vec<Capsule>, Vec<Affine3A>) {
@@ -810,29 +706,7 @@ mod tests {
             seed: 3,
         };
         let samples = grid.sample(&rays, &opts).unwrap();
-        samples.check_layout().unwrap();
-        for (i, ray) in rays.iter().enumerate() {
-            let core_entry = cores
-                .iter()
-                .filter_map(|c| ray_capsule(ray, c))
-                .map(|(t, _)| t)
-                .fold(f32::INFINITY, f32::min);
-            for k in 0..4000 {
-                let t = 1.0 + 2.0 * k as f32 / 4000.0;
-                let p = ray.at(t);
-                let in_capsule = capsules
-                    .iter()
-                    .any(|c| crate::intersect::signed_distance(p, c) < -1e-5);
-                if in_capsule && t < core_entry {
-                    assert!(
-                        samples
-                            .range(i)
-                            .any(|s| samples.t_start[s] <= t && t <= samples.t_end[s]),
-                        "ray {i}: t {t} in a capsule before the cores is in no sample"
-                    );
-                }
-            }
-        }
+        assert_covers(&samples, &rays, &capsules, &cores, 1.0..3.0);
         // No more samples than the exact BVH pipeline, give or take a bin per stretch.
         let bvh = crate::CapsuleBvh::build(&capsules).unwrap();
         let core_bvh = crate::CapsuleBvh::build(&cores).unwrap();
@@ -852,6 +726,82 @@ mod tests {
         };
         assert!(grid.sample(&[bad], &opts).is_err());
         assert!(PosedGrid::build(&capsules, &cores, None, f32::NAN, step).is_err());
+    }
+
+    /// Every point of `t_range` along each ray that lies inside a capsule and in front of
+    /// every core is inside one of the ray's samples.
+    fn assert_covers(
+        samples: &PackedSamples,
+        rays: &[Ray],
+        capsules: &[Capsule],
+        cores: &[Capsule],
+        t_range: std::ops::Range<f32>,
+    ) {
+        samples.check_layout().unwrap();
+        for (i, ray) in rays.iter().enumerate() {
+            let core_entry = cores
+                .iter()
+                .filter_map(|c| ray_capsule(ray, c))
+                .map(|(t, _)| t)
+                .fold(f32::INFINITY, f32::min);
+            for k in 0..4000 {
+                let t = t_range.start + (t_range.end - t_range.start) * k as f32 / 4000.0;
+                let p = ray.at(t);
+                let in_capsule = capsules
+                    .iter()
+                    .any(|c| crate::intersect::signed_distance(p, c) < -1e-5);
+                if in_capsule && t < core_entry {
+                    assert!(
+                        samples
+                            .range(i)
+                            .any(|s| samples.t_start[s] <= t && t <= samples.t_end[s]),
+                        "ray {i} ({ray:?}): t {t} in a capsule before the cores is in no sample"
+                    );
+                }
+            }
+        }
+    }
+
+    /// The walk's hard cases: rays parallel to the grid's axes (zero direction
+    /// components), rays starting inside a grown capsule, rays through cell corners.
+    #[test]
+    fn walk_covers_axis_parallel_inside_and_corner_rays() {
+        let (capsules, cores, _) = scene();
+        let (cell, step) = (0.0125, 0.005);
+        let grid = PosedGrid::build(&capsules, &cores, None, cell, step).unwrap();
+        let mut rays = Vec::new();
+        let ray = |o: Vec3, d: Vec3| Ray::new(o, d, 0.0, f32::INFINITY).unwrap();
+        for a in 0..12 {
+            for b in 0..12 {
+                let (u, v) = (-0.2 + 0.06 * a as f32, -0.05 + 0.06 * b as f32);
+                rays.push(ray(vec3(u, v, -1.0), Vec3::Z));
+                rays.push(ray(vec3(-1.0, v, 0.02 * b as f32 - 0.1), Vec3::X));
+                rays.push(ray(vec3(u, 1.5, 0.02 * a as f32 - 0.1), -Vec3::Y));
+            }
+        }
+        // Inside the grown body capsule, outside its core, in every direction.
+        let mut rng = SplitMix::new(23, 4);
+        for _ in 0..60 {
+            let d = vec3(rng.next_f32(), rng.next_f32(), rng.next_f32()) - 0.5;
+            rays.push(ray(vec3(0.12, 0.25, 0.0), d));
+        }
+        // Along cell diagonals, starting on a cell corner.
+        let corner = grid.min + Vec3::splat(4.0 * grid.cell);
+        for d in [
+            vec3(1.0, 1.0, 1.0),
+            vec3(1.0, 1.0, 0.0),
+            vec3(1.0, 0.0, 1.0),
+        ] {
+            rays.push(ray(corner, d));
+        }
+        let opts = AcceleratedOpts {
+            step,
+            jitter: true,
+            seed: 9,
+        };
+        let samples = grid.sample(&rays, &opts).unwrap();
+        assert_covers(&samples, &rays, &capsules, &cores, 0.0..2.5);
+        assert!(samples.num_samples() > 1000);
     }
 
     /// The column solve against the per-point distance test, for capsules in every
@@ -903,8 +853,9 @@ mod tests {
             let seg = Seg::new(c);
             for _ in 0..60 {
                 let (x, y) = (0.8 * rng.next_f32() - 0.4, 0.8 * rng.next_f32() - 0.4);
-                let cover = z_span(c, x, y, c.radius, COVER);
-                let shrink = z_span(c, x, y, c.radius, SHRINK);
+                let columns = Columns::new(c);
+                let cover = columns.z_span(x, y, c.radius, COVER);
+                let shrink = columns.z_span(x, y, c.radius, SHRINK);
                 for k in 0..400 {
                     let z = -0.5 + k as f32 / 400.0;
                     let d = seg.dist2(vec3(x, y, z)).sqrt();
