@@ -92,13 +92,13 @@ impl FrameSampler {
         let cell = POSED_CELL_STEPS * self.step;
         let dilated = dilated_occupancy(grid, PosedGrid::cull_reach(cell, self.step))?;
         let cull = CanonicalCull {
-            grid: &dilated,
-            canonical_from_posed: &self.canonical_from_posed,
+            grid: dilated,
+            canonical_from_posed: self.canonical_from_posed.clone(),
         };
         let posed = Arc::new(PosedGrid::build(
             &self.grown,
             &self.cores,
-            Some(&cull),
+            Some(cull),
             cell,
             self.step,
         )?);

@@ -11,6 +11,9 @@
 //! canonical cell, so it never loses a point the exact pipeline
 //! ([`crate::sample_in_front_of_cores`] then [`crate::cull_with_grid`]) keeps.
 
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU8, Ordering};
+
 use glam::{Affine3A, UVec3, Vec3};
 use rayon::prelude::*;
 
@@ -24,7 +27,11 @@ const NEAR: u8 = 1;
 /// The whole cell lies inside a grown capsule.
 const INSIDE: u8 = 2;
 /// Some candidate bone maps the cell (with its reach) near an occupied canonical cell.
+/// Worked out for a NEAR cell the first time a ray or query reaches it (see
+/// [`PosedGrid::resolve`]), then marked [`KNOWN`].
 const OCCUPIED: u8 = 4;
+/// The cell's [`OCCUPIED`] bit has been worked out.
+const KNOWN: u8 = 32;
 /// The whole cell lies inside a core.
 const SOLID: u8 = 8;
 /// Some core comes within its radius + half a cell diagonal.
@@ -34,12 +41,13 @@ const CORE_NEAR: u8 = 16;
 pub const MAX_POSED_CELLS: usize = 1 << 22;
 
 /// The canonical side of a [`PosedGrid`]: the subject's occupancy grid, dilated once
-/// (see [`DilatedOccupancy::new`]), and per bone the posed-to-canonical transform.
-pub struct CanonicalCull<'a> {
-    pub grid: &'a DilatedOccupancy,
+/// (see [`DilatedOccupancy::new`]) and shared by the subject's frames, and per bone the
+/// posed-to-canonical transform.
+pub struct CanonicalCull {
+    pub grid: Arc<DilatedOccupancy>,
     /// Indexed by bone; must be rigid (rotation + translation) and cover every bone of
     /// the capsules.
-    pub canonical_from_posed: &'a [Affine3A],
+    pub canonical_from_posed: Vec<Affine3A>,
 }
 
 /// An occupancy grid's bitfield grown by `cells` cells along every axis, one byte per
@@ -167,9 +175,9 @@ impl Seg {
     }
 }
 
-/// Radius padding of [`z_span`] for sets that must cover every cell the exact centre
-/// test holds (NEAR, CORE_NEAR: dropping one could lose a surface point), and for sets
-/// that must hold no cell it rejects (INSIDE, SOLID: a wrong SOLID cell would end a ray
+/// Radius padding of [`Columns::z_span`] for sets that must cover every cell the exact
+/// centre test holds (NEAR, CORE_NEAR: dropping one could lose a surface point), and for
+/// sets that must hold no cell it rejects (INSIDE, SOLID: a wrong SOLID cell would end a ray
 /// early). 0.1 mm against float rounding in the interval's solve; cells are ~1 cm.
 const COVER: f64 = 1e-4;
 const SHRINK: f64 = -1e-4;
@@ -280,7 +288,9 @@ pub struct PosedGrid {
     min: Vec3,
     cell: f32,
     res: UVec3,
-    flags: Vec<u8>,
+    /// Per cell the bits above; [`OCCUPIED`] and [`KNOWN`] are set lazily, from any
+    /// thread (a pure function of the cell, so the order does not matter).
+    flags: Vec<AtomicU8>,
     parts: Vec<u8>,
     bones: Vec<u64>,
     /// Per bone: its grown capsules and cores.
@@ -288,6 +298,7 @@ pub struct PosedGrid {
     cores_of_bone: Vec<Vec<Seg>>,
     /// Longest bin the grid is valid for (see [`PosedGrid::build`]).
     max_step: f32,
+    cull: Option<CanonicalCull>,
 }
 
 impl PosedGrid {
@@ -300,7 +311,7 @@ impl PosedGrid {
     pub fn build(
         capsules: &[Capsule],
         cores: &[Capsule],
-        cull: Option<&CanonicalCull>,
+        cull: Option<CanonicalCull>,
         cell: f32,
         max_step: f32,
     ) -> Result<PosedGrid, GridError> {
@@ -336,7 +347,7 @@ impl PosedGrid {
         let res = cells_for(cell).as_uvec3();
         let min = lo - half_bin;
         let h = 0.5 * cell * 3f32.sqrt();
-        if let Some(cull) = cull {
+        if let Some(cull) = &cull {
             let need = Self::cull_reach(cell, max_step);
             let have = cull.grid.reach();
             if have < need * (1.0 - 1e-4) {
@@ -378,10 +389,9 @@ impl PosedGrid {
         }
         let n = (res.x * res.y * res.z) as usize;
         let slab = (res.y * res.z) as usize;
-        let mut flags = vec![0u8; n];
+        let mut flags: Vec<AtomicU8> = (0..n).map(|_| AtomicU8::new(0)).collect();
         let mut parts = vec![0u8; n];
         let mut bones = vec![0u64; n];
-        let centre = |x: u32, y: u32, z: u32| min + (UVec3::new(x, y, z).as_vec3() + 0.5) * cell;
         // The cell range of a capsule grown by `reach`.
         let range = |c: &Capsule, reach: f32| {
             let a = ((c.a.min(c.b) - c.radius - reach - min) / cell).floor();
@@ -430,7 +440,9 @@ impl PosedGrid {
                         let zs = row + *cells.start() as usize..row + *cells.end() as usize + 1;
                         if !cells.is_empty() {
                             let (part, bone) = (c.part.bit(), 1u64 << c.bone);
-                            flags[zs.clone()].iter_mut().for_each(|f| *f |= NEAR);
+                            flags[zs.clone()]
+                                .iter_mut()
+                                .for_each(|f| *f.get_mut() |= NEAR);
                             parts[zs.clone()].iter_mut().for_each(|p| *p |= part);
                             bones[zs].iter_mut().for_each(|b| *b |= bone);
                         }
@@ -438,7 +450,7 @@ impl PosedGrid {
                             && let Some(span) = columns.z_span(cx, cy, inside, SHRINK)
                         {
                             for z in cells_in(span, min.z, cell, lo.z, hi.z) {
-                                flags[row + z as usize] |= INSIDE;
+                                *flags[row + z as usize].get_mut() |= INSIDE;
                             }
                         }
                     }
@@ -461,39 +473,12 @@ impl PosedGrid {
                             None
                         };
                         for z in cells_in(span, min.z, cell, lo.z, hi.z) {
-                            flags[row + z as usize] |= CORE_NEAR;
+                            *flags[row + z as usize].get_mut() |= CORE_NEAR;
                         }
                         if let Some(span) = solid_span {
                             for z in cells_in(span, min.z, cell, lo.z, hi.z) {
-                                flags[row + z as usize] |= SOLID;
+                                *flags[row + z as usize].get_mut() |= SOLID;
                             }
-                        }
-                    }
-                }
-                for y in 0..res.y {
-                    for z in 0..res.z {
-                        let i = (y * res.z + z) as usize;
-                        if flags[i] & NEAR == 0 {
-                            continue;
-                        }
-                        let occupied = match cull {
-                            None => true,
-                            Some(cull) => {
-                                let p = centre(x, y, z);
-                                let mut bits = bones[i];
-                                let mut hit = false;
-                                while bits != 0 && !hit {
-                                    let b = bits.trailing_zeros() as usize;
-                                    bits &= bits - 1;
-                                    hit = cull.grid.is_occupied(
-                                        cull.canonical_from_posed[b].transform_point3(p),
-                                    );
-                                }
-                                hit
-                            }
-                        };
-                        if occupied {
-                            flags[i] |= OCCUPIED;
                         }
                     }
                 }
@@ -508,7 +493,40 @@ impl PosedGrid {
             capsules_of_bone,
             cores_of_bone,
             max_step,
+            cull,
         })
+    }
+
+    /// `f`, the flags of `cell` (at grid coordinates `c`), with [`OCCUPIED`] worked out
+    /// if it is a NEAR cell whose bit is not yet known: whether some candidate bone maps
+    /// the cell's centre into the dilated canonical grid (always, without a cull).
+    /// Done on first use, not in [`PosedGrid::build`]: a frame's rays reach a fraction
+    /// of its cells (they stop at the first solid cell), and a training step's 512 rays
+    /// a small one.
+    #[inline]
+    pub(super) fn resolve(&self, cell: usize, f: u8, c: UVec3) -> u8 {
+        if f & (NEAR | KNOWN) != NEAR {
+            return f;
+        }
+        let occupied = match &self.cull {
+            None => true,
+            Some(cull) => {
+                let p = self.min + (c.as_vec3() + 0.5) * self.cell;
+                let mut bits = self.bones[cell];
+                let mut hit = false;
+                while bits != 0 && !hit {
+                    let b = bits.trailing_zeros() as usize;
+                    bits &= bits - 1;
+                    hit = cull
+                        .grid
+                        .is_occupied(cull.canonical_from_posed[b].transform_point3(p));
+                }
+                hit
+            }
+        };
+        let add = KNOWN | if occupied { OCCUPIED } else { 0 };
+        self.flags[cell].fetch_or(add, Ordering::Relaxed);
+        f | add
     }
 
     /// The canonical dilation (metres) a [`CanonicalCull`] needs for cells of edge `cell`
@@ -523,21 +541,22 @@ impl PosedGrid {
         self.cell
     }
 
-    fn cell_index(&self, p: Vec3) -> Option<usize> {
+    /// The index of the cell holding `p` and its flags (resolved), if `p` is in the grid.
+    fn cell_at(&self, p: Vec3) -> Option<(usize, u8)> {
         let f = (p - self.min) / self.cell;
         let res = self.res.as_vec3();
         if !(f.cmpge(Vec3::ZERO).all() && f.cmplt(res).all()) {
             return None;
         }
         let c = f.as_uvec3().min(self.res - 1);
-        Some(((c.x * self.res.y + c.y) * self.res.z + c.z) as usize)
+        let i = ((c.x * self.res.y + c.y) * self.res.z + c.z) as usize;
+        Some((i, self.resolve(i, self.flags[i].load(Ordering::Relaxed), c)))
     }
 
     /// Whether a sample around `p` reaching `half` metres either side could hold a point
     /// of a grown capsule that the canonical grid keeps: what decides if it is emitted.
     pub fn keeps(&self, p: Vec3, half: f32) -> bool {
-        self.cell_index(p).is_some_and(|i| {
-            let f = self.flags[i];
+        self.cell_at(p).is_some_and(|(i, f)| {
             f & NEAR != 0
                 && f & OCCUPIED != 0
                 && (f & INSIDE != 0 || self.near_capsule(p, half, self.bones[i]))
@@ -546,8 +565,7 @@ impl PosedGrid {
 
     /// Whether `p` is provably inside a core (behind a surface).
     pub fn is_solid(&self, p: Vec3) -> bool {
-        self.cell_index(p).is_some_and(|i| {
-            let f = self.flags[i];
+        self.cell_at(p).is_some_and(|(i, f)| {
             f & SOLID != 0 || (f & CORE_NEAR != 0 && self.in_core(p, self.bones[i]))
         })
     }
@@ -659,10 +677,10 @@ mod tests {
         let (cell, step) = (0.02, 0.006);
         let dilated = DilatedOccupancy::new(&canonical, PosedGrid::cull_reach(cell, step)).unwrap();
         let cull = CanonicalCull {
-            grid: &dilated,
-            canonical_from_posed: &maps,
+            grid: Arc::new(dilated),
+            canonical_from_posed: maps.clone(),
         };
-        let grid = PosedGrid::build(&capsules, &cores, Some(&cull), cell, step).unwrap();
+        let grid = PosedGrid::build(&capsules, &cores, Some(cull), cell, step).unwrap();
         let (mut kept, mut culled) = (0, 0);
         for p in points(200_000, vec3(-0.3, -0.2, -0.2), vec3(0.5, 0.8, 0.2)) {
             // The exact map: any bone whose capsule holds p (the nearest-bone map picks
@@ -682,6 +700,50 @@ mod tests {
             }
         }
         assert!(kept > 1000 && culled > 1000, "kept {kept}, culled {culled}");
+    }
+
+    /// The cull is worked out per cell on first use, from whichever thread gets there:
+    /// a grid queried in another order first samples exactly the same.
+    #[test]
+    fn lazy_cull_does_not_depend_on_query_order() {
+        let (capsules, cores, maps) = scene();
+        let mut canonical =
+            OccupancyGrid::new(vec3(-0.6, -0.4, -0.6), vec3(0.8, 1.0, 0.6), [40; 3]).unwrap();
+        canonical.mark(&points(4000, vec3(-0.6, -0.4, -0.6), vec3(0.8, 1.0, 0.6)));
+        let (cell, step) = (0.02, 0.006);
+        let dilated =
+            Arc::new(DilatedOccupancy::new(&canonical, PosedGrid::cull_reach(cell, step)).unwrap());
+        let build = || {
+            let cull = CanonicalCull {
+                grid: dilated.clone(),
+                canonical_from_posed: maps.clone(),
+            };
+            PosedGrid::build(&capsules, &cores, Some(cull), cell, step).unwrap()
+        };
+        let (fresh, queried) = (build(), build());
+        let kept = points(50_000, vec3(-0.3, -0.2, -0.2), vec3(0.5, 0.8, 0.2))
+            .iter()
+            .rev()
+            .filter(|&&p| queried.keeps(p, 0.0))
+            .count();
+        assert!(kept > 100);
+        let mut rng = SplitMix::new(31, 0);
+        let rays: Vec<Ray> = (0..300)
+            .map(|_| {
+                let target = vec3(rng.next_f32() * 0.6 - 0.2, rng.next_f32() * 0.8, 0.0);
+                let origin = vec3(0.0, 0.3, -2.0);
+                Ray::new(origin, target - origin, 0.0, f32::INFINITY).unwrap()
+            })
+            .collect();
+        let opts = AcceleratedOpts {
+            step,
+            jitter: true,
+            seed: 1,
+        };
+        let a = fresh.sample(&rays, &opts).unwrap();
+        assert!(a.num_samples() > 1000);
+        assert_eq!(a, queried.sample(&rays, &opts).unwrap());
+        assert_eq!(a, fresh.sample(&rays, &opts).unwrap());
     }
 
     #[test]

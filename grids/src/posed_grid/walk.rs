@@ -2,6 +2,8 @@
 //! cells of the stretches worth sampling and where the ray leaves each; the stretches are
 //! cut into bins, and every bin reads its cell from that record (no position lookup).
 
+use std::sync::atomic::Ordering;
+
 use glam::{IVec3, Vec3};
 
 use super::{CORE_NEAR, INSIDE, NEAR, OCCUPIED, PosedGrid, SOLID};
@@ -83,7 +85,11 @@ impl PosedGrid {
                 2
             };
             let t_exit = t_next[axis].min(t1);
-            let f = self.flags[cell as usize];
+            let f = self.resolve(
+                cell as usize,
+                self.flags[cell as usize].load(Ordering::Relaxed),
+                c.as_uvec3(),
+            );
             if f & NEAR != 0 && f & (OCCUPIED | SOLID | CORE_NEAR) != 0 {
                 start.get_or_insert(t);
                 w.crossed.push(Crossed {
