@@ -667,20 +667,31 @@ mod tests {
             .collect()
     }
 
-    #[test]
-    fn never_culls_a_point_the_exact_map_keeps() {
+    /// A canonical grid of a few random blobs, so some of posed space is culled, and a
+    /// builder of [`scene`]'s posed grid culled by it (cells 2 cm, steps 6 mm).
+    fn culled_scene() -> (OccupancyGrid, impl Fn() -> PosedGrid) {
         let (capsules, cores, maps) = scene();
-        // Canonical grid: a few random blobs, so some of posed space is culled.
         let mut canonical =
             OccupancyGrid::new(vec3(-0.6, -0.4, -0.6), vec3(0.8, 1.0, 0.6), [40; 3]).unwrap();
         canonical.mark(&points(4000, vec3(-0.6, -0.4, -0.6), vec3(0.8, 1.0, 0.6)));
         let (cell, step) = (0.02, 0.006);
-        let dilated = DilatedOccupancy::new(&canonical, PosedGrid::cull_reach(cell, step)).unwrap();
-        let cull = CanonicalCull {
-            grid: Arc::new(dilated),
-            canonical_from_posed: maps.clone(),
+        let dilated =
+            Arc::new(DilatedOccupancy::new(&canonical, PosedGrid::cull_reach(cell, step)).unwrap());
+        let build = move || {
+            let cull = CanonicalCull {
+                grid: dilated.clone(),
+                canonical_from_posed: maps.clone(),
+            };
+            PosedGrid::build(&capsules, &cores, Some(cull), cell, step).unwrap()
         };
-        let grid = PosedGrid::build(&capsules, &cores, Some(cull), cell, step).unwrap();
+        (canonical, build)
+    }
+
+    #[test]
+    fn never_culls_a_point_the_exact_map_keeps() {
+        let (capsules, _, maps) = scene();
+        let (canonical, build) = culled_scene();
+        let grid = build();
         let (mut kept, mut culled) = (0, 0);
         for p in points(200_000, vec3(-0.3, -0.2, -0.2), vec3(0.5, 0.8, 0.2)) {
             // The exact map: any bone whose capsule holds p (the nearest-bone map picks
@@ -706,20 +717,7 @@ mod tests {
     /// a grid queried in another order first samples exactly the same.
     #[test]
     fn lazy_cull_does_not_depend_on_query_order() {
-        let (capsules, cores, maps) = scene();
-        let mut canonical =
-            OccupancyGrid::new(vec3(-0.6, -0.4, -0.6), vec3(0.8, 1.0, 0.6), [40; 3]).unwrap();
-        canonical.mark(&points(4000, vec3(-0.6, -0.4, -0.6), vec3(0.8, 1.0, 0.6)));
-        let (cell, step) = (0.02, 0.006);
-        let dilated =
-            Arc::new(DilatedOccupancy::new(&canonical, PosedGrid::cull_reach(cell, step)).unwrap());
-        let build = || {
-            let cull = CanonicalCull {
-                grid: dilated.clone(),
-                canonical_from_posed: maps.clone(),
-            };
-            PosedGrid::build(&capsules, &cores, Some(cull), cell, step).unwrap()
-        };
+        let (_, build) = culled_scene();
         let (fresh, queried) = (build(), build());
         let kept = points(50_000, vec3(-0.3, -0.2, -0.2), vec3(0.5, 0.8, 0.2))
             .iter()
@@ -736,7 +734,7 @@ mod tests {
             })
             .collect();
         let opts = AcceleratedOpts {
-            step,
+            step: 0.006,
             jitter: true,
             seed: 1,
         };
