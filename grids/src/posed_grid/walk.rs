@@ -24,8 +24,8 @@ struct Crossed {
     bones: u64,
 }
 
-/// A stretch `[t_a, t_b]` of consecutive cells worth sampling; its cells are
-/// `crossed[start..end]`.
+/// A stretch `[t_a, t_b]` of consecutive cells worth sampling; its cells are the
+/// `crossed` entries from the previous stretch's `end` (0 for the first) to its own.
 #[derive(Clone, Copy)]
 struct Stretch {
     t_a: f32,
@@ -69,7 +69,7 @@ impl PosedGrid {
             }
             if step[k] != 0 {
                 inv_d[k] = 1.0 / d[k];
-                t_next[k] = self.crossing(c[k], step[k], o[k], inv_d[k]);
+                t_next[k] = crossing(c[k], step[k], o[k], inv_d[k]);
             }
         }
         let mut cell = c.x * stride[0] + c.y * stride[1] + c.z;
@@ -116,7 +116,7 @@ impl PosedGrid {
                 break;
             }
             cell += step[axis] * stride[axis];
-            t_next[axis] = self.crossing(c[axis], step[axis], o[axis], inv_d[axis]);
+            t_next[axis] = crossing(c[axis], step[axis], o[axis], inv_d[axis]);
         }
         if let Some(a) = start {
             w.stretches.push(Stretch {
@@ -125,14 +125,6 @@ impl PosedGrid {
                 end: w.crossed.len() as u32,
             });
         }
-    }
-
-    /// Where a ray leaves cell `c` along one axis (origin `o` in cell units, `inv_d` the
-    /// reciprocal of its direction in cells per metre, `step` its sign).
-    #[inline]
-    fn crossing(&self, c: i32, step: i32, o: f32, inv_d: f32) -> f32 {
-        let plane = if step > 0 { c + 1 } else { c } as f32;
-        (plane - o) * inv_d
     }
 
     /// Samples every ray: stretches in cells near a grown capsule are cut into bins of at
@@ -212,14 +204,10 @@ impl PosedGrid {
     }
 }
 
-impl PosedGrid {
-    pub fn probe_walk_only(&self, rays: &[Ray]) -> usize {
-        use rayon::prelude::*;
-        rays.par_iter()
-            .map_init(Walk::default, |w, r| {
-                self.walk(r, w);
-                w.crossed.len()
-            })
-            .sum()
-    }
+/// Where a ray leaves cell `c` along one axis (origin `o` in cell units, `inv_d` the
+/// reciprocal of its direction in cells per metre, `step` its sign).
+#[inline]
+fn crossing(c: i32, step: i32, o: f32, inv_d: f32) -> f32 {
+    let plane = if step > 0 { c + 1 } else { c } as f32;
+    (plane - o) * inv_d
 }
