@@ -5,7 +5,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::intervals::{candidates_at, merge_hits};
-use crate::packing::par_pack;
+use crate::packing::par_pack_samples;
 use crate::ray::validate_rays;
 use crate::rng::SplitMix;
 use crate::samples::{PackedSamples, Sample, stratified_bins};
@@ -79,7 +79,7 @@ pub fn sample_in_capsules_before(
         });
     }
     let capsules = bvh.capsules();
-    let (offsets, samples) = par_pack(
+    let samples = par_pack_samples(
         rays.len(),
         || (Vec::new(), Vec::new()),
         |(hits, intervals), i, out| {
@@ -118,7 +118,7 @@ pub fn sample_in_capsules_before(
             }
         },
     );
-    Ok(PackedSamples::from_parts(offsets, samples))
+    Ok(samples)
 }
 
 /// Drops the samples whose midpoint maps (through `posed_to_canonical`) into an

@@ -28,7 +28,8 @@ pub struct PackedSamples {
     pub bone_mask: Vec<u64>,
 }
 
-/// One sample while it is being produced (array-of-structs, split at the end).
+/// One sample while it is being produced, handed to the packer
+/// ([`crate::packing::SampleColumns::push`]) that stores it as columns.
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct Sample {
     pub t_start: f32,
@@ -38,24 +39,6 @@ pub(crate) struct Sample {
 }
 
 impl PackedSamples {
-    pub(crate) fn from_parts(ray_offsets: Vec<u32>, samples: Vec<Sample>) -> PackedSamples {
-        let n = samples.len();
-        let mut out = PackedSamples {
-            ray_offsets,
-            t_start: Vec::with_capacity(n),
-            t_end: Vec::with_capacity(n),
-            part_mask: Vec::with_capacity(n),
-            bone_mask: Vec::with_capacity(n),
-        };
-        for s in samples {
-            out.t_start.push(s.t_start);
-            out.t_end.push(s.t_end);
-            out.part_mask.push(s.part_mask);
-            out.bone_mask.push(s.bone_mask);
-        }
-        out
-    }
-
     pub fn num_rays(&self) -> usize {
         self.ray_offsets.len().saturating_sub(1)
     }
@@ -235,23 +218,14 @@ mod tests {
 
     #[test]
     fn split_at_ray_gives_both_halves_with_their_own_offsets() {
-        let sample = |t: f32, bone: u64| Sample {
-            t_start: t,
-            t_end: t + 0.5,
-            part_mask: 1,
-            bone_mask: bone,
-        };
         // Rays with 2, 0 and 3 samples.
-        let all = PackedSamples::from_parts(
-            vec![0, 2, 2, 5],
-            vec![
-                sample(0.0, 1),
-                sample(1.0, 2),
-                sample(0.0, 3),
-                sample(1.0, 4),
-                sample(2.0, 5),
-            ],
-        );
+        let all = PackedSamples {
+            ray_offsets: vec![0, 2, 2, 5],
+            t_start: vec![0.0, 1.0, 0.0, 1.0, 2.0],
+            t_end: vec![0.5, 1.5, 0.5, 1.5, 2.5],
+            part_mask: vec![1; 5],
+            bone_mask: vec![1, 2, 3, 4, 5],
+        };
         for k in 0..=3 {
             let (a, b) = all.split_at_ray(k);
             a.check_layout().unwrap();

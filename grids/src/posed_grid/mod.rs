@@ -1,7 +1,8 @@
-//! A per-frame grid over posed space that answers, per cell and once per frame, what the
-//! capsule BVH, the solid cores and the canonical occupancy grid would answer per sample:
+//! A per-frame grid over posed space that answers, once per cell (the occupancy part the
+//! first time a ray reaches the cell), what the capsule BVH, the solid cores and the
+//! canonical occupancy grid would answer per sample:
 //! may a capsule be here (and which parts and bones), is the cell solid (behind a
-//! surface), and may the canonical grid hold density here. Sampling ([`walk`]) is then a
+//! surface), and may the canonical grid hold density here. Sampling (`walk.rs`) is then a
 //! 3D-DDA walk over the cells that records the ones worth sampling, and bins that read
 //! their cell from that record; only samples in cells that straddle a capsule or core
 //! surface run exact point tests.
