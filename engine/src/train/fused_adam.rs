@@ -42,42 +42,54 @@ impl FusedAdam {
         }
     }
 
-    /// The fused step, or `None` (inputs untouched) when a tensor is not a plain f32 Flex
-    /// tensor.
-    fn fused<const D: usize>(
-        &self,
-        lr: LearningRate,
+    /// Whether the fused pass takes these tensors: plain (not autodiff) f32 tensors on the
+    /// Flex backend, and state without AMSGrad's maximum.
+    fn takes<const D: usize>(
         tensor: &Tensor<D>,
         grad: &Tensor<D>,
         state: Option<&AdamState<D>>,
-    ) -> Option<(Tensor<D>, AdamState<D>)> {
+    ) -> bool {
         let flex = Device::flex();
-        let on_flex = |t: &Tensor<D>| t.device() == flex && t.dtype() == DType::F32;
-        if !(on_flex(tensor) && on_flex(grad))
-            || state.is_some_and(|s| {
-                !(on_flex(&s.momentum.moment_1) && on_flex(&s.momentum.moment_2))
-                    || s.momentum.max_moment_2.is_some()
+        let on_flex =
+            |t: &Tensor<D>| t.device() == flex && !t.is_autodiff() && t.dtype() == DType::F32;
+        on_flex(tensor)
+            && on_flex(grad)
+            && state.is_none_or(|s| {
+                on_flex(&s.momentum.moment_1)
+                    && on_flex(&s.momentum.moment_2)
+                    && s.momentum.max_moment_2.is_none()
             })
-        {
-            return None;
-        }
+    }
+
+    /// The fused step on tensors [`FusedAdam::takes`]. It takes them by value: a buffer
+    /// nobody else holds is updated in place, where a shared one would be copied first.
+    fn fused<const D: usize>(
+        &self,
+        lr: LearningRate,
+        tensor: Tensor<D>,
+        grad: Tensor<D>,
+        state: Option<AdamState<D>>,
+    ) -> (Tensor<D>, AdamState<D>) {
         let n = tensor.shape().num_elements();
-        let primitive = |t: &Tensor<D>| -> Option<FlexTensor> {
-            let p = t.clone().try_into_primitive::<Flex>().ok()?;
-            Some(if p.layout().contiguous_offsets() == Some((0, n)) {
+        let shape = tensor.shape();
+        let primitive = |t: Tensor<D>| -> FlexTensor {
+            let p = t
+                .try_into_primitive::<Flex>()
+                .expect("takes() checked: an f32 tensor on Flex");
+            if p.layout().contiguous_offsets() == Some((0, n)) {
                 p
             } else {
                 p.to_contiguous()
-            })
+            }
         };
-        let mut param = primitive(tensor)?;
-        let grad = primitive(grad)?;
-        let zeros = || FlexTensor::from_data(TensorData::new(vec![0f32; n], tensor.shape()));
+        let mut param = primitive(tensor);
+        let grad = primitive(grad);
+        let zeros = || FlexTensor::from_data(TensorData::new(vec![0f32; n], shape.clone()));
         let (time, mut m, mut v) = match state {
             Some(s) => (
                 s.momentum.time,
-                primitive(&s.momentum.moment_1)?,
-                primitive(&s.momentum.moment_2)?,
+                primitive(s.momentum.moment_1),
+                primitive(s.momentum.moment_2),
             ),
             None => (0, zeros(), zeros()),
         };
@@ -89,7 +101,7 @@ impl FusedAdam {
         let (b1, b2) = (self.beta_1, self.beta_2);
         let (f1, f2) = (1.0 - b1, 1.0 - b2);
         let lr = lr as f32;
-        let g = grad.as_slice::<f32>()?;
+        let g = grad.as_slice::<f32>().expect("a contiguous f32 gradient");
         // Copy-on-write: in place unless another tensor shares the buffer.
         let (p_s, m_s, v_s) = (
             param.storage_mut::<f32>(),
@@ -114,7 +126,7 @@ impl FusedAdam {
             Tensor::from_primitive::<Flex>(m),
             Tensor::from_primitive::<Flex>(v),
         ));
-        Some((Tensor::from_primitive::<Flex>(param), state))
+        (Tensor::from_primitive::<Flex>(param), state)
     }
 }
 
@@ -128,9 +140,11 @@ impl Optimizer for FusedAdam {
         grad: Tensor<D>,
         state: Option<Self::State<D>>,
     ) -> (Tensor<D>, Option<Self::State<D>>) {
-        match self.fused(lr, &tensor, &grad, state.as_ref()) {
-            Some((tensor, state)) => (tensor, Some(state)),
-            None => self.fallback.step(lr, tensor, grad, state),
+        if Self::takes(&tensor, &grad, state.as_ref()) {
+            let (tensor, state) = self.fused(lr, tensor, grad, state);
+            (tensor, Some(state))
+        } else {
+            self.fallback.step(lr, tensor, grad, state)
         }
     }
 
@@ -175,9 +189,8 @@ mod tests {
         for step in 0..5u32 {
             let g = tensor(values(step + 1, 0.1));
             let lr = 1e-2 * 0.9f64.powi(step as i32);
-            let (p, s) = fused
-                .fused(lr, &p_fused, &g, s_fused.as_ref())
-                .expect("Flex f32 takes the fused pass");
+            assert!(FusedAdam::takes(&p_fused, &g, s_fused.as_ref()));
+            let (p, s) = fused.fused(lr, p_fused, g.clone(), s_fused);
             (p_fused, s_fused) = (p, Some(s));
             let (p, s) = burn.step(lr, p_burn, g, s_burn);
             (p_burn, s_burn) = (p, s);
@@ -198,6 +211,42 @@ mod tests {
         }
     }
 
+    /// With nobody else holding them, the parameter and both moments are updated in
+    /// their own buffers: no copy of a whole table per step.
+    #[test]
+    fn updates_unshared_buffers_in_place() {
+        let device = Device::flex();
+        let address = |t: Tensor<1>| -> (Tensor<1>, usize) {
+            let p = t.try_into_primitive::<Flex>().unwrap();
+            let at = p.as_slice::<f32>().unwrap().as_ptr() as usize;
+            (Tensor::from_primitive::<Flex>(p), at)
+        };
+        let tensor =
+            |v: f32| Tensor::<1>::from_data(TensorData::new(vec![v; 1000], [1000]), &device);
+        let fused = FusedAdam::new(0.9, 0.99, 1e-8);
+        let (p, _) = fused.step(1e-2, tensor(1.0), tensor(0.5), None);
+        let state = None::<AdamState<1>>;
+        let (p, state) = fused.step(1e-2, p, tensor(0.5), state);
+        let state = state.unwrap();
+        let (p, p_at) = address(p);
+        let (m, m_at) = address(state.momentum.moment_1);
+        let (v, v_at) = address(state.momentum.moment_2);
+        let state = AdamState::new(AdaptiveMomentumState::new(state.momentum.time, m, v));
+        let (p, state) = fused.step(1e-2, p, tensor(0.5), Some(state));
+        let state = state.unwrap();
+        assert_eq!(address(p).1, p_at, "parameter copied");
+        assert_eq!(
+            address(state.momentum.moment_1).1,
+            m_at,
+            "first moment copied"
+        );
+        assert_eq!(
+            address(state.momentum.moment_2).1,
+            v_at,
+            "second moment copied"
+        );
+    }
+
     /// A tensor the fused pass cannot take (here: one on the autodiff device) goes through
     /// burn's Adam.
     #[test]
@@ -206,7 +255,7 @@ mod tests {
         let p = Tensor::<1>::from_data(TensorData::new(vec![1.0f32, 2.0], [2]), &device);
         let g = Tensor::<1>::from_data(TensorData::new(vec![0.5f32, -0.5], [2]), &device);
         let fused = FusedAdam::new(0.9, 0.99, 1e-8);
-        assert!(fused.fused(1e-2, &p, &g, None).is_none());
+        assert!(!FusedAdam::takes(&p, &g, None));
         let (p, state) = fused.step(1e-2, p, g, None);
         assert!(state.is_some());
         let v = host(&p);

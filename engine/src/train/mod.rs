@@ -161,7 +161,9 @@ pub struct Trainer<'a> {
     out: PathBuf,
     opts: TrainOptions,
     config: FieldConfig,
-    field: TalkinField,
+    /// Always `Some` between steps; the optimizer step takes it out so that no other
+    /// handle shares the parameters' buffers and Adam updates them in place.
+    field: Option<TalkinField>,
     optim: ModuleOptimizer,
     subjects: Vec<SubjectSlot>,
     frames: Vec<usize>,
@@ -413,7 +415,7 @@ impl<'a> Trainer<'a> {
             rng: SplitMix64::new(opts.seed ^ 0x7A1C_11E5_EED5_0001),
             opts,
             config,
-            field,
+            field: Some(field),
             optim,
             subjects,
             frames,
@@ -467,6 +469,12 @@ impl Trainer<'_> {
     /// The step the field sees now (virtual; see [`schedule`]).
     fn field_step(&self) -> usize {
         schedule::virtual_step(self.progress())
+    }
+
+    fn field(&self) -> &TalkinField {
+        self.field
+            .as_ref()
+            .expect("the field is back after every step")
     }
 
     /// One optimizer step (and, when due, an occupancy-grid update).
@@ -527,7 +535,7 @@ impl Trainer<'_> {
             mse: mse_value,
             grads,
         } = loss_and_grads(
-            &self.field,
+            self.field(),
             self.perceptual.as_ref(),
             StepBatch {
                 rays: &batch.rays,
@@ -548,8 +556,11 @@ impl Trainer<'_> {
                 loss: loss_value,
             });
         }
-        let field = self.field.clone();
-        self.field = self.optim.step(lr, field, grads);
+        let field = self
+            .field
+            .take()
+            .expect("the field is back after every step");
+        self.field = Some(self.optim.step(lr, field, grads));
         self.step += 1;
 
         // Checked here, before `valid()` builds the gradient-free view of the field: an
@@ -566,7 +577,7 @@ impl Trainer<'_> {
                 };
             let virtual_per_step = self.field_step() as f64 / self.step as f64;
             if let Some(occupied) = grid_update::update_grids(
-                &self.field.valid(),
+                &self.field().valid(),
                 &mut self.subjects,
                 self.step as u32,
                 virtual_per_step,
@@ -652,7 +663,7 @@ impl Trainer<'_> {
             &self.out,
             &CheckpointContents {
                 step: self.step,
-                field: &self.field,
+                field: self.field(),
                 config: &self.config,
                 optimizer: Some(optimizer.to_vec()),
                 background: self.dataset.background,
@@ -678,7 +689,7 @@ impl Trainer<'_> {
     /// The field as it is now, ready to render (for evaluations during a run).
     pub fn avatar(&self) -> Avatar {
         Avatar {
-            field: self.field.valid(),
+            field: self.field().valid(),
             config: self.config.clone(),
             background: self.dataset.background,
             subjects: self.subjects.clone(),
