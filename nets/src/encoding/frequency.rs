@@ -2,6 +2,8 @@
 //! that fades the high bands in as training proceeds (coarse-to-fine for deformation nets).
 
 use burn::prelude::*;
+#[cfg(test)]
+use burn::tensor::TensorData;
 
 use crate::util::floats;
 
@@ -88,15 +90,25 @@ impl FrequencyEncoding {
     /// - `x`: `[n, d]`
     /// - output: `[n, d * (1 + 2 L)]`, laid out `[x, sin (band-major), cos (band-major)]`.
     pub fn forward(&self, x: Tensor<2>, step: usize) -> Tensor<2> {
-        let [n, d] = x.dims();
-        let l = self.n_bands;
-        if l == 0 {
+        if self.n_bands == 0 {
             return x;
         }
+        let weights = self.band_weights(step);
+        if let Some(fused) = super::frequency_fused::encode(&x, &weights) {
+            return fused;
+        }
+        self.composed(x, &weights)
+    }
+
+    /// [`FrequencyEncoding::forward`] as tensor ops (any backend; the reference of the
+    /// fused op).
+    fn composed(&self, x: Tensor<2>, weights: &[f32]) -> Tensor<2> {
+        let [n, d] = x.dims();
+        let l = self.n_bands;
         let device = x.device();
         let freqs: Vec<f32> = (0..l).map(|k| (1u64 << k) as f32).collect();
         let freqs = floats(freqs, [1, l, 1], &device); // [1, L, 1]
-        let window = floats(self.band_weights(step), [1, l, 1], &device); // [1, L, 1]
+        let window = floats(weights.to_vec(), [1, l, 1], &device); // [1, L, 1]
         let scaled = x.clone().unsqueeze_dim::<3>(1) * freqs; // [n, L, d]
         let sin = (scaled.clone().sin() * window.clone()).reshape([n, l * d]);
         let cos = (scaled.cos() * window).reshape([n, l * d]);
@@ -128,5 +140,64 @@ mod tests {
         // sin block starts after the raw input: band 2 (freq 4) of coordinate 1.
         assert!((y[2 + 2 * 2 + 1] - (4.0f32 * -0.2).sin()).abs() < 1e-6);
         assert!((y[2 + 6 + 2] - (2.0f32 * 0.3).cos()).abs() < 1e-6);
+    }
+
+    /// The fused op (Flex, autodiff or not) matches the composed ops in output and input
+    /// gradient: six bands (angles up to 32 |x|), a half-open window (one band at 0.5,
+    /// two off), inputs of both signs up to 3 and 0.
+    #[test]
+    fn fused_matches_composed_ops() {
+        let enc = FrequencyConfig::new(6)
+            .with_window(Some(HannWindowConfig::new(0, 600)))
+            .init();
+        let step = 350; // alpha = 3.5: bands 0..3 on, band 3 half, 4 and 5 off
+        let weights = enc.band_weights(step);
+        assert!(weights[3] > 0.4 && weights[3] < 0.6 && weights[4] == 0.0);
+        let (n, d) = (37, 3);
+        let values: Vec<f32> = (0..n * d)
+            .map(|i| match i % 7 {
+                0 => 0.0,
+                1 => 3.0,
+                2 => -3.0,
+                _ => ((i as f32 * 0.618).fract() - 0.5) * 2.4,
+            })
+            .collect();
+        let upstream: Vec<f32> = (0..n * enc.output_dim(d))
+            .map(|i| ((i as f32 * 0.377).fract() - 0.5) * 2.0)
+            .collect();
+        let device = Device::flex().autodiff();
+        let run = |fused: bool| {
+            let x = Tensor::<2>::from_data(TensorData::new(values.clone(), [n, d]), &device)
+                .require_grad();
+            let y = if fused {
+                super::super::frequency_fused::encode(&x, &weights).expect("Flex takes it")
+            } else {
+                enc.composed(x.clone(), &weights)
+            };
+            let g = Tensor::<2>::from_data(
+                TensorData::new(upstream.clone(), [n, enc.output_dim(d)]),
+                &device,
+            );
+            let grads = (y.clone() * g).sum().backward();
+            let dx = x.grad(&grads).expect("x has a gradient");
+            (crate::util::host(&y), dx.try_to_vec_as::<f32>().unwrap())
+        };
+        let ((y_f, dx_f), (y_c, dx_c)) = (run(true), run(false));
+        for (a, b) in y_f.iter().zip(&y_c) {
+            assert!((a - b).abs() < 2e-5, "output {a} vs {b}");
+        }
+        for (a, b) in dx_f.iter().zip(&dx_c) {
+            assert!(
+                (a - b).abs() < 2e-4 * b.abs().max(1.0),
+                "gradient {a} vs {b}"
+            );
+        }
+        // Without autodiff, the same values.
+        let plain =
+            Tensor::<2>::from_data(TensorData::new(values.clone(), [n, d]), &Device::flex());
+        let y_plain = crate::util::host(
+            &super::super::frequency_fused::encode(&plain, &weights).expect("Flex takes it"),
+        );
+        assert_eq!(y_plain, y_f);
     }
 }

@@ -2,6 +2,7 @@
 //! multiresolution hash grid, behind one [`Encoding`] that presets choose by config.
 
 pub mod frequency;
+mod frequency_fused;
 mod hash_fused;
 pub mod hash_grid;
 

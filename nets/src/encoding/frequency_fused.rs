@@ -1,0 +1,147 @@
+//! The frequency encoding as one fused op on the CPU backend (Flex, with or without
+//! autodiff).
+//!
+//! Composed of tensor ops, the encoding evaluates `sin` and `cos` of every band in forward
+//! and both again in backward (the derivative of each is the other), ~4% of a training
+//! step in `sinf`/`cosf` (perf, `fast` preset, D_nr and D_hands). Fused, forward takes one
+//! `sin_cos` per coordinate in f64 and doubles the angle band by band
+//! (`sin 2a = 2 sin a cos a`, `cos 2a = cos^2 a - sin^2 a`; f64 keeps the six doublings
+//! below f32 rounding), and backward needs no trigonometry at all: the derivative of the
+//! windowed `w sin(2^k x)` is `2^k` times the windowed cosine the output already holds.
+
+use burn::backend::autodiff::checkpoint::base::Checkpointer;
+use burn::backend::autodiff::checkpoint::strategy::NoCheckpointing;
+use burn::backend::autodiff::grads::Gradients;
+use burn::backend::autodiff::ops::{Backward, Ops, OpsKind};
+use burn::backend::flex::FlexTensor;
+use burn::backend::{Autodiff, Flex};
+use burn::prelude::*;
+use burn::tensor::{DType, TensorData};
+use rayon::prelude::*;
+
+/// Rows per parallel task.
+const CHUNK: usize = 512;
+
+/// `[n, d (1 + 2 L)]`: per row `[x, w_k sin(2^k x) (band-major), w_k cos(2^k x)
+/// (band-major)]` for the `[n, d]` row-major `x` and band weights `window` (`L` of them).
+fn forward_rows(x: &[f32], d: usize, window: &[f32]) -> Vec<f32> {
+    let l = window.len();
+    let width = d * (1 + 2 * l);
+    let n = x.len() / d;
+    let mut out = vec![0f32; n * width];
+    out.par_chunks_mut(CHUNK * width)
+        .zip(x.par_chunks(CHUNK * d))
+        .for_each(|(out, x)| {
+            for (row, x) in out.chunks_exact_mut(width).zip(x.chunks_exact(d)) {
+                let (raw, bands) = row.split_at_mut(d);
+                let (sin, cos) = bands.split_at_mut(l * d);
+                raw.copy_from_slice(x);
+                for (a, &xa) in x.iter().enumerate() {
+                    let (mut s, mut c) = (xa as f64).sin_cos();
+                    for (k, &w) in window.iter().enumerate() {
+                        sin[k * d + a] = w * s as f32;
+                        cos[k * d + a] = w * c as f32;
+                        (s, c) = (2.0 * s * c, (c - s) * (c + s));
+                    }
+                }
+            }
+        });
+    out
+}
+
+/// `[n, d]`: the input's gradient for the output gradient `grad` `[n, d (1 + 2 L)]`,
+/// from the forward output `out` (same shape).
+fn input_grad(grad: &[f32], out: &[f32], d: usize, l: usize) -> Vec<f32> {
+    let width = d * (1 + 2 * l);
+    let n = grad.len() / width;
+    let mut dx = vec![0f32; n * d];
+    dx.par_chunks_mut(CHUNK * d)
+        .zip(grad.par_chunks(CHUNK * width))
+        .zip(out.par_chunks(CHUNK * width))
+        .for_each(|((dx, grad), out)| {
+            for ((dx, g), o) in dx
+                .chunks_exact_mut(d)
+                .zip(grad.chunks_exact(width))
+                .zip(out.chunks_exact(width))
+            {
+                for a in 0..d {
+                    let mut sum = g[a];
+                    let mut f = 1.0f32;
+                    for k in 0..l {
+                        let (i_sin, i_cos) = (d + k * d + a, d + (l + k) * d + a);
+                        sum += f * (g[i_sin] * o[i_cos] - g[i_cos] * o[i_sin]);
+                        f *= 2.0;
+                    }
+                    dx[a] = sum;
+                }
+            }
+        });
+    dx
+}
+
+/// A contiguous f32 copy-free view of a Flex tensor, when it has one.
+fn f32_rows(t: &FlexTensor) -> Option<std::borrow::Cow<'_, [f32]>> {
+    if t.dtype() != DType::F32 {
+        return None;
+    }
+    match t.as_slice::<f32>() {
+        Some(s) => Some(std::borrow::Cow::Borrowed(s)),
+        None => t
+            .to_contiguous()
+            .as_slice::<f32>()
+            .map(|s| std::borrow::Cow::Owned(s.to_vec())),
+    }
+}
+
+#[derive(Debug)]
+struct FrequencyBackward;
+
+impl Backward<Flex, 1> for FrequencyBackward {
+    /// The forward output (sharing its buffer), its input width and the band count.
+    type State = (FlexTensor, usize, usize);
+
+    fn backward(self, ops: Ops<Self::State, 1>, grads: &mut Gradients, _: &mut Checkpointer) {
+        let [x_node] = ops.parents;
+        let grad = grads.consume::<Flex>(&ops.node);
+        let Some(node) = x_node else {
+            return;
+        };
+        let (out, d, l) = ops.state;
+        let grad = f32_rows(&grad).expect("the encoding's gradient is f32 like its output");
+        let out = f32_rows(&out).expect("the forward output is f32");
+        let dx = input_grad(&grad, &out, d, l);
+        let n = dx.len() / d;
+        grads.register::<Flex>(node.id, FlexTensor::from_data(TensorData::new(dx, [n, d])));
+    }
+}
+
+/// The encoding of `x` `[n, d]` with band weights `window` as one op, when `x` lives on
+/// Flex (with or without autodiff) as f32; `None` otherwise (the caller composes tensor
+/// ops).
+pub(crate) fn encode(x: &Tensor<2>, window: &[f32]) -> Option<Tensor<2>> {
+    let [_, d] = x.dims();
+    let l = window.len();
+    let width = d * (1 + 2 * l);
+    if let Ok(x) = x.clone().try_into_primitive::<Autodiff<Flex>>() {
+        let node = x.node();
+        let x = x.into_primitive();
+        let out = forward_rows(&f32_rows(&x)?, d, window);
+        let n = out.len() / width;
+        let tensor = FlexTensor::from_data(TensorData::new(out, [n, width]));
+        let tensor = match FrequencyBackward
+            .prepare::<NoCheckpointing>([node])
+            .compute_bound()
+            .stateful()
+        {
+            OpsKind::Tracked(prep) => prep.finish((tensor.clone(), d, l), tensor),
+            OpsKind::UnTracked(prep) => prep.finish(tensor),
+        };
+        return Some(Tensor::from_primitive::<Autodiff<Flex>>(tensor));
+    }
+    let x = x.clone().try_into_primitive::<Flex>().ok()?;
+    let out = forward_rows(&f32_rows(&x)?, d, window);
+    let n = out.len() / width;
+    Some(Tensor::from_primitive::<Flex>(FlexTensor::from_data(
+        TensorData::new(out, [n, width]),
+    )))
+}
