@@ -1,5 +1,7 @@
 //! Input encodings: sinusoidal positional encoding (with HumanNeRF's Hann window) and the
 //! multiresolution hash grid, behind one [`Encoding`] that presets choose by config.
+//! Each runs as one fused op on the Flex CPU backend (`*_fused`, with its own backward)
+//! and as composed tensor ops elsewhere (wgpu); tests hold the two equal.
 
 pub mod frequency;
 mod frequency_fused;
