@@ -16,8 +16,9 @@ use burn::backend::autodiff::ops::{Backward, Ops, OpsKind};
 use burn::backend::flex::FlexTensor;
 use burn::backend::{Autodiff, Flex};
 use burn::prelude::*;
-use burn::tensor::{DType, TensorData};
 use rayon::prelude::*;
+
+use super::flex_data::{f32_data, flex_tensor};
 
 /// Rows per parallel task.
 const CHUNK: usize = 512;
@@ -79,20 +80,6 @@ fn input_grad(grad: &[f32], out: &[f32], d: usize, l: usize) -> Vec<f32> {
     dx
 }
 
-/// A contiguous f32 copy-free view of a Flex tensor, when it has one.
-fn f32_rows(t: &FlexTensor) -> Option<std::borrow::Cow<'_, [f32]>> {
-    if t.dtype() != DType::F32 {
-        return None;
-    }
-    match t.as_slice::<f32>() {
-        Some(s) => Some(std::borrow::Cow::Borrowed(s)),
-        None => t
-            .to_contiguous()
-            .as_slice::<f32>()
-            .map(|s| std::borrow::Cow::Owned(s.to_vec())),
-    }
-}
-
 #[derive(Debug)]
 struct FrequencyBackward;
 
@@ -107,11 +94,11 @@ impl Backward<Flex, 1> for FrequencyBackward {
             return;
         };
         let (out, d, l) = ops.state;
-        let grad = f32_rows(&grad).expect("the encoding's gradient is f32 like its output");
-        let out = f32_rows(&out).expect("the forward output is f32");
+        let grad = f32_data(&grad).expect("the encoding's gradient is f32 like its output");
+        let out = f32_data(&out).expect("the forward output is f32");
         let dx = input_grad(&grad, &out, d, l);
         let n = dx.len() / d;
-        grads.register::<Flex>(node.id, FlexTensor::from_data(TensorData::new(dx, [n, d])));
+        grads.register::<Flex>(node.id, flex_tensor(dx, [n, d]));
     }
 }
 
@@ -125,9 +112,9 @@ pub(crate) fn encode(x: &Tensor<2>, window: &[f32]) -> Option<Tensor<2>> {
     if let Ok(x) = x.clone().try_into_primitive::<Autodiff<Flex>>() {
         let node = x.node();
         let x = x.into_primitive();
-        let out = forward_rows(&f32_rows(&x)?, d, window);
+        let out = forward_rows(&f32_data(&x)?, d, window);
         let n = out.len() / width;
-        let tensor = FlexTensor::from_data(TensorData::new(out, [n, width]));
+        let tensor = flex_tensor(out, [n, width]);
         let tensor = match FrequencyBackward
             .prepare::<NoCheckpointing>([node])
             .compute_bound()
@@ -139,9 +126,7 @@ pub(crate) fn encode(x: &Tensor<2>, window: &[f32]) -> Option<Tensor<2>> {
         return Some(Tensor::from_primitive::<Autodiff<Flex>>(tensor));
     }
     let x = x.clone().try_into_primitive::<Flex>().ok()?;
-    let out = forward_rows(&f32_rows(&x)?, d, window);
+    let out = forward_rows(&f32_data(&x)?, d, window);
     let n = out.len() / width;
-    Some(Tensor::from_primitive::<Flex>(FlexTensor::from_data(
-        TensorData::new(out, [n, width]),
-    )))
+    Some(Tensor::from_primitive::<Flex>(flex_tensor(out, [n, width])))
 }

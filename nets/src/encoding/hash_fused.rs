@@ -15,11 +15,11 @@ use burn::backend::autodiff::checkpoint::base::Checkpointer;
 use burn::backend::autodiff::checkpoint::strategy::NoCheckpointing;
 use burn::backend::autodiff::grads::Gradients;
 use burn::backend::autodiff::ops::{Backward, Ops, OpsKind};
-use burn::backend::flex::FlexTensor;
 use burn::backend::{Autodiff, Flex};
 use burn::prelude::*;
-use burn::tensor::{DType, TensorData};
 use rayon::prelude::*;
+
+use super::flex_data::{f32_data, flex_tensor};
 
 /// Points per parallel task.
 const CHUNK: usize = 256;
@@ -261,24 +261,6 @@ fn weight_derivatives(t: &[f32]) -> [[f32; 3]; 8] {
         dk[2] = sign(2) * factor(0) * factor(1);
     }
     dw
-}
-
-/// A contiguous f32 view of a Flex tensor (copied only if strided).
-fn f32_data(t: &FlexTensor) -> Option<std::borrow::Cow<'_, [f32]>> {
-    if t.dtype() != DType::F32 {
-        return None;
-    }
-    match t.as_slice::<f32>() {
-        Some(s) => Some(std::borrow::Cow::Borrowed(s)),
-        None => t
-            .to_contiguous()
-            .as_slice::<f32>()
-            .map(|s| std::borrow::Cow::Owned(s.to_vec())),
-    }
-}
-
-fn flex_tensor(values: Vec<f32>, shape: [usize; 2]) -> FlexTensor {
-    FlexTensor::from_data(TensorData::new(values, shape))
 }
 
 #[derive(Debug)]
