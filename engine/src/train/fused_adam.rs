@@ -70,8 +70,8 @@ impl FusedAdam {
         grad: Tensor<D>,
         state: Option<AdamState<D>>,
     ) -> (Tensor<D>, AdamState<D>) {
-        let n = tensor.shape().num_elements();
         let shape = tensor.shape();
+        let n = shape.num_elements();
         let primitive = |t: Tensor<D>| -> FlexTensor {
             let p = t
                 .try_into_primitive::<Flex>()

@@ -2,8 +2,6 @@
 //! that fades the high bands in as training proceeds (coarse-to-fine for deformation nets).
 
 use burn::prelude::*;
-#[cfg(test)]
-use burn::tensor::TensorData;
 
 use crate::util::floats;
 
@@ -118,6 +116,8 @@ impl FrequencyEncoding {
 
 #[cfg(test)]
 mod tests {
+    use burn::tensor::TensorData;
+
     use super::*;
 
     #[test]
@@ -140,6 +140,21 @@ mod tests {
         // sin block starts after the raw input: band 2 (freq 4) of coordinate 1.
         assert!((y[2 + 2 * 2 + 1] - (4.0f32 * -0.2).sin()).abs() < 1e-6);
         assert!((y[2 + 6 + 2] - (2.0f32 * 0.3).cos()).abs() < 1e-6);
+    }
+
+    /// An empty batch encodes to an empty batch of the full width, and its backward runs.
+    #[test]
+    fn empty_batch() {
+        let enc = FrequencyConfig::new(6).init();
+        let device = Device::flex().autodiff();
+        let x = Tensor::<2>::from_data(TensorData::new(Vec::<f32>::new(), [0, 3]), &device)
+            .require_grad();
+        let y = enc.forward(x.clone(), 0);
+        assert_eq!(y.dims(), [0, enc.output_dim(3)]);
+        let grads = y.sum().backward();
+        if let Some(dx) = x.grad(&grads) {
+            assert_eq!(dx.dims(), [0, 3]);
+        }
     }
 
     /// The fused op (Flex, autodiff or not) matches the composed ops in output and input

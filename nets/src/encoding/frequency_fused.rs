@@ -84,8 +84,8 @@ fn input_grad(grad: &[f32], out: &[f32], d: usize, l: usize) -> Vec<f32> {
 struct FrequencyBackward;
 
 impl Backward<Flex, 1> for FrequencyBackward {
-    /// The forward output (sharing its buffer), its input width and the band count.
-    type State = (FlexTensor, usize, usize);
+    /// The forward output (sharing its buffer), the input's shape and the band count.
+    type State = (FlexTensor, [usize; 2], usize);
 
     fn backward(self, ops: Ops<Self::State, 1>, grads: &mut Gradients, _: &mut Checkpointer) {
         let [x_node] = ops.parents;
@@ -93,40 +93,40 @@ impl Backward<Flex, 1> for FrequencyBackward {
         let Some(node) = x_node else {
             return;
         };
-        let (out, d, l) = ops.state;
+        let (out, [n, d], l) = ops.state;
         let grad = f32_data(&grad).expect("the encoding's gradient is f32 like its output");
         let out = f32_data(&out).expect("the forward output is f32");
         let dx = input_grad(&grad, &out, d, l);
-        let n = dx.len() / d;
         grads.register::<Flex>(node.id, flex_tensor(dx, [n, d]));
     }
 }
 
-/// The encoding of `x` `[n, d]` with band weights `window` as one op, when `x` lives on
-/// Flex (with or without autodiff) as f32; `None` otherwise (the caller composes tensor
-/// ops).
+/// The encoding of `x` `[n, d]` (`d > 0`) with band weights `window` as one op, when `x`
+/// lives on Flex (with or without autodiff) as f32; `None` otherwise (the caller composes
+/// tensor ops).
 pub(crate) fn encode(x: &Tensor<2>, window: &[f32]) -> Option<Tensor<2>> {
-    let [_, d] = x.dims();
+    let [n, d] = x.dims();
+    if d == 0 {
+        return None; // nothing to encode; the composed ops handle the empty shape
+    }
     let l = window.len();
     let width = d * (1 + 2 * l);
     if let Ok(x) = x.clone().try_into_primitive::<Autodiff<Flex>>() {
         let node = x.node();
         let x = x.into_primitive();
         let out = forward_rows(&f32_data(&x)?, d, window);
-        let n = out.len() / width;
         let tensor = flex_tensor(out, [n, width]);
         let tensor = match FrequencyBackward
             .prepare::<NoCheckpointing>([node])
             .compute_bound()
             .stateful()
         {
-            OpsKind::Tracked(prep) => prep.finish((tensor.clone(), d, l), tensor),
+            OpsKind::Tracked(prep) => prep.finish((tensor.clone(), [n, d], l), tensor),
             OpsKind::UnTracked(prep) => prep.finish(tensor),
         };
         return Some(Tensor::from_primitive::<Autodiff<Flex>>(tensor));
     }
     let x = x.clone().try_into_primitive::<Flex>().ok()?;
     let out = forward_rows(&f32_data(&x)?, d, window);
-    let n = out.len() / width;
     Some(Tensor::from_primitive::<Flex>(flex_tensor(out, [n, width])))
 }
