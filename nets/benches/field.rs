@@ -104,6 +104,7 @@ fn frame() -> FrameConditions {
         expression: [0.1; 10],
         jaw: [0.2, 0.0, 0.0],
         hand_pose: vec![0.0; HAND_POSE_DIM],
+        bone_capsules: vec![],
     }
 }
 

@@ -20,6 +20,13 @@ pub enum NetsError {
         index: usize,
         limit: usize,
     },
+    /// A configuration value is out of its range.
+    #[error("config field {field} is {value}; expected {expected}")]
+    Config {
+        field: &'static str,
+        value: String,
+        expected: &'static str,
+    },
     /// A value that must be finite is not.
     #[error("{what} contains a non-finite value")]
     NonFinite { what: &'static str },

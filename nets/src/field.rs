@@ -16,7 +16,9 @@ use crate::encoding::{
 use crate::error::{NetsError, check_len};
 use crate::mlp::{Mlp, MlpConfig};
 use crate::render::{OwnedRaySamples, RaySamples, RenderedRays, render_in_front, render_packed};
-use crate::skinning::{BlendWeightVolume, BoneSegment, N_BODY_JOINTS, RigidWarp, SkinningConfig};
+use crate::skinning::{
+    BlendWeightVolume, BoneCapsule, BoneSegment, N_BODY_JOINTS, RigidWarp, SkinningConfig,
+};
 use crate::util::{floats, host, ints, softplus};
 
 /// Segmentation classes of the body net (DensePose-derived labels of the paper).
@@ -100,6 +102,12 @@ pub struct FieldConfig {
     pub face_uses_jaw: bool,
 }
 
+/// The presets' posed-prior temperature (metres): 5 mm, so weights blend only within
+/// millimetres of where two cores meet. Measured against the synthetic scene's true
+/// canonical points (`warp_error` in the README), 5 mm and 1 cm put the surface within
+/// the same 0.2-0.3 cm on the forearms; 5 mm is tighter on the hands.
+pub const POSED_TAU_M: f64 = 0.005;
+
 impl FieldConfig {
     /// The paper's sizes: 8x256 MLPs with a skip at layer 4 and 10-band PE for the
     /// radiance nets, 6x128 deformation nets with 6 Hann-windowed bands, D_nr after 100k.
@@ -113,7 +121,7 @@ impl FieldConfig {
             MlpConfig::new(6, 128).with_skips(vec![4]),
             HannWindowConfig::new(100_000, 150_000),
             HannWindowConfig::new(0, 50_000),
-            SkinningConfig::new(),
+            SkinningConfig::new().with_posed_tau(Some(POSED_TAU_M)),
         )
         .with_n_identities(n_identities)
     }
@@ -138,7 +146,7 @@ impl FieldConfig {
             small,
             HannWindowConfig::new(100_000, 150_000),
             HannWindowConfig::new(0, 50_000),
-            SkinningConfig::new(),
+            SkinningConfig::new().with_posed_tau(Some(POSED_TAU_M)),
         )
         .with_n_identities(n_identities)
     }
@@ -279,6 +287,9 @@ pub struct FrameConditions {
     pub jaw: [f32; JAW_DIM],
     /// `[90]` both hands' poses.
     pub hand_pose: Vec<f32>,
+    /// The posed solid cores of the body bones, for the skinning's posed-space prior
+    /// (see [`crate::skinning`]); unused without it.
+    pub bone_capsules: Vec<BoneCapsule>,
 }
 
 /// One packed batch of samples of one frame.
@@ -453,6 +464,7 @@ impl TalkinField {
             points,
             bone_masks,
             &frame.canonical_from_posed,
+            &frame.bone_capsules,
             &self.device(),
         )
     }
@@ -661,6 +673,7 @@ mod tests {
             expression: [0.1; EXPRESSION_DIM],
             jaw: [0.2, 0.0, 0.0],
             hand_pose: vec![0.0; HAND_POSE_DIM],
+            bone_capsules: vec![],
         }
     }
 

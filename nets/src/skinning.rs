@@ -16,6 +16,16 @@
 //! in canonical space without an iterative root search, so no fixed-point step is needed.
 //! Only the sample's candidate bones (the caller's 55-bit mask, mapped to body ancestors)
 //! are evaluated; a sample with no candidate falls back to all 22.
+//!
+//! # The posed-space prior (`SkinningConfig::posed_tau`)
+//! Initialised from distances to the canonical bones (HumanNeRF's prior), the weights are
+//! wrong wherever limbs touch: a forearm held against the chest maps, through the chest's
+//! transform, to a canonical point next to the chest whose chest weight is as high as the
+//! forearm's own, and the blend lands between the two (centimetres off, differently in
+//! every pose). With `posed_tau`, each candidate's logit also gets `-d_b / tau`, `d_b` the
+//! signed distance in the *posed* frame to bone `b`'s nearest solid core (the caller's
+//! [`BoneCapsule`]s), and the volume starts at zero as a learned correction: in contact
+//! the limb whose core the sample is in (or nearest) wins, as it should.
 
 use burn::module::Param;
 use burn::prelude::*;
@@ -75,6 +85,23 @@ pub struct BoneSegment {
     pub b: [f32; 3],
 }
 
+/// A solid core of body bone `bone` in the posed (observation) frame: the posed-space
+/// prior's geometry (see the module docs).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BoneCapsule {
+    /// Body joint index (< 22).
+    pub bone: usize,
+    /// Segment start (metres, posed).
+    pub a: [f32; 3],
+    /// Segment end.
+    pub b: [f32; 3],
+    /// Radius (metres; 0 for a bare segment).
+    pub radius: f32,
+}
+
+/// Logit of a bone with no capsule in the posed-space prior.
+const NO_CAPSULE_LOGIT: f32 = -1e4;
+
 /// Configuration of [`BlendWeightVolume`].
 #[derive(Config, Debug)]
 pub struct SkinningConfig {
@@ -84,6 +111,11 @@ pub struct SkinningConfig {
     /// Prior logits are `-d^2 / (2 prior_sigma^2)`, `d` the distance to the bone (metres).
     #[config(default = 0.1)]
     pub prior_sigma: f64,
+    /// Temperature (metres) of the posed-space prior (module docs). `None`: the volume
+    /// holds the canonical bone-distance prior alone (HumanNeRF's; checkpoints written
+    /// before the posed prior existed read as `None`).
+    #[config(default = "None")]
+    pub posed_tau: Option<f64>,
 }
 
 impl SkinningConfig {
@@ -105,9 +137,20 @@ impl SkinningConfig {
                 limit: N_BODY_JOINTS,
             });
         }
+        let posed_tau = match self.posed_tau {
+            Some(t) if !(t.is_finite() && t > 0.0) => {
+                return Err(NetsError::Config {
+                    field: "skinning.posed_tau",
+                    value: t.to_string(),
+                    expected: "a finite temperature > 0 (metres)",
+                });
+            }
+            t => t.map(|t| t as f32),
+        };
         let inv = 1.0 / (2.0 * self.prior_sigma * self.prior_sigma);
-        let mut logits = vec![-1e4f32; N_BODY_JOINTS * r * r * r];
-        for z in 0..r {
+        let start = if posed_tau.is_some() { 0.0 } else { -1e4f32 };
+        let mut logits = vec![start; N_BODY_JOINTS * r * r * r];
+        for z in (0..r).take(if posed_tau.is_some() { 0 } else { r }) {
             for y in 0..r {
                 for x in 0..r {
                     let p: [f64; 3] = std::array::from_fn(|a| {
@@ -126,8 +169,15 @@ impl SkinningConfig {
             logits: Param::from_tensor(floats(logits, [N_BODY_JOINTS * r * r * r], device)),
             resolution: r,
             aabb: aabb_min.iter().chain(&aabb_max).copied().collect(),
+            posed_tau,
         })
     }
+}
+
+/// Signed distance from `p` to capsule `c` (negative inside), in f64 for the products.
+fn capsule_distance(p: [f32; 3], c: &BoneCapsule) -> f32 {
+    let p = p.map(|v| v as f64);
+    (segment_distance2(p, c.a, c.b).sqrt() - c.radius as f64) as f32
 }
 
 fn segment_distance2(p: [f64; 3], a: [f32; 3], b: [f32; 3]) -> f64 {
@@ -159,6 +209,9 @@ pub struct BlendWeightVolume {
     resolution: usize,
     /// `[min xyz, max xyz]`
     aabb: Vec<f32>,
+    /// The posed-space prior's temperature (metres), if on.
+    #[module(skip)]
+    posed_tau: Option<f32>,
 }
 
 /// Host-side (sample, bone) pairs with their canonical points and volume corners.
@@ -171,6 +224,8 @@ pub(crate) struct Pairs {
     pub rows: Vec<i32>,
     /// `[m * 8]`
     pub weights: Vec<f32>,
+    /// `[m]` the posed-space prior's logit (0 when off).
+    pub posed: Vec<f32>,
 }
 
 impl BlendWeightVolume {
@@ -184,6 +239,7 @@ impl BlendWeightVolume {
         points: &[[f32; 3]],
         bone_masks: &[u64],
         canonical_from_posed: &[[f32; 16]],
+        bone_capsules: &[BoneCapsule],
     ) -> Pairs {
         let r = self.resolution;
         let mut p = Pairs {
@@ -192,7 +248,12 @@ impl BlendWeightVolume {
             x: vec![],
             rows: vec![],
             weights: vec![],
+            posed: vec![],
         };
+        let mut by_bone: [Vec<&BoneCapsule>; N_BODY_JOINTS] = Default::default();
+        for c in bone_capsules {
+            by_bone[c.bone].push(c);
+        }
         for (s, (x, &mask)) in points.iter().zip(bone_masks).enumerate() {
             let mut bones = body_candidates(mask);
             while bones != 0 {
@@ -228,6 +289,12 @@ impl BlendWeightVolume {
                 p.sample.push(s as i32);
                 p.bone.push(b);
                 p.x.extend(xc);
+                p.posed.push(match self.posed_tau {
+                    Some(tau) => by_bone[b].iter().fold(NO_CAPSULE_LOGIT, |l, c| {
+                        l.max(-capsule_distance(*x, c) / tau)
+                    }),
+                    None => 0.0,
+                });
             }
         }
         p
@@ -237,13 +304,15 @@ impl BlendWeightVolume {
     ///
     /// # Shapes
     /// - `points`: `[n]` observation-space positions; `bone_masks`: `[n]` 55-bit SMPL-X
-    ///   candidate masks; `canonical_from_posed`: `[22]` row-major 4x4
+    ///   candidate masks; `canonical_from_posed`: `[22]` row-major 4x4; `bone_capsules`:
+    ///   the frame's posed solid cores (any number; read only with the posed prior on)
     /// - output `x_canonical`: `[n, 3]`
     pub fn inverse_lbs(
         &self,
         points: &[[f32; 3]],
         bone_masks: &[u64],
         canonical_from_posed: &[[f32; 16]],
+        bone_capsules: &[BoneCapsule],
         device: &Device,
     ) -> Result<RigidWarp, NetsError> {
         let n = points.len();
@@ -259,7 +328,25 @@ impl BlendWeightVolume {
                 n_pairs: 0,
             });
         }
-        let p = self.pairs(points, bone_masks, canonical_from_posed);
+        let finite = |c: &BoneCapsule| {
+            c.a.iter()
+                .chain(&c.b)
+                .chain([&c.radius])
+                .all(|v| v.is_finite())
+        };
+        if !bone_capsules.iter().all(finite) {
+            return Err(NetsError::NonFinite {
+                what: "bone_capsules",
+            });
+        }
+        if let Some(c) = bone_capsules.iter().find(|c| c.bone >= N_BODY_JOINTS) {
+            return Err(NetsError::Index {
+                what: "bone capsule",
+                index: c.bone,
+                limit: N_BODY_JOINTS,
+            });
+        }
+        let p = self.pairs(points, bone_masks, canonical_from_posed, bone_capsules);
         let m = p.sample.len();
         let corner_w = floats(p.weights, [m, 8], device);
         let logits = (self
@@ -269,7 +356,8 @@ impl BlendWeightVolume {
             .reshape([m, 8])
             * corner_w)
             .sum_dim(1)
-            .reshape([m]); // [m]
+            .reshape([m])
+            + floats(p.posed, [m], device); // [m]
         // Softmax over each sample's candidates; the per-sample max is a constant shift.
         let l = host(&logits);
         let mut max = vec![f32::NEG_INFINITY; n];
@@ -367,7 +455,9 @@ mod tests {
             .unwrap();
         let t = identity_transforms();
         let pts = [[0.1f32, 0.2, 0.3], [0.0, 0.0, 0.0]];
-        let warp = vol.inverse_lbs(&pts, &[1 << 5, 0], &t, &device).unwrap();
+        let warp = vol
+            .inverse_lbs(&pts, &[1 << 5, 0], &t, &[], &device)
+            .unwrap();
         assert_eq!(warp.n_pairs, 1 + 22);
         let x = host(&warp.x_canonical);
         assert!(
@@ -375,15 +465,157 @@ mod tests {
         );
     }
 
-    /// d(sum x_canonical * c)/d(logits) against central differences of an f64 reference.
+    /// A forearm held against the chest: a sample inside the forearm's core, 2.5 cm from the
+    /// chest's, goes where the forearm's transform sends it; one inside the chest's core
+    /// goes with the chest. Both bones are candidates of both samples.
     #[test]
-    fn gradient_wrt_volume_matches_central_differences() {
-        let device = Device::flex().autodiff();
+    fn posed_prior_lets_the_core_holding_a_sample_win() {
+        let device = Device::flex();
         let vol = SkinningConfig::new()
-            .with_resolution(6)
-            .with_prior_sigma(0.3)
+            .with_resolution(8)
+            .with_posed_tau(Some(0.005))
             .init([-1.0; 3], [1.0; 3], &prior(), &device)
             .unwrap();
+        let (chest, forearm) = (9, 18);
+        let mut t = identity_transforms();
+        // The forearm's transform moves points 0.4 m along x, the chest's not at all.
+        t[forearm][3] = 0.4;
+        t[chest][3] = 0.0;
+        let capsules = [
+            BoneCapsule {
+                bone: chest,
+                a: [0.0, -0.2, 0.0],
+                b: [0.0, 0.2, 0.0],
+                radius: 0.12,
+            },
+            BoneCapsule {
+                bone: forearm,
+                a: [-0.2, 0.0, 0.16],
+                b: [0.2, 0.0, 0.16],
+                radius: 0.035,
+            },
+        ];
+        let mask = (1u64 << chest) | (1 << forearm);
+        // 2.5 cm outside the chest's core and 2 cm inside the forearm's; then the other
+        // way round.
+        let pts = [[0.0f32, 0.0, 0.145], [0.0, 0.0, 0.10]];
+        let warp = vol
+            .inverse_lbs(&pts, &[mask, mask], &t, &capsules, &device)
+            .unwrap();
+        let x = host(&warp.x_canonical);
+        let moved = |k: usize, b: usize| -> [f32; 3] {
+            std::array::from_fn(|i| pts[k][i] + t[b][4 * i + 3])
+        };
+        for (k, bone) in [(0, forearm), (1, chest)] {
+            let want = moved(k, bone);
+            for i in 0..3 {
+                assert!(
+                    (x[3 * k + i] - want[i]).abs() < 2e-3,
+                    "sample {k}: {:?} against {want:?}",
+                    &x[3 * k..3 * k + 3]
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn posed_prior_checks_its_input() {
+        let device = Device::flex();
+        let bad_tau = SkinningConfig::new().with_posed_tau(Some(0.0)).init(
+            [-1.0; 3],
+            [1.0; 3],
+            &prior(),
+            &device,
+        );
+        assert!(matches!(
+            bad_tau,
+            Err(NetsError::Config {
+                field: "skinning.posed_tau",
+                ..
+            })
+        ));
+        let vol = SkinningConfig::new()
+            .with_resolution(4)
+            .with_posed_tau(Some(0.01))
+            .init([-1.0; 3], [1.0; 3], &prior(), &device)
+            .unwrap();
+        let t = identity_transforms();
+        let capsule = |bone: usize, radius: f32| BoneCapsule {
+            bone,
+            a: [0.0; 3],
+            b: [0.1, 0.0, 0.0],
+            radius,
+        };
+        let run = |c: BoneCapsule| vol.inverse_lbs(&[[0.0; 3]], &[1], &t, &[c], &device);
+        assert!(matches!(
+            run(capsule(22, 0.1)),
+            Err(NetsError::Index {
+                what: "bone capsule",
+                ..
+            })
+        ));
+        assert!(matches!(
+            run(capsule(2, f32::NAN)),
+            Err(NetsError::NonFinite {
+                what: "bone_capsules"
+            })
+        ));
+        assert!(run(capsule(2, 0.1)).is_ok());
+    }
+
+    /// A config written before the posed prior existed reads as the canonical prior alone.
+    #[test]
+    fn configs_without_posed_tau_read_as_off() {
+        let old: SkinningConfig =
+            serde_json::from_str(r#"{"resolution": 32, "prior_sigma": 0.1}"#).unwrap();
+        assert_eq!(old.posed_tau, None);
+    }
+
+    /// d(sum x_canonical * c)/d(logits) against central differences of an f64 reference,
+    /// with the canonical prior and with the posed-space prior (its logits a constant
+    /// offset per pair).
+    #[test]
+    fn gradient_wrt_volume_matches_central_differences() {
+        gradient_check(None, &[]);
+        let capsules = [
+            BoneCapsule {
+                bone: 3,
+                a: [0.0, -0.4, 0.2],
+                b: [0.2, -0.2, 0.2],
+                radius: 0.1,
+            },
+            BoneCapsule {
+                bone: 6,
+                a: [0.1, -0.3, 0.1],
+                b: [0.1, -0.3, 0.1],
+                radius: 0.05,
+            },
+            BoneCapsule {
+                bone: 22 - 1,
+                a: [0.5, 0.5, 0.0],
+                b: [0.8, 0.7, -0.2],
+                radius: 0.0,
+            },
+        ];
+        gradient_check(Some(0.05), &capsules);
+    }
+
+    fn gradient_check(posed_tau: Option<f64>, capsules: &[BoneCapsule]) {
+        let device = Device::flex().autodiff();
+        let mut vol = SkinningConfig::new()
+            .with_resolution(6)
+            .with_prior_sigma(0.3)
+            .with_posed_tau(posed_tau)
+            .init([-1.0; 3], [1.0; 3], &prior(), &device)
+            .unwrap();
+        if posed_tau.is_some() {
+            // A non-zero volume, so both terms of the logits are exercised.
+            let n = vol.logits.val().dims()[0];
+            let v: Vec<f32> = (0..n)
+                .map(|i| ((i * 37 % 101) as f32 / 50.0) - 1.0)
+                .collect();
+            vol.logits = Param::from_tensor(floats(v, [n], &device));
+        }
         let t = identity_transforms();
         let pts = [[0.13f32, -0.31, 0.22], [-0.4, 0.05, 0.61], [0.7, 0.7, -0.2]];
         let masks = [
@@ -392,12 +624,19 @@ mod tests {
             1 << 0,
         ];
         let coeff = [0.7f64, -1.1, 0.4, 0.3, 0.9, -0.5, 1.3, 0.2, -0.8];
-        let warp = vol.inverse_lbs(&pts, &masks, &t, &device).unwrap();
+        let warp = vol
+            .inverse_lbs(&pts, &masks, &t, capsules, &device)
+            .unwrap();
         let c = floats(coeff.iter().map(|&v| v as f32).collect(), [3, 3], &device);
         let grads = (warp.x_canonical * c).sum().backward();
         let g = host(&vol.logits.grad(&grads).unwrap());
         let logits: Vec<f64> = host(&vol.logits.val()).iter().map(|&v| v as f64).collect();
-        let pairs = vol.pairs(&pts, &masks, &t);
+        let pairs = vol.pairs(&pts, &masks, &t, capsules);
+        assert_eq!(
+            pairs.posed.iter().any(|&l| l != 0.0),
+            posed_tau.is_some(),
+            "the posed logits are on exactly when asked for"
+        );
         let loss = |logits: &[f64]| -> f64 {
             let mut out = 0.0;
             for s in 0..pts.len() {
@@ -412,7 +651,8 @@ mod tests {
                                 pairs.weights[i * 8 + k] as f64
                                     * logits[pairs.rows[i * 8 + k] as usize]
                             })
-                            .sum()
+                            .sum::<f64>()
+                            + pairs.posed[i] as f64
                     })
                     .collect();
                 let mx = l.iter().cloned().fold(f64::NEG_INFINITY, f64::max);

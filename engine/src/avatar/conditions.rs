@@ -1,17 +1,22 @@
 //! The field's per-frame conditions from a frame's parameters and posed scene.
 
+use talkin_grids::Capsule;
 use talkin_nets::FrameConditions;
 use talkin_nets::field::{EXPRESSION_DIM, JAW_DIM};
+use talkin_nets::skinning::BoneCapsule;
 
 use crate::body::FrameParams;
-use crate::sampling::FrameScene;
+use crate::body::skeleton::body_ancestor;
+use crate::sampling::{CapsuleShells, FrameScene};
 
 /// Identity `subject`, the 22 row-major `canonical_from_posed` matrices, the body pose
-/// (D_nr), `e = [psi; jaw]` and both hands' poses.
+/// (D_nr), `e = [psi; jaw]`, both hands' poses and the posed solid cores of the body
+/// bones (`shells` fitted to the subject).
 pub fn frame_conditions(
     subject: usize,
     params: &FrameParams,
     scene: &FrameScene,
+    shells: &CapsuleShells,
 ) -> FrameConditions {
     let canonical_from_posed = scene
         .canonical_from_posed
@@ -39,5 +44,22 @@ pub fn frame_conditions(
         expression,
         jaw,
         hand_pose: params.hand_condition().to_vec(),
+        bone_capsules: skinning_cores(&scene.capsules, shells),
     }
+}
+
+/// The skinning prior's capsules: the posed solid cores (fingertips, which the data leaves
+/// without one, drop out: their bone, the wrist, has the other finger segments' cores), each
+/// labelled with the body joint that drives it.
+fn skinning_cores(bare: &[Capsule], shells: &CapsuleShells) -> Vec<BoneCapsule> {
+    shells
+        .cores(bare)
+        .iter()
+        .map(|c| BoneCapsule {
+            bone: body_ancestor(c.bone as usize),
+            a: c.a.to_array(),
+            b: c.b.to_array(),
+            radius: c.radius,
+        })
+        .collect()
 }

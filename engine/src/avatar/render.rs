@@ -118,7 +118,7 @@ impl Avatar {
         }
         let kind = sampler.unwrap_or(self.sampler);
         let scene = FrameScene::new(&model.skeleton, &model.canonical, params);
-        let conditions = frame_conditions(subject, params, &scene);
+        let conditions = frame_conditions(subject, params, &scene, &model.shells);
         let rays = pixel_rays(camera)?;
         let frame_sampler = FrameSampler::new(scene, &model.shells, &rays)?;
 

@@ -11,7 +11,7 @@ use glam::{DVec3, Vec3};
 use super::sdf::Shape;
 use super::talk::SplitMix;
 use crate::body::skeleton::joint::*;
-use crate::body::{FrameParams, N_JOINTS, Skeleton};
+use crate::body::{FrameParams, N_JOINTS, PosedSkeleton, Skeleton};
 
 /// Segmentation labels of the dataset format.
 pub mod label {
@@ -453,6 +453,26 @@ pub struct Figure {
     /// Head joint's rest position and scale (for the painted mouth).
     pub head_joint: Vec3,
     pub head_scale: f32,
+}
+
+impl Figure {
+    /// The joint carrying the primitive nearest to `p_world` in the frame posed as
+    /// `posed`: for a surface point, the joint it is rigidly attached to (where primitives
+    /// blend, the nearer one). Ground truth for the skinning's canonical map.
+    pub fn owning_joint(&self, posed: &PosedSkeleton, p_world: Vec3) -> usize {
+        let p = p_world.as_dvec3();
+        let mut best = (f32::INFINITY, 0);
+        for prim in &self.prims {
+            let p_rest = posed.world_from_rest[prim.joint]
+                .inverse()
+                .transform_point3(p);
+            let d = prim.shape.distance(p_rest.as_vec3());
+            if d < best.0 {
+                best = (d, prim.joint);
+            }
+        }
+        best.1
+    }
 }
 
 fn v(x: DVec3) -> Vec3 {

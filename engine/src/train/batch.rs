@@ -68,7 +68,7 @@ impl FrameCache {
                 Ray::new(o.as_vec3(), d.as_vec3(), 0.0, f32::INFINITY).map_err(CacheError::Grid)?,
             );
         }
-        let conditions = frame_conditions(slot, &frame.params, &scene);
+        let conditions = frame_conditions(slot, &frame.params, &scene, &model.shells);
         let sampler = FrameSampler::new(scene, &model.shells, &rays).map_err(CacheError::Grid)?;
         Ok(FrameCache {
             images,

@@ -172,7 +172,7 @@ mod tests {
     use super::*;
     use crate::avatar::frame_conditions;
     use crate::body::canonical_params;
-    use crate::sampling::{FrameScene, capsule_bounds};
+    use crate::sampling::{CapsuleShells, FrameScene, capsule_bounds};
     use crate::subject_model::bone_prior;
     use crate::synth::body::default_rest_joints;
 
@@ -214,14 +214,24 @@ mod tests {
                 .with_n_levels(4)
                 .with_log2_hashmap_size(12),
         );
-        config.skinning = SkinningConfig::new().with_resolution(8);
+        config.skinning = SkinningConfig::new()
+            .with_resolution(8)
+            .with_posed_tau(Some(0.005));
         // A synthetic subject in its canonical pose, as training builds it.
         let skeleton = default_rest_joints(0);
         let prior = bone_prior([&skeleton]);
         let params = canonical_params();
         let canonical = skeleton.pose(&params);
         let scene = FrameScene::new(&skeleton, &canonical, &params);
-        let frame = frame_conditions(0, &params, &scene);
+        // Cores at half the bare radius, so the posed prior has geometry to read.
+        let n = scene.capsules.len();
+        let shells = CapsuleShells {
+            margin: vec![0.0; n],
+            core: scene.capsules.iter().map(|c| 0.5 * c.radius).collect(),
+            core_shrink: vec![0.0; n],
+            from_depth: true,
+        };
+        let frame = frame_conditions(0, &params, &scene, &shells);
         let (lo, hi) = capsule_bounds(&scene.capsules, 0.02);
         let field = config.init(&prior, &device).unwrap();
         // Rays across the body's box, along -z; rays 0-3 miss the box (no samples) with
