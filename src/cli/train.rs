@@ -60,6 +60,10 @@ pub struct RecipeArgs {
     /// paper's iterations, onto which every run is mapped).
     #[arg(long)]
     pub lr: Option<f64>,
+    /// Weight of the silhouette term (rendered opacity against the mask, mean squared
+    /// error); 0: off, the paper's loss.
+    #[arg(long, default_value_t = TrainOptions::default().mask_weight)]
+    pub mask_weight: f32,
     /// Occupancy-grid update period in steps (0: never; accelerated sampler only).
     #[arg(long, default_value_t = TrainOptions::default().occ_every)]
     pub occ_every: u32,
@@ -97,6 +101,7 @@ impl RecipeArgs {
             patches: self.patches,
             lr: self.lr,
             occ_every: self.occ_every,
+            mask_weight: self.mask_weight,
             perceptual: (self.patches > 0).then(|| self.lpips_dir.clone()),
             checkpoint_every_s: self.checkpoint_every,
             ..TrainOptions::default()

@@ -56,6 +56,9 @@ pub struct SamplingReport {
     pub truncated_samples_per_ray: f64,
     pub dense_rays_per_s: f64,
     pub accelerated_rays_per_s: f64,
+    /// The grown capsules' exact, merged intervals alone (the BVH query that any per-ray
+    /// design starts from, before a single sample is cut), for scale.
+    pub bvh_intervals_rays_per_s: f64,
     /// Median over frames of (accelerated rays/s) / (dense rays/s).
     pub median_speed_ratio: f64,
     /// Share of the accelerated sampler's time spent building each frame's structures
@@ -178,6 +181,9 @@ pub fn bench_sampling(
         let (acc, acc_s) =
             median_time(|| sampler.sample(SamplerKind::Accelerated, &rays, grid, seed));
         let acc = acc.map_err(|e| grid_error(dataset, i, e))?;
+        let (intervals, intervals_s) = median_time(|| sampler.bvh.intervals(&rays));
+        intervals.map_err(|e| grid_error(dataset, i, e))?;
+        totals.intervals_s += intervals_s;
         totals.build_s += build_s;
         let acc_s = acc_s + build_s;
         // Outside the timing, for the counts and to tell which stage loses a surface
@@ -296,6 +302,7 @@ pub fn bench_sampling(
         truncated_samples_per_ray: per_ray(totals.truncated_samples),
         dense_rays_per_s: totals.rays as f64 / totals.dense_s.max(1e-12),
         accelerated_rays_per_s: totals.rays as f64 / totals.acc_s.max(1e-12),
+        bvh_intervals_rays_per_s: totals.rays as f64 / totals.intervals_s.max(1e-12),
         median_speed_ratio: median(&mut ratios),
         accelerated_build_share: totals.build_s / totals.acc_s.max(1e-12),
         surface_misses: part_misses.iter().sum(),
@@ -318,6 +325,7 @@ struct Totals {
     dense_s: f64,
     acc_s: f64,
     build_s: f64,
+    intervals_s: f64,
 }
 
 /// Whether some sample of ray `r` contains `t` (with 0.2 mm of slack for the 0.1 mm
@@ -380,6 +388,11 @@ pub fn format_report(r: &SamplingReport) -> String {
         s,
         "{:<28} {:>14.0} {:>14.0}",
         "rays per second", r.dense_rays_per_s, r.accelerated_rays_per_s
+    );
+    let _ = writeln!(
+        s,
+        "{:<28} {:>14} {:>14.0}",
+        "  BVH intervals alone", "", r.bvh_intervals_rays_per_s
     );
     let _ = writeln!(
         s,

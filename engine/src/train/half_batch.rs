@@ -30,6 +30,8 @@ pub(crate) struct StepBatch<'a> {
     pub frame: &'a FrameConditions,
     pub step: usize,
     pub background: [f32; 3],
+    /// Weight of the opacity-against-mask term (0: off).
+    pub mask_weight: f32,
 }
 
 /// The summed loss, its MSE part and the gradients of the whole batch.
@@ -126,13 +128,18 @@ fn half(
         &device,
     );
     let l_mse = mse(rgb.clone(), target.clone());
-    let l_seg = seg_cross_entropy(rendered.seg_logits, labels);
+    let l_seg = seg_cross_entropy(rendered.seg_logits, labels.clone());
     // Patches sit at the start of the first half (see `split_point`); with them, the
     // MSE is the minor term in both halves.
     let with_patches = perceptual.is_some() && batch.patches > 0;
     let mse_weight = if with_patches { MSE_WEIGHT } else { 1.0 };
-    let pixel =
-        (l_seg.mul_scalar(SEG_WEIGHT) + l_mse.clone().mul_scalar(mse_weight)).mul_scalar(weight);
+    let mut pixel = l_seg.mul_scalar(SEG_WEIGHT) + l_mse.clone().mul_scalar(mse_weight);
+    if batch.mask_weight > 0.0 {
+        // Label 0 is the background; every other label is the person.
+        let person = labels.greater_elem(0).float();
+        pixel = pixel + mse(rendered.opacity, person).mul_scalar(batch.mask_weight);
+    }
+    let pixel = pixel.mul_scalar(weight);
     let loss = match perceptual {
         Some(p) if with_patches && range.start == 0 => {
             let (k, side) = (batch.patches, batch.patch_side);
@@ -272,6 +279,7 @@ mod tests {
                 frame: &frame,
                 step: 0,
                 background: [1.0; 3],
+                mask_weight: 0.1,
             };
             let whole_batch = batch();
             let whole = half(&field, false, None, &whole_batch, 0..9, &samples).unwrap();

@@ -547,6 +547,7 @@ impl Trainer<'_> {
                 frame: &fc.conditions,
                 step: vstep,
                 background: self.dataset.background,
+                mask_weight: self.opts.mask_weight,
             },
         )
         .map_err(|source| TrainError::Field { source })?;

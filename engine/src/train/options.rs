@@ -39,6 +39,11 @@ pub struct TrainOptions {
     pub lr: Option<f64>,
     /// Fraction of random rays drawn inside the person's bounding box (the paper: 80%).
     pub bbox_fraction: f32,
+    /// Weight of the silhouette term: the mean squared error between each ray's rendered
+    /// opacity and its pixel's mask (0: off, the paper's loss). Runs written before the
+    /// term existed read as 0.
+    #[serde(default)]
+    pub mask_weight: f32,
     /// Update the occupancy grids every this many steps (0: never). Accelerated only.
     pub occ_every: u32,
     /// Occupancy-grid cells along the longest axis.
@@ -86,6 +91,7 @@ impl Default for TrainOptions {
             patches: 1,
             lr: None,
             bbox_fraction: 0.8,
+            mask_weight: 0.0,
             occ_every: 64,
             grid_resolution: 128,
             perceptual: None,
@@ -125,6 +131,9 @@ impl TrainOptions {
         if !(self.initial_lr().is_finite() && self.initial_lr() > 0.0) {
             return bad("lr", "must be a positive number");
         }
+        if !(self.mask_weight.is_finite() && self.mask_weight >= 0.0) {
+            return bad("mask_weight", "must be a finite number >= 0");
+        }
         if !(0.0..=1.0).contains(&self.bbox_fraction) {
             return bad("bbox_fraction", "must lie in [0, 1]");
         }
@@ -138,5 +147,40 @@ impl TrainOptions {
             return bad("preset", "expected `fast` or `paper`");
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn bad_options_name_their_field() {
+        let field_of = |opts: TrainOptions| match opts.check() {
+            Err(TrainError::BadOption { field, .. }) => field,
+            other => panic!("{other:?}"),
+        };
+        for w in [-0.1, f32::NAN, f32::INFINITY] {
+            let opts = TrainOptions {
+                mask_weight: w,
+                ..TrainOptions::default()
+            };
+            assert_eq!(field_of(opts), "mask_weight");
+        }
+        let opts = TrainOptions {
+            lr: Some(0.0),
+            ..TrainOptions::default()
+        };
+        assert_eq!(field_of(opts), "lr");
+        assert!(TrainOptions::default().check().is_ok());
+    }
+
+    /// `state.json` of a run from before the silhouette term resumes with it off.
+    #[test]
+    fn options_without_mask_weight_read_as_off() {
+        let mut json = serde_json::to_value(TrainOptions::default()).unwrap();
+        json.as_object_mut().unwrap().remove("mask_weight");
+        let opts: TrainOptions = serde_json::from_value(json).unwrap();
+        assert_eq!(opts.mask_weight, 0.0);
     }
 }
