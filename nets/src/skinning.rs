@@ -147,24 +147,12 @@ impl SkinningConfig {
             }
             t => t.map(|t| t as f32),
         };
-        let inv = 1.0 / (2.0 * self.prior_sigma * self.prior_sigma);
-        let start = if posed_tau.is_some() { 0.0 } else { -1e4f32 };
-        let mut logits = vec![start; N_BODY_JOINTS * r * r * r];
-        for z in (0..r).take(if posed_tau.is_some() { 0 } else { r }) {
-            for y in 0..r {
-                for x in 0..r {
-                    let p: [f64; 3] = std::array::from_fn(|a| {
-                        let t = [x, y, z][a] as f64 / (r - 1) as f64;
-                        aabb_min[a] as f64 + t * (aabb_max[a] as f64 - aabb_min[a] as f64)
-                    });
-                    for s in prior {
-                        let d2 = segment_distance2(p, s.a, s.b);
-                        let slot = &mut logits[((s.bone * r + z) * r + y) * r + x];
-                        *slot = slot.max((-d2 * inv) as f32);
-                    }
-                }
-            }
-        }
+        // With the posed prior the volume is a learned correction and starts at zero;
+        // without it, it holds the canonical bone-distance prior.
+        let logits = match posed_tau {
+            Some(_) => vec![0.0; N_BODY_JOINTS * r * r * r],
+            None => canonical_prior_logits(r, aabb_min, aabb_max, prior, self.prior_sigma),
+        };
         Ok(BlendWeightVolume {
             logits: Param::from_tensor(floats(logits, [N_BODY_JOINTS * r * r * r], device)),
             resolution: r,
@@ -172,6 +160,35 @@ impl SkinningConfig {
             posed_tau,
         })
     }
+}
+
+/// HumanNeRF's initialisation: per bone, `-d^2 / (2 sigma^2)` at every vertex, `d` the
+/// distance to the bone's nearest canonical segment; bones without one get -1e4.
+fn canonical_prior_logits(
+    r: usize,
+    aabb_min: [f32; 3],
+    aabb_max: [f32; 3],
+    prior: &[BoneSegment],
+    sigma: f64,
+) -> Vec<f32> {
+    let inv = 1.0 / (2.0 * sigma * sigma);
+    let mut logits = vec![-1e4f32; N_BODY_JOINTS * r * r * r];
+    for z in 0..r {
+        for y in 0..r {
+            for x in 0..r {
+                let p: [f64; 3] = std::array::from_fn(|a| {
+                    let t = [x, y, z][a] as f64 / (r - 1) as f64;
+                    aabb_min[a] as f64 + t * (aabb_max[a] as f64 - aabb_min[a] as f64)
+                });
+                for s in prior {
+                    let d2 = segment_distance2(p, s.a, s.b);
+                    let slot = &mut logits[((s.bone * r + z) * r + y) * r + x];
+                    *slot = slot.max((-d2 * inv) as f32);
+                }
+            }
+        }
+    }
+    logits
 }
 
 /// Signed distance from `p` to capsule `c` (negative inside), in f64 for the products.

@@ -824,11 +824,19 @@ fn write_recipe(out: &Path, opts: &TrainOptions, config: &FieldConfig) -> Result
     let recipe = serde_json::json!({
         "options": opts,
         "initial_lr": opts.initial_lr(),
-        "loss": if opts.perceptual.is_some() && opts.patches > 0 {
-            format!("perceptual (LPIPS alex, else 1 - SSIM) on {} patch(es) of {PATCH}x{PATCH} + {MSE_WEIGHT} MSE + {SEG_WEIGHT} CE", opts.patches)
-        } else {
-            format!("MSE + {SEG_WEIGHT} CE (no perceptual term)")
-        },
+        "loss": format!(
+            "{}{}",
+            if opts.perceptual.is_some() && opts.patches > 0 {
+                format!("perceptual (LPIPS alex, else 1 - SSIM) on {} patch(es) of {PATCH}x{PATCH} + {MSE_WEIGHT} MSE + {SEG_WEIGHT} CE", opts.patches)
+            } else {
+                format!("MSE + {SEG_WEIGHT} CE (no perceptual term)")
+            },
+            if opts.mask_weight > 0.0 {
+                format!(" + {} MSE(opacity, mask)", opts.mask_weight)
+            } else {
+                String::new()
+            }
+        ),
         "schedule": {
             "virtual_iterations": schedule::PAPER_ITERATIONS,
             "lr_decay": format!("x0.1 per {} virtual iterations", schedule::LR_DECAY_ITERATIONS),
