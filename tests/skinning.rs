@@ -133,18 +133,17 @@ fn the_posed_prior_maps_the_synthetic_surface_to_its_true_canonical_point() {
             posed.pixels[g]
         );
     }
-    // Arms: millimetres with the posed prior, centimetres with the canonical one. Hands
-    // clasped in two of these frames keep the hands' mean at centimetres: where two
-    // hands touch, their cores are equally near and the blend is between two wrists.
-    for (g, name, bound) in [
-        (1, "upper arms", 0.01),
-        (2, "forearms", 0.008),
-        (3, "hands", 1.0),
-    ] {
+    // Arms: millimetres with the posed prior, centimetres with the canonical one.
+    for (g, name, bound) in [(1, "upper arms", 0.01), (2, "forearms", 0.008)] {
         let (p, c) = (posed.mean(g), canonical.mean(g));
         assert!(p < bound, "{name}: {p} m");
         assert!(p < 0.5 * c, "{name}: posed {p} m against canonical {c} m");
     }
+    // Hands: two of these frames have them clasped, where the two wrists' cores are
+    // equally near and the blend is between them, so centimetres remain; still well under
+    // half the canonical prior's error.
+    let (p, c) = (posed.mean(3), canonical.mean(3));
+    assert!(p < 0.5 * c, "hands: posed {p} m against canonical {c} m");
     // The torso and head: no worse than the canonical prior (the skirt's blend with the
     // thighs is the same systematic offset in every frame).
     for (g, name) in [(0, "torso and legs"), (4, "head")] {
