@@ -12,8 +12,8 @@ use glam::Vec3;
 use talkin::engine::avatar::frame_conditions;
 use talkin::engine::body::canonical_params;
 use talkin::engine::body::skeleton::body_ancestor;
-use talkin::engine::dataset::Split;
-use talkin::engine::sampling::{FrameScene, fit_subject_margins, foreground_rays};
+use talkin::engine::dataset::{Dataset, Split};
+use talkin::engine::sampling::{CapsuleShells, FrameScene, fit_subject_margins, foreground_rays};
 use talkin::engine::subject_model::bone_prior;
 use talkin::engine::synth::{body::figure, look, proportions};
 use talkin::grids::MarginFitOpts;
@@ -43,15 +43,16 @@ fn group(joint: usize) -> usize {
     }
 }
 
-/// Maps every training pixel's true surface point with a volume built by `config`.
-fn mapping_errors(config: &SkinningConfig) -> GroupErrors {
-    let dataset = common::synthetic_scene("skinning_truth", 1, 160, 7);
+/// Maps every training pixel's true surface point of `dataset` (one subject with the
+/// fitted `shells`) with a volume built by `config`.
+fn mapping_errors(
+    dataset: &Dataset,
+    shells: &CapsuleShells,
+    config: &SkinningConfig,
+) -> GroupErrors {
     let device = Device::flex();
     let skeleton = &dataset.subjects[0].skeleton;
     let canonical = skeleton.pose(&canonical_params());
-    let shells = fit_subject_margins(&dataset, 0, &MarginFitOpts::default())
-        .unwrap()
-        .shells;
     let volume = config
         .init(
             [-1.2, -1.3, -0.6],
@@ -115,8 +116,16 @@ fn mapping_errors(config: &SkinningConfig) -> GroupErrors {
 
 #[test]
 fn the_posed_prior_maps_the_synthetic_surface_to_its_true_canonical_point() {
-    let posed = mapping_errors(&SkinningConfig::new().with_posed_tau(Some(0.005)));
-    let canonical = mapping_errors(&SkinningConfig::new());
+    let dataset = common::synthetic_scene("skinning_truth", 1, 160, 7);
+    let shells = fit_subject_margins(&dataset, 0, &MarginFitOpts::default())
+        .unwrap()
+        .shells;
+    let posed = mapping_errors(
+        &dataset,
+        &shells,
+        &SkinningConfig::new().with_posed_tau(Some(0.005)),
+    );
+    let canonical = mapping_errors(&dataset, &shells, &SkinningConfig::new());
     let names = ["torso and legs", "upper arms", "forearms", "hands", "head"];
     for g in 0..5 {
         eprintln!(
