@@ -68,7 +68,7 @@ fn mapping_errors(
     for i in dataset.split_indices(Split::Train) {
         let frame = &dataset.frames[i];
         let scene = FrameScene::new(skeleton, &canonical, &frame.params);
-        let conditions = frame_conditions(0, &frame.params, &scene, &shells);
+        let conditions = frame_conditions(0, &frame.params, &scene, shells);
         let fig = figure(skeleton, &proportions(0), &look(0), &frame.params);
         let images = dataset.images(i).unwrap();
         let depth = dataset.depth(i).unwrap().expect("synthetic depth");
