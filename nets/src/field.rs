@@ -226,20 +226,20 @@ pub struct RadianceNet {
 }
 
 impl RadianceNet {
-    /// Points of identity `identity` (all of one subject).
+    /// Points of identity `identity` (all of one subject), conditioned on `condition`,
+    /// one row shared by every point (the frame's codes; see [`Mlp::forward_with_row`]).
     ///
     /// # Shapes
-    /// - `unit_points`: `[n, 3]`, each of `conditions`: `[n, d_k]`; output `[n, d_out]`
+    /// - `unit_points`: `[n, 3]`, `condition`: `[1, d_c]`; output `[n, d_out]`
     pub fn forward(
         &self,
         unit_points: Tensor<2>,
         identity: usize,
-        conditions: Vec<Tensor<2>>,
+        condition: Tensor<2>,
         step: usize,
     ) -> Tensor<2> {
-        let mut inputs = vec![self.encoding.forward(unit_points, identity, step)];
-        inputs.extend(conditions);
-        self.mlp.forward(Tensor::cat(inputs, 1))
+        let enc = self.encoding.forward(unit_points, identity, step);
+        self.mlp.forward_with_row(enc, Some(condition))
     }
 }
 
@@ -252,12 +252,13 @@ pub struct DeformNet {
 
 impl DeformNet {
     /// # Shapes
-    /// - `unit_points`: `[n, 3]`, `condition`: `[n, d]`; output `[n, 3]`
+    /// - `unit_points`: `[n, 3]`, `condition`: `[1, d]` (shared by every point); output
+    ///   `[n, 3]`
     pub fn forward(&self, unit_points: Tensor<2>, condition: Tensor<2>, step: usize) -> Tensor<2> {
         let enc = self
             .encoding
             .forward(unit_points.mul_scalar(2.0).sub_scalar(1.0), step);
-        self.mlp.forward(Tensor::cat(vec![enc, condition], 1))
+        self.mlp.forward_with_row(enc, Some(condition))
     }
 }
 
@@ -531,8 +532,7 @@ impl TalkinField {
                 frame.body_pose.clone(),
                 [1, self.settings.pose_dim],
                 &device,
-            )
-            .repeat_dim(0, n);
+            );
             x = x.clone() + nr.forward(self.to_unit(x), pose, step); // [n, 3]
             stats.non_rigid_rows = n;
         }
@@ -543,7 +543,7 @@ impl TalkinField {
         let raw = self.body.forward(
             self.to_unit(x.clone()),
             frame.identity,
-            vec![identity.clone().repeat_dim(0, n)],
+            identity.clone(),
             step,
         ); // [n, 9]
         let (mut sigma, mut rgb) = activate(&raw);
@@ -568,11 +568,11 @@ impl TalkinField {
                     e.extend(frame.jaw);
                 }
                 let d_e = e.len();
-                let e = floats(e, [1, d_e], &device).repeat_dim(0, h);
+                let e = floats(e, [1, d_e], &device);
                 let raw = face.forward(
                     self.to_unit(xh),
                     frame.identity,
-                    vec![e, identity.clone().repeat_dim(0, h)],
+                    Tensor::cat(vec![e, identity.clone()], 1),
                     step,
                 );
                 let (s_face, c_face) = activate(&raw);
@@ -590,16 +590,10 @@ impl TalkinField {
                     .clone()
                     .select(0, ints(idx.iter().map(|&i| i as i32).collect(), &device));
                 if let Some(dh) = &self.hand_deform {
-                    let pose = floats(frame.hand_pose.clone(), [1, HAND_POSE_DIM], &device)
-                        .repeat_dim(0, h);
+                    let pose = floats(frame.hand_pose.clone(), [1, HAND_POSE_DIM], &device);
                     xh = xh.clone() + dh.forward(self.to_unit(xh), pose, step);
                 }
-                let raw = hands.forward(
-                    self.to_unit(xh),
-                    frame.identity,
-                    vec![identity.repeat_dim(0, h)],
-                    step,
-                );
+                let raw = hands.forward(self.to_unit(xh), frame.identity, identity, step);
                 let (s_hand, c_hand) = activate(&raw);
                 stats.hand_rows = h;
                 if self.settings.hand_background {

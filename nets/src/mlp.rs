@@ -68,13 +68,121 @@ impl Mlp {
     /// - `x`: `[n, d_input]`
     /// - output: `[n, d_output]`
     pub fn forward(&self, x: Tensor<2>) -> Tensor<2> {
+        self.forward_with_row(x, None)
+    }
+
+    /// [`Mlp::forward`] of `cat([x, row repeated n times], 1)`, without building the
+    /// repeated rows: a condition that is the same for every row (a frame's identity
+    /// code, expression, pose) goes through its slice of the weights once, as a bias.
+    /// Same values and gradients; `[n, d_x + d_row]` is never allocated, and the
+    /// matrix products see `d_x` input columns instead of `d_x + d_row`.
+    ///
+    /// # Shapes
+    /// - `x`: `[n, d_x]`, `row`: `[1, d_row]` with `d_x + d_row = d_input`
+    pub fn forward_with_row(&self, x: Tensor<2>, row: Option<Tensor<2>>) -> Tensor<2> {
         let mut h = x.clone();
         for (i, layer) in self.hidden.iter().enumerate() {
-            if self.skips.contains(&i) {
+            let first = i == 0;
+            if self.skips.contains(&i) && !first {
                 h = Tensor::cat(vec![h, x.clone()], 1);
             }
-            h = relu(layer.forward(h));
+            let row = if first || self.skips.contains(&i) {
+                row.clone()
+            } else {
+                None
+            };
+            h = relu(linear_with_row(layer, h, row));
         }
         self.output.forward(h)
+    }
+}
+
+/// `layer.forward(cat([x, row repeated], 1))` with the row's product computed once.
+fn linear_with_row(layer: &Linear, x: Tensor<2>, row: Option<Tensor<2>>) -> Tensor<2> {
+    let [n, d_x] = x.dims();
+    match row {
+        // An empty batch: the plain path keeps its shape `[0, d_out]`.
+        Some(row) if n == 0 => layer.forward(Tensor::cat(vec![x, row.repeat_dim(0, 0)], 1)),
+        Some(row) => {
+            let w = layer.weight.val();
+            let [d_in, _] = w.dims();
+            let mut c = row.matmul(w.clone().narrow(0, d_x, d_in - d_x)); // [1, d_out]
+            if let Some(b) = &layer.bias {
+                c = c + b.val().unsqueeze_dim(0);
+            }
+            x.matmul(w.narrow(0, 0, d_x)) + c
+        }
+        None => layer.forward(x),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn tensor(rows: usize, cols: usize, seed: usize, device: &Device) -> Tensor<2> {
+        let v: Vec<f32> = (0..rows * cols)
+            .map(|i| (((i + seed) * 7919 % 199) as f32 / 99.0) - 1.0)
+            .collect();
+        Tensor::from_data(TensorData::new(v, [rows, cols]), device)
+    }
+
+    /// The shared row as a bias gives the values and gradients of the repeated,
+    /// concatenated input, with a skip layer (which sees the row again) and without.
+    #[test]
+    fn a_shared_row_matches_the_repeated_input() {
+        let device = Device::flex().autodiff();
+        for skips in [vec![], vec![2]] {
+            let mlp = MlpConfig::new(3, 16)
+                .with_skips(skips.clone())
+                .init(7, 4, None, &device);
+            let (x, row) = (tensor(9, 4, 1, &device), tensor(1, 3, 5, &device));
+            let x = x.require_grad();
+            let row = row.require_grad();
+            let plain = mlp.forward(Tensor::cat(
+                vec![x.clone(), row.clone().repeat_dim(0, 9)],
+                1,
+            ));
+            let shared = mlp.forward_with_row(x.clone(), Some(row.clone()));
+            let (a, b) = (
+                plain.clone().try_to_vec_as::<f32>().unwrap(),
+                shared.clone().try_to_vec_as::<f32>().unwrap(),
+            );
+            for (p, q) in a.iter().zip(&b) {
+                assert!((p - q).abs() < 1e-5, "{p} vs {q} (skips {skips:?})");
+            }
+            let grads = |out: Tensor<2>| {
+                let g = out.powi_scalar(2).sum().backward();
+                let w = |t: Tensor<2>| t.try_to_vec_as::<f32>().unwrap();
+                (
+                    w(x.grad(&g).unwrap()),
+                    w(row.grad(&g).unwrap()),
+                    w(mlp.hidden[0].weight.val().grad(&g).unwrap()),
+                )
+            };
+            let (ga, gb) = (grads(plain), grads(shared));
+            for (u, v) in [(ga.0, gb.0), (ga.1, gb.1), (ga.2, gb.2)] {
+                assert_eq!(u.len(), v.len());
+                let scale = u.iter().fold(1e-6f32, |m, e| m.max(e.abs()));
+                for (p, q) in u.iter().zip(&v) {
+                    assert!(
+                        (p - q).abs() <= 1e-4 * scale,
+                        "{p} vs {q} (skips {skips:?})"
+                    );
+                }
+            }
+        }
+    }
+
+    /// An empty batch keeps its shape.
+    #[test]
+    fn a_shared_row_with_no_rows_gives_no_rows() {
+        let device = Device::flex();
+        let mlp = MlpConfig::new(2, 8).init(5, 4, None, &device);
+        let out = mlp.forward_with_row(
+            Tensor::zeros([0, 3], &device),
+            Some(tensor(1, 2, 0, &device)),
+        );
+        assert_eq!(out.dims(), [0, 4]);
     }
 }

@@ -103,20 +103,14 @@ fn canonical_density(
     let flat: Vec<f32> = points.iter().flat_map(|p| p.to_array()).collect();
     let x = Tensor::<2>::from_data(TensorData::new(flat, [n, 3]), &device);
     let unit = field.to_unit(x);
-    let id_of = |rows: usize| {
-        field
-            .identity
-            .val()
-            .select(
-                0,
-                Tensor::<1, Int>::from_data(TensorData::new(vec![subject as i32], [1]), &device),
-            )
-            .repeat_dim(0, rows)
-    };
+    let id = field.identity.val().select(
+        0,
+        Tensor::<1, Int>::from_data(TensorData::new(vec![subject as i32], [1]), &device),
+    ); // [1, id]
     let host = |t: Tensor<2>| t.try_to_vec_as::<f32>().ok();
     let body = field
         .body
-        .forward(unit.clone(), subject, vec![id_of(n)], usize::MAX);
+        .forward(unit.clone(), subject, id.clone(), usize::MAX);
     let (Some(body_sigma), Some(seg)) = (
         host(body.clone().narrow(1, 0, 1)),
         host(body.narrow(1, 4, N_SEG_CLASSES)),
@@ -128,11 +122,14 @@ fn canonical_density(
             TensorData::new(rows.iter().map(|&i| i as i32).collect(), [rows.len()]),
             &device,
         );
-        let mut cond = Vec::new();
-        if face {
-            cond.push(Tensor::<2>::zeros([rows.len(), face_dim], &device));
-        }
-        cond.push(id_of(rows.len()));
+        let cond = if face {
+            Tensor::cat(
+                vec![Tensor::<2>::zeros([1, face_dim], &device), id.clone()],
+                1,
+            )
+        } else {
+            id.clone()
+        };
         let raw = net.forward(unit.clone().select(0, idx), subject, cond, usize::MAX);
         host(raw.narrow(1, 0, 1)).unwrap_or_else(|| vec![f32::MAX; rows.len()])
     };
