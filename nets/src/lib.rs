@@ -31,6 +31,7 @@ pub mod error;
 pub mod field;
 pub mod loss;
 pub mod mlp;
+mod mlp_fused;
 pub mod render;
 pub mod skinning;
 mod util;

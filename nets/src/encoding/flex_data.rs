@@ -6,7 +6,7 @@ use burn::tensor::{DType, TensorData};
 
 /// A contiguous f32 view of a Flex tensor (copied only if strided); `None` for other
 /// dtypes.
-pub(super) fn f32_data(t: &FlexTensor) -> Option<std::borrow::Cow<'_, [f32]>> {
+pub(crate) fn f32_data(t: &FlexTensor) -> Option<std::borrow::Cow<'_, [f32]>> {
     if t.dtype() != DType::F32 {
         return None;
     }
@@ -20,6 +20,6 @@ pub(super) fn f32_data(t: &FlexTensor) -> Option<std::borrow::Cow<'_, [f32]>> {
 }
 
 /// A 2-D Flex tensor owning `values` (row-major).
-pub(super) fn flex_tensor(values: Vec<f32>, shape: [usize; 2]) -> FlexTensor {
+pub(crate) fn flex_tensor(values: Vec<f32>, shape: [usize; 2]) -> FlexTensor {
     FlexTensor::from_data(TensorData::new(values, shape))
 }

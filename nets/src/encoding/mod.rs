@@ -3,7 +3,7 @@
 //! Each runs as one fused op on the Flex CPU backend (`*_fused`, with its own backward)
 //! and as composed tensor ops elsewhere (wgpu); tests hold the two equal.
 
-mod flex_data;
+pub(crate) mod flex_data;
 pub mod frequency;
 mod frequency_fused;
 mod hash_fused;
