@@ -251,13 +251,17 @@ impl<'a> Trainer<'a> {
         }
         let checkpoint = Checkpoint::load(base)?;
         let device = Device::flex().autodiff();
-        let mut field = {
+        {
             let _guard = crate::checkpoint::DEVICE_RNG
                 .lock()
                 .unwrap_or_else(|e| e.into_inner());
             device.seed(opts.seed);
-            checkpoint.field(&device)?
-        };
+        }
+        // Not under the guard above: `Checkpoint::field` takes DEVICE_RNG itself, and a
+        // std Mutex is not re-entrant (holding it here deadlocked every adaptation). The
+        // field's initial draw is overwritten by the checkpoint's record, so another
+        // thread drawing in between changes nothing.
+        let mut field = checkpoint.field(&device)?;
         let mut config = checkpoint.config.clone();
         let mut subjects = checkpoint.subjects.clone();
         let name = dataset.subjects[s].name.clone();
