@@ -183,7 +183,8 @@ pub fn ablations(
     Ok(rows)
 }
 
-fn train_to_end<'a>(
+/// Trains `opts` to the end of its budget and saves the final checkpoint.
+pub(crate) fn train_to_end<'a>(
     dataset: &'a Dataset,
     run: &Path,
     opts: &TrainOptions,
@@ -197,17 +198,18 @@ fn train_to_end<'a>(
 }
 
 /// The averages a row reports.
-#[derive(Clone, Debug)]
-struct Scores {
-    psnr: f64,
-    ssim: f64,
-    lpips: Option<f64>,
-    psnr_face: Option<f64>,
-    psnr_hands: Option<f64>,
+#[derive(Clone, Debug, Serialize)]
+pub struct Scores {
+    pub psnr: f64,
+    pub ssim: f64,
+    /// x1000.
+    pub lpips: Option<f64>,
+    pub psnr_face: Option<f64>,
+    pub psnr_hands: Option<f64>,
 }
 
 impl Scores {
-    fn of(r: &EvalReport) -> Scores {
+    pub fn of(r: &EvalReport) -> Scores {
         Scores {
             psnr: r.psnr,
             ssim: r.ssim,
@@ -258,7 +260,7 @@ fn merge(scores: &[(usize, Scores)]) -> Option<Scores> {
 }
 
 /// `count` of `frames`, evenly spaced (all when `count` is 0 or too large).
-fn thin(frames: &[usize], count: usize) -> Vec<usize> {
+pub(crate) fn thin(frames: &[usize], count: usize) -> Vec<usize> {
     if count == 0 || count >= frames.len() {
         return frames.to_vec();
     }
@@ -298,19 +300,28 @@ pub fn format_table(rows: &[AblationRow]) -> String {
 }
 
 fn write_outputs(out: &Path, rows: &[AblationRow]) -> Result<(), AblationError> {
+    write_report(
+        out,
+        "ablations",
+        &serde_json::to_vec_pretty(rows).expect("plain data serialises"),
+        &format_table(rows),
+    )
+}
+
+/// Writes a benchmark's `out/<name>.json` and `out/<name>.md`, each atomically.
+pub(crate) fn write_report(
+    out: &Path,
+    name: &str,
+    json: &[u8],
+    table: &str,
+) -> Result<(), AblationError> {
     std::fs::create_dir_all(out).map_err(|source| AblationError::Io {
         file: out.to_path_buf(),
         source,
     })?;
-    for (name, bytes) in [
-        (
-            "ablations.json",
-            serde_json::to_vec_pretty(rows).expect("plain data serialises"),
-        ),
-        ("ablations.md", format_table(rows).into_bytes()),
-    ] {
-        let file = out.join(name);
-        crate::atomic::write_atomic(&file, &bytes)
+    for (ext, bytes) in [("json", json), ("md", table.as_bytes())] {
+        let file = out.join(format!("{name}.{ext}"));
+        crate::atomic::write_atomic(&file, bytes)
             .map_err(|source| AblationError::Io { file, source })?;
     }
     Ok(())

@@ -18,6 +18,7 @@ pub mod eval;
 pub mod inspect;
 pub mod json_shape;
 pub mod motion;
+pub mod novel_identity;
 pub mod sampling;
 pub mod sequence;
 pub mod serve;

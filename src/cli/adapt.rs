@@ -2,13 +2,10 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use talkin_engine::dataset::Dataset;
+use talkin_engine::novel_identity::ADAPT_LR_RATIO;
 use talkin_engine::train::Trainer;
 
 use super::train::{RecipeArgs, run_trainer};
-
-/// The paper adapts with lr 1e-5, 1/50 of its training rate 5e-4; the fast preset keeps
-/// that ratio to its own training rate (1e-2 -> 2e-4).
-const ADAPT_LR_RATIO: f64 = 1.0 / 50.0;
 
 #[derive(clap::Args, Debug, Clone)]
 pub struct AdaptArgs {

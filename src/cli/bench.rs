@@ -30,6 +30,10 @@ pub enum BenchCommand {
     /// The paper's ablations (w/o D_hands, w/o background, w/o jaw in e, single- vs
     /// multi-identity), each trained for the same budget and scored on held-out frames.
     Ablations(AblationArgs),
+    /// The paper's novel-identity experiment: a multi-identity model trained without one
+    /// subject, adapted to it from the first 1, 3, 10 and 30 s of its video, each scored on
+    /// the same held-out frames of that subject.
+    NovelIdentity(NovelIdentityArgs),
     /// The render server under load: an in-process server on a free port, closed-loop
     /// clients posting one frame each; throughput and p50/p99 latency per client count.
     Serve(ServeBenchArgs),
@@ -46,6 +50,41 @@ pub struct AblationArgs {
     /// Training minutes per model.
     #[arg(long = "minutes-each", default_value_t = 3.0)]
     pub minutes_each: f64,
+    /// Frames per evaluated split, evenly spaced (0: all).
+    #[arg(long, default_value_t = 6)]
+    pub eval_frames: usize,
+    #[command(flatten)]
+    pub recipe: super::train::RecipeArgs,
+}
+
+#[derive(clap::Args, Debug)]
+pub struct NovelIdentityArgs {
+    /// Dataset directory; the held-out subject needs a video longer than the longest clip
+    /// (`talkin synth --frames 900`: ~37 s a subject).
+    #[arg(long)]
+    pub data: PathBuf,
+    /// Report directory: novel_identity.md, novel_identity.json, runs/.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// The held-out subject (default: the dataset's last).
+    #[arg(long)]
+    pub subject: Option<String>,
+    /// Clip lengths in seconds, from the start of the subject's video.
+    #[arg(long, default_value = "1,3,10,30", value_delimiter = ',')]
+    pub clips: Vec<f64>,
+    /// Training minutes of the multi-identity model.
+    #[arg(long, default_value_t = 6.0, conflicts_with = "base_steps")]
+    pub base_minutes: f64,
+    /// Optimizer steps of the multi-identity model instead of minutes (reproducible to
+    /// the bit, whatever else the machine runs).
+    #[arg(long)]
+    pub base_steps: Option<usize>,
+    /// Training minutes of each adaptation.
+    #[arg(long, default_value_t = 2.0, conflicts_with = "adapt_steps")]
+    pub adapt_minutes: f64,
+    /// Optimizer steps of each adaptation instead of minutes.
+    #[arg(long)]
+    pub adapt_steps: Option<usize>,
     /// Frames per evaluated split, evenly spaced (0: all).
     #[arg(long, default_value_t = 6)]
     pub eval_frames: usize,
@@ -111,6 +150,7 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         BenchCommand::Sampling(a) => sampling_bench(a),
         BenchCommand::SpeedVsError(a) => speed_vs_error_bench(a),
         BenchCommand::Ablations(a) => ablations_bench(a),
+        BenchCommand::NovelIdentity(a) => novel_identity_bench(a),
         BenchCommand::Serve(a) => serve_bench(a),
     }
 }
@@ -258,5 +298,33 @@ fn ablations_bench(args: AblationArgs) -> anyhow::Result<()> {
         .with_context(|| format!("ablations on {}", args.data.display()))?;
     println!("{}", format_table(&rows));
     println!("report: {}/ablations.md", args.out.display());
+    Ok(())
+}
+
+fn novel_identity_bench(args: NovelIdentityArgs) -> anyhow::Result<()> {
+    use talkin_engine::novel_identity::{NovelIdentityOptions, format_table, novel_identity};
+    use talkin_engine::train::Budget;
+    let budget = |flag: &str, minutes: f64, steps: Option<usize>| match steps {
+        Some(0) => anyhow::bail!("{flag}-steps: expected a positive number of steps"),
+        Some(n) => Ok(Budget::Steps(n)),
+        None if minutes.is_finite() && minutes > 0.0 => Ok(Budget::Seconds(minutes * 60.0)),
+        None => anyhow::bail!("{flag}-minutes: expected a positive number, found {minutes}"),
+    };
+    let base = budget("--base", args.base_minutes, args.base_steps)?;
+    let adapt = budget("--adapt", args.adapt_minutes, args.adapt_steps)?;
+    let dataset = Dataset::load(&args.data)?;
+    let opts = NovelIdentityOptions {
+        subject: args.subject.clone(),
+        clips_s: args.clips.clone(),
+        base,
+        adapt,
+        eval_frames: args.eval_frames,
+        train: args.recipe.options()?,
+        lpips_dir: Some(args.recipe.lpips_dir.clone()),
+    };
+    let rows = novel_identity(&dataset, &args.out, &opts, &mut |msg| eprintln!("{msg}"))
+        .with_context(|| format!("novel-identity benchmark on {}", args.data.display()))?;
+    println!("{}", format_table(&rows));
+    println!("report: {}/novel_identity.md", args.out.display());
     Ok(())
 }
