@@ -15,6 +15,8 @@ fn opts(clips_s: Vec<f64>) -> NovelIdentityOptions {
         subject: None,
         clips_s,
         base: Budget::Steps(4),
+        base_run: None,
+        adapt_lr_ratio: 1.0 / 50.0,
         adapt: Budget::Steps(3),
         eval_frames: 0,
         train: common::small_train_opts(SamplerKind::Accelerated, 4),
@@ -79,6 +81,20 @@ fn adapts_from_each_clip_and_scores_the_same_held_out_frames() {
     }
     let table = std::fs::read_to_string(out.join("novel_identity.md")).unwrap();
     assert_eq!(table.lines().count(), 2 + rows.len());
+
+    // An existing base run is adapted as it is, with the rate asked for.
+    let again = common::temp_dir("novel_identity_reuse");
+    let reused = NovelIdentityOptions {
+        base_run: Some(out.join("runs/base")),
+        adapt_lr_ratio: 1.0,
+        ..opts(vec![0.05])
+    };
+    let rows = novel_identity(&dataset, &again, &reused, &mut |_| {}).unwrap();
+    assert_eq!(rows.len(), 2);
+    assert!(!again.join("runs/base").exists());
+    let recipe = std::fs::read_to_string(again.join("runs/adapt-0.05s/recipe.json")).unwrap();
+    let lr = common::small_train_opts(SamplerKind::Accelerated, 4).initial_lr();
+    assert!(recipe.contains(&format!("\"lr\": {lr}")), "{recipe}");
 }
 
 #[test]
@@ -95,6 +111,13 @@ fn bad_options_name_the_field() {
     assert!(problem.contains("--frames"), "{problem}");
     for clips in [vec![], vec![0.0], vec![f64::NAN]] {
         assert_eq!(field(opts(clips)).0, "clips");
+    }
+    for ratio in [0.0, f64::NAN] {
+        let o = NovelIdentityOptions {
+            adapt_lr_ratio: ratio,
+            ..opts(vec![0.05])
+        };
+        assert_eq!(field(o).0, "adapt_lr_ratio");
     }
     let (f, problem) = field(NovelIdentityOptions {
         subject: Some("nobody".into()),

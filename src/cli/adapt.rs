@@ -2,7 +2,7 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use talkin_engine::dataset::Dataset;
-use talkin_engine::novel_identity::ADAPT_LR_RATIO;
+use talkin_engine::novel_identity::adapt_lr_ratio;
 use talkin_engine::train::Trainer;
 
 use super::train::{RecipeArgs, run_trainer};
@@ -34,7 +34,7 @@ pub fn run(args: AdaptArgs) -> anyhow::Result<()> {
         .with_context(|| format!("cannot load the dataset in {}", args.data.display()))?;
     let mut opts = args.recipe.options()?;
     if opts.lr.is_none() {
-        opts.lr = Some(opts.initial_lr() * ADAPT_LR_RATIO);
+        opts.lr = Some(opts.initial_lr() * adapt_lr_ratio(&opts.preset));
     }
     opts.identities = Some(vec![args.subject.clone()]);
     let trainer = Trainer::adapt(

@@ -60,7 +60,7 @@ pub struct AblationArgs {
 #[derive(clap::Args, Debug)]
 pub struct NovelIdentityArgs {
     /// Dataset directory; the held-out subject needs a video longer than the longest clip
-    /// (`talkin synth --frames 900`: ~37 s a subject).
+    /// (`talkin synth --frames 800`: 40 s a subject).
     #[arg(long)]
     pub data: PathBuf,
     /// Report directory: novel_identity.md, novel_identity.json, runs/.
@@ -79,6 +79,14 @@ pub struct NovelIdentityArgs {
     /// the bit, whatever else the machine runs).
     #[arg(long)]
     pub base_steps: Option<usize>,
+    /// Adapt this trained run instead of training the multi-identity model (it must not
+    /// have trained the held-out subject).
+    #[arg(long, conflicts_with_all = ["base_minutes", "base_steps"])]
+    pub base_run: Option<PathBuf>,
+    /// The adaptations' learning rate over the recipe's (default: `adapt`'s, 1 for the
+    /// `fast` preset, the paper's 1/50 for `paper`).
+    #[arg(long)]
+    pub adapt_lr_ratio: Option<f64>,
     /// Training minutes of each adaptation.
     #[arg(long, default_value_t = 2.0, conflicts_with = "adapt_steps")]
     pub adapt_minutes: f64,
@@ -317,6 +325,10 @@ fn novel_identity_bench(args: NovelIdentityArgs) -> anyhow::Result<()> {
         subject: args.subject.clone(),
         clips_s: args.clips.clone(),
         base,
+        base_run: args.base_run.clone(),
+        adapt_lr_ratio: args
+            .adapt_lr_ratio
+            .unwrap_or_else(|| talkin_engine::novel_identity::adapt_lr_ratio(&args.recipe.preset)),
         adapt,
         eval_frames: args.eval_frames,
         train: args.recipe.options()?,
