@@ -141,18 +141,21 @@ mod tests {
         let mut chords = Vec::new();
         let mut rays = Vec::new();
         for k in 0..101 {
-            // Diagonal-ish rays entering the box's x = 0 face at y = k / 101 in a
-            // scrambled order; their chords shrink as y grows.
-            let y = ((k * 37) % 101) as f32 / 101.0;
-            let ray =
-                Ray::new(vec3(-1.0, y, 0.5), vec3(1.0, 0.4, 0.0), 0.0, f32::INFINITY).unwrap();
+            // Rays from inside the box at angles in a scrambled order: their chords (to
+            // the x = 1 face or the top) all differ.
+            let angle = ((k * 37) % 101) as f32 / 101.0 * 1.2 + 0.01;
+            let direction = vec3(angle.cos(), angle.sin(), 0.0);
+            let ray = Ray::new(vec3(0.0, 0.5, 0.5), direction, 0.0, f32::INFINITY).unwrap();
             let (t0, t1) = talkin_grids::ray::clip_to_box(&ray, lo, hi).unwrap();
             chords.push(t1 - t0);
             rays.push(ray);
         }
         // A ray that misses the box is not counted.
         rays.push(Ray::new(vec3(-1.0, 5.0, 0.5), Vec3::X, 0.0, f32::INFINITY).unwrap());
+        // The unsorted middle is another chord, so this checks the selection.
+        let unsorted_middle = chords[50];
         chords.sort_by(f32::total_cmp);
+        assert_ne!(unsorted_middle, chords[50]);
         assert_eq!(median_dense_step(&rays, lo, hi, 4), chords[50] / 4.0);
         assert_eq!(median_dense_step(&[], lo, hi, 4), 0.005);
     }
