@@ -12,10 +12,11 @@ use std::path::{Path, PathBuf};
 
 use serde::Serialize;
 
+use crate::bench_shared::{Scores, thin, train_to_end, write_report};
 use crate::dataset::{Dataset, Split};
-use crate::eval::{EvalOptions, EvalReport, evaluate};
+use crate::eval::{EvalOptions, evaluate};
 use crate::speed_vs_error::spread_frames;
-use crate::train::{Ablation, Budget, TrainOptions, Trainer};
+use crate::train::{Ablation, Budget, TrainOptions};
 
 /// What the benchmark is told.
 #[derive(Clone, Debug)]
@@ -183,43 +184,6 @@ pub fn ablations(
     Ok(rows)
 }
 
-/// Trains `opts` to the end of its budget and saves the final checkpoint.
-pub(crate) fn train_to_end<'a>(
-    dataset: &'a Dataset,
-    run: &Path,
-    opts: &TrainOptions,
-) -> Result<Trainer<'a>, AblationError> {
-    let mut trainer = Trainer::new(dataset, run, opts)?;
-    while !trainer.done() {
-        trainer.step()?;
-    }
-    trainer.save()?;
-    Ok(trainer)
-}
-
-/// The averages a row reports.
-#[derive(Clone, Debug, Serialize)]
-pub struct Scores {
-    pub psnr: f64,
-    pub ssim: f64,
-    /// x1000.
-    pub lpips: Option<f64>,
-    pub psnr_face: Option<f64>,
-    pub psnr_hands: Option<f64>,
-}
-
-impl Scores {
-    pub fn of(r: &EvalReport) -> Scores {
-        Scores {
-            psnr: r.psnr,
-            ssim: r.ssim,
-            lpips: r.lpips,
-            psnr_face: r.psnr_face,
-            psnr_hands: r.psnr_hands,
-        }
-    }
-}
-
 fn row(name: &str, split: Split, frames: usize, r: &Scores, steps: usize) -> AblationRow {
     AblationRow {
         variant: name.into(),
@@ -259,16 +223,6 @@ fn merge(scores: &[(usize, Scores)]) -> Option<Scores> {
     })
 }
 
-/// `count` of `frames`, evenly spaced (all when `count` is 0 or too large).
-pub(crate) fn thin(frames: &[usize], count: usize) -> Vec<usize> {
-    if count == 0 || count >= frames.len() {
-        return frames.to_vec();
-    }
-    (0..count)
-        .map(|k| frames[k * frames.len() / count])
-        .collect()
-}
-
 fn slug(name: &str) -> String {
     name.chars()
         .map(|c| if c.is_ascii_alphanumeric() { c } else { '-' })
@@ -306,23 +260,4 @@ fn write_outputs(out: &Path, rows: &[AblationRow]) -> Result<(), AblationError> 
         &serde_json::to_vec_pretty(rows).expect("plain data serialises"),
         &format_table(rows),
     )
-}
-
-/// Writes a benchmark's `out/<name>.json` and `out/<name>.md`, each atomically.
-pub(crate) fn write_report(
-    out: &Path,
-    name: &str,
-    json: &[u8],
-    table: &str,
-) -> Result<(), AblationError> {
-    std::fs::create_dir_all(out).map_err(|source| AblationError::Io {
-        file: out.to_path_buf(),
-        source,
-    })?;
-    for (ext, bytes) in [("json", json), ("md", table.as_bytes())] {
-        let file = out.join(format!("{name}.{ext}"));
-        crate::atomic::write_atomic(&file, bytes)
-            .map_err(|source| AblationError::Io { file, source })?;
-    }
-    Ok(())
 }

@@ -9,6 +9,7 @@ pub mod ablations;
 pub mod atomic;
 pub mod avatar;
 pub mod bench_error;
+pub mod bench_shared;
 pub mod body;
 pub mod camera;
 pub mod checkpoint;

@@ -11,7 +11,7 @@ use std::path::{Path, PathBuf};
 
 use serde::Serialize;
 
-use crate::ablations::{Scores, thin, train_to_end};
+use crate::bench_shared::{Scores, finish, thin, train_to_end, write_report};
 use crate::dataset::{Dataset, Split};
 use crate::eval::{EvalOptions, evaluate};
 use crate::train::{Budget, TrainOptions, Trainer};
@@ -185,31 +185,26 @@ pub fn novel_identity(
     };
     let mut rows = Vec::new();
     for &clip in &opts.clips_s {
-        let clip_frames: Vec<usize> = video
-            .iter()
-            .copied()
-            .filter(|&i| dataset.frames[i].time - t0 < clip)
-            .collect();
-        let clip_video_s = clip_frames.last().map_or(0.0, |&i| {
-            dataset.frames[i].time - t0 + 1.0 / crate::synth::FPS
-        });
-        progress(&format!(
-            "adapting to `{name}` from {clip} s of video ({} training frames)",
-            clip_frames.len()
-        ));
         let run = out.join("runs").join(format!("adapt-{clip}s"));
-        let mut trainer = Trainer::adapt(dataset, &base_run, &name, Some(clip), &run, &adapt_opts)?;
-        while !trainer.done() {
-            trainer.step()?;
-        }
-        trainer.save()?;
+        let trainer = Trainer::adapt(dataset, &base_run, &name, Some(clip), &run, &adapt_opts)?;
+        // What the clip held, as the trainer cut it.
+        let clip_frames = trainer.training_frames().len();
+        let clip_video_s = trainer
+            .training_frames()
+            .iter()
+            .map(|&i| dataset.frames[i].time - t0 + 1.0 / crate::synth::FPS)
+            .fold(0.0, f64::max);
+        progress(&format!(
+            "adapting to `{name}` from {clip} s of video ({clip_frames} training frames)"
+        ));
+        let trainer = finish(trainer)?;
         let avatar = trainer.avatar();
         for (split, frames) in &eval_sets {
             let report = evaluate(&avatar, dataset, frames, &eval_opts)?;
             rows.push(NovelIdentityRow {
                 subject: name.clone(),
                 clip_s: clip,
-                clip_frames: clip_frames.len(),
+                clip_frames,
                 clip_video_s,
                 split: split.name().into(),
                 frames: frames.len(),
@@ -218,7 +213,7 @@ pub fn novel_identity(
             });
         }
     }
-    crate::ablations::write_report(
+    write_report(
         out,
         "novel_identity",
         &serde_json::to_vec_pretty(&rows).expect("plain data serialises"),
@@ -243,7 +238,10 @@ fn own_frames(dataset: &Dataset, s: usize, split: Split) -> Vec<usize> {
 }
 
 fn has_frames(dataset: &Dataset, s: usize, split: Split) -> bool {
-    !own_frames(dataset, s, split).is_empty()
+    dataset
+        .frames
+        .iter()
+        .any(|f| f.subject == s && f.split == split)
 }
 
 /// The rows as a Markdown table (the README's).

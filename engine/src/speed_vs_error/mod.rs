@@ -106,11 +106,7 @@ pub fn eval_marks(budgets: &[f64]) -> Vec<f64> {
 /// `count` frames of `split` evenly spaced over the split (all when `count` is 0 or
 /// larger than the split).
 pub fn spread_frames(dataset: &Dataset, split: Split, count: usize) -> Vec<usize> {
-    let all = dataset.split_indices(split);
-    if count == 0 || count >= all.len() {
-        return all;
-    }
-    (0..count).map(|k| all[k * all.len() / count]).collect()
+    crate::bench_shared::thin(&dataset.split_indices(split), count)
 }
 
 /// Runs the benchmark, writing `out/speed_vs_error.csv`, `out/speed_vs_error.png`,

@@ -451,6 +451,11 @@ impl Trainer<'_> {
         self.progress() >= 1.0
     }
 
+    /// The dataset frames this run draws its rays from (for `adapt`, the clip's).
+    pub fn training_frames(&self) -> &[usize] {
+        &self.frames
+    }
+
     /// Steps taken.
     pub fn steps_taken(&self) -> usize {
         self.step
