@@ -18,6 +18,7 @@ fn opts(clips_s: Vec<f64>) -> NovelIdentityOptions {
         base_run: None,
         adapt_lr_ratio: 1.0 / 50.0,
         adapt: Budget::Steps(3),
+        scratch: false,
         eval_frames: 0,
         train: common::small_train_opts(SamplerKind::Accelerated, 4),
         lpips_dir: None,
@@ -95,6 +96,44 @@ fn adapts_from_each_clip_and_scores_the_same_held_out_frames() {
     let recipe = std::fs::read_to_string(again.join("runs/adapt-0.05s/recipe.json")).unwrap();
     let lr = common::small_train_opts(SamplerKind::Accelerated, 4).initial_lr();
     assert!(recipe.contains(&format!("\"lr\": {lr}")), "{recipe}");
+    assert!(recipe.contains("\"clip_seconds\": 0.05"), "{recipe}");
+}
+
+/// The from-scratch baseline trains the novel subject alone on the same clip, with the
+/// adaptation's budget, and is scored on the same frames.
+#[test]
+fn scratch_baseline_trains_the_clip_alone() {
+    let dataset = common::synthetic_scene("novel_identity_scratch", 2, 48, 5);
+    let out = common::temp_dir("novel_identity_scratch_report");
+    let o = NovelIdentityOptions {
+        scratch: true,
+        ..opts(vec![0.05])
+    };
+    let rows = novel_identity(&dataset, &out, &o, &mut |_| {}).unwrap();
+    let models: Vec<&str> = rows.iter().map(|r| r.model.as_str()).collect();
+    assert_eq!(models, ["adapted", "adapted", "scratch", "scratch"]);
+    for pair in [(&rows[0], &rows[2]), (&rows[1], &rows[3])] {
+        assert_eq!(pair.0.split, pair.1.split);
+        assert_eq!(pair.0.frames, pair.1.frames);
+        assert_eq!(pair.0.clip_frames, pair.1.clip_frames);
+        assert_eq!(pair.1.steps, 3);
+        assert!(pair.1.scores.psnr.is_finite(), "{:?}", pair.1);
+    }
+    // Only the novel subject, only its clip (t = 0 and 0.04 s).
+    let scratch = Checkpoint::load(&out.join("runs/scratch-0.05s")).unwrap();
+    let trained: Vec<&str> = scratch
+        .subjects
+        .iter()
+        .filter(|s| s.model.is_some())
+        .map(|s| s.name.as_str())
+        .collect();
+    assert_eq!(trained, [dataset.subjects[1].name.as_str()]);
+    let frames: Vec<usize> = serde_json::from_value(scratch.state["frames"].clone()).unwrap();
+    assert_eq!(frames.len(), 2);
+    for i in frames {
+        assert_eq!(dataset.frames[i].subject, 1);
+        assert!(dataset.frames[i].time < 0.05 + 1e-9);
+    }
 }
 
 #[test]

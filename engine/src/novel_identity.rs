@@ -5,7 +5,9 @@
 //! [`adapt_lr_ratio`] of the training rate), each adaptation with the same budget, and
 //! every adapted model is scored on the same held-out frames of that subject: its
 //! `test_same` frames after the longest clip (poses no clip shows) and its `test_ood`
-//! frames (unseen arm, head and face ranges).
+//! frames (unseen arm, head and face ranges). Beside each adaptation, the paper's
+//! HumanNeRF baseline: a fresh single-identity model trained on the same clip with the
+//! same budget, so the table shows what the other subjects' prior buys.
 
 use std::path::{Path, PathBuf};
 
@@ -51,6 +53,9 @@ pub struct NovelIdentityOptions {
     pub adapt_lr_ratio: f64,
     /// Each adaptation's budget.
     pub adapt: Budget,
+    /// Also train a fresh single-identity model on each clip with the same budget at the
+    /// recipe's rate (the paper's HumanNeRF baseline: what the other subjects' prior buys).
+    pub scratch: bool,
     /// Frames per evaluated split, evenly spaced (0: all).
     pub eval_frames: usize,
     /// The recipe of both stages (the adaptations at `adapt_lr_ratio` of its rate).
@@ -62,6 +67,9 @@ pub struct NovelIdentityOptions {
 #[derive(Clone, Debug, Serialize)]
 pub struct NovelIdentityRow {
     pub subject: String,
+    /// `adapted` (the multi-identity model fine-tuned on the clip) or `scratch` (a
+    /// single-identity model trained on the clip alone).
+    pub model: String,
     /// The clip asked for, and the training frames and seconds of video it held.
     pub clip_s: f64,
     pub clip_frames: usize,
@@ -70,11 +78,12 @@ pub struct NovelIdentityRow {
     pub frames: usize,
     #[serde(flatten)]
     pub scores: Scores,
-    /// Adaptation steps taken.
+    /// Steps taken on the clip.
     pub steps: usize,
 }
 
-/// Trains the base model, adapts it once per clip, scores each adaptation; writes
+/// Trains the base model, adapts it once per clip (and trains the from-scratch baseline
+/// on it), scores each model; writes
 /// `out/novel_identity.json`, `out/novel_identity.md` and the runs under `out/runs/`.
 pub fn novel_identity(
     dataset: &Dataset,
@@ -183,34 +192,63 @@ pub fn novel_identity(
         lpips_dir: opts.lpips_dir.clone(),
         smooth: false,
     };
+    // The baseline: the subject alone, from a fresh field, on the same clip and budget,
+    // at the recipe's own rate.
+    let scratch_opts = TrainOptions {
+        budget: opts.adapt,
+        checkpoint_every_s: f64::INFINITY,
+        identities: Some(vec![name.clone()]),
+        ..opts.train.clone()
+    };
     let mut rows = Vec::new();
     for &clip in &opts.clips_s {
-        let run = out.join("runs").join(format!("adapt-{clip}s"));
-        let trainer = Trainer::adapt(dataset, &base_run, &name, Some(clip), &run, &adapt_opts)?;
-        // What the clip held, as the trainer cut it.
-        let clip_frames = trainer.training_frames().len();
-        let clip_video_s = trainer
-            .training_frames()
-            .iter()
-            .map(|&i| dataset.frames[i].time - t0 + 1.0 / crate::synth::FPS)
-            .fold(0.0, f64::max);
-        progress(&format!(
-            "adapting to `{name}` from {clip} s of video ({clip_frames} training frames)"
-        ));
-        let trainer = finish(trainer)?;
-        let avatar = trainer.avatar();
-        for (split, frames) in &eval_sets {
-            let report = evaluate(&avatar, dataset, frames, &eval_opts)?;
-            rows.push(NovelIdentityRow {
-                subject: name.clone(),
-                clip_s: clip,
-                clip_frames,
-                clip_video_s,
-                split: split.name().into(),
-                frames: frames.len(),
-                scores: Scores::of(&report),
-                steps: trainer.steps_taken(),
-            });
+        let mut models = vec!["adapted"];
+        if opts.scratch {
+            models.push("scratch");
+        }
+        for model in models {
+            let trainer = if model == "adapted" {
+                let run = out.join("runs").join(format!("adapt-{clip}s"));
+                Trainer::adapt(dataset, &base_run, &name, Some(clip), &run, &adapt_opts)?
+            } else {
+                let run = out.join("runs").join(format!("scratch-{clip}s"));
+                let clip_opts = TrainOptions {
+                    clip_seconds: Some(clip),
+                    ..scratch_opts.clone()
+                };
+                Trainer::new(dataset, &run, &clip_opts)?
+            };
+            // What the clip held, as the trainer cut it.
+            let clip_frames = trainer.training_frames().len();
+            let clip_video_s = trainer
+                .training_frames()
+                .iter()
+                .map(|&i| dataset.frames[i].time - t0 + 1.0 / crate::synth::FPS)
+                .fold(0.0, f64::max);
+            progress(&format!(
+                "{} `{name}` from {clip} s of video ({clip_frames} training frames)",
+                if model == "adapted" {
+                    "adapting the multi-identity model to"
+                } else {
+                    "training from scratch on"
+                }
+            ));
+            let trainer = finish(trainer)?;
+            let avatar = trainer.avatar();
+            for (split, frames) in &eval_sets {
+                let report = evaluate(&avatar, dataset, frames, &eval_opts)?;
+                rows.push(NovelIdentityRow {
+                    subject: name.clone(),
+                    model: model.into(),
+                    clip_s: clip,
+                    clip_frames,
+                    clip_video_s,
+                    split: split.name().into(),
+                    frames: frames.len(),
+                    scores: Scores::of(&report),
+                    steps: trainer.steps_taken(),
+                });
+            }
         }
     }
     write_report(
@@ -248,13 +286,14 @@ fn has_frames(dataset: &Dataset, s: usize, split: Split) -> bool {
 pub fn format_table(rows: &[NovelIdentityRow]) -> String {
     let opt = |v: Option<f64>, d: usize| v.map_or("-".to_string(), |v| format!("{v:.d$}"));
     let mut t = String::from(
-        "| subject | clip (s) | clip frames | split | frames | PSNR | SSIM | LPIPS* | face PSNR | hands PSNR | steps |\n\
-         |---|---|---|---|---|---|---|---|---|---|---|\n",
+        "| subject | model | clip (s) | clip frames | split | frames | PSNR | SSIM | LPIPS* | face PSNR | hands PSNR | steps |\n\
+         |---|---|---|---|---|---|---|---|---|---|---|---|\n",
     );
     for r in rows {
         t.push_str(&format!(
-            "| {} | {} | {} | {} | {} | {:.2} | {:.4} | {} | {} | {} | {} |\n",
+            "| {} | {} | {} | {} | {} | {} | {:.2} | {:.4} | {} | {} | {} | {} |\n",
             r.subject,
+            r.model,
             r.clip_s,
             r.clip_frames,
             r.split,

@@ -87,12 +87,16 @@ pub struct NovelIdentityArgs {
     /// `fast` preset, the paper's 1/50 for `paper`).
     #[arg(long)]
     pub adapt_lr_ratio: Option<f64>,
-    /// Training minutes of each adaptation.
+    /// Training minutes of each adaptation (and of each from-scratch baseline).
     #[arg(long, default_value_t = 2.0, conflicts_with = "adapt_steps")]
     pub adapt_minutes: f64,
     /// Optimizer steps of each adaptation instead of minutes.
     #[arg(long)]
     pub adapt_steps: Option<usize>,
+    /// Skip the baseline: a fresh single-identity model trained on each clip with the
+    /// adaptation's budget (the paper's HumanNeRF comparison).
+    #[arg(long)]
+    pub no_scratch: bool,
     /// Frames per evaluated split, evenly spaced (0: all).
     #[arg(long, default_value_t = 6)]
     pub eval_frames: usize,
@@ -330,6 +334,7 @@ fn novel_identity_bench(args: NovelIdentityArgs) -> anyhow::Result<()> {
             .adapt_lr_ratio
             .unwrap_or_else(|| talkin_engine::novel_identity::adapt_lr_ratio(&args.recipe.preset)),
         adapt,
+        scratch: !args.no_scratch,
         eval_frames: args.eval_frames,
         train: args.recipe.options()?,
         lpips_dir: Some(args.recipe.lpips_dir.clone()),

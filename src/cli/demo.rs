@@ -84,6 +84,7 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
         data: data.clone(),
         out: run_dir.clone(),
         resume: false,
+        seconds_of_video: None,
         recipe,
     })?;
     println!("== 4/4 evaluate every held-out split (renders, metrics, a contact sheet)");

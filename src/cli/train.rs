@@ -21,6 +21,10 @@ pub struct TrainArgs {
     /// options given here are ignored).
     #[arg(long)]
     pub resume: bool,
+    /// Train on each subject's first S seconds of training frames only (a short clip: the
+    /// novel-identity experiment's from-scratch baseline).
+    #[arg(long)]
+    pub seconds_of_video: Option<f64>,
     #[command(flatten)]
     pub recipe: RecipeArgs,
 }
@@ -116,7 +120,11 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
         Trainer::resume(&dataset, &args.out)
             .with_context(|| format!("resuming {}", args.out.display()))?
     } else {
-        Trainer::new(&dataset, &args.out, &args.recipe.options()?)
+        let opts = TrainOptions {
+            clip_seconds: args.seconds_of_video,
+            ..args.recipe.options()?
+        };
+        Trainer::new(&dataset, &args.out, &opts)
             .with_context(|| format!("training on {}", args.data.display()))?
     };
     run_trainer(trainer, &args.data)

@@ -185,7 +185,7 @@ impl<'a> Trainer<'a> {
     /// A fresh run of `opts` on `dataset`, writing into `out` (created).
     pub fn new(dataset: &'a Dataset, out: &Path, opts: &TrainOptions) -> Result<Self, TrainError> {
         opts.check()?;
-        let frames = training_frames(dataset, opts.identities.as_deref())?;
+        let frames = training_frames(dataset, opts.identities.as_deref(), opts.clip_seconds)?;
         let n_subjects = dataset.subjects.len();
         let mut config =
             FieldConfig::preset(&opts.preset, n_subjects).ok_or_else(|| TrainError::BadOption {
@@ -229,23 +229,17 @@ impl<'a> Trainer<'a> {
         out: &Path,
         opts: &TrainOptions,
     ) -> Result<Self, TrainError> {
+        // The recipe records the clip.
+        let opts = &TrainOptions {
+            clip_seconds,
+            ..opts.clone()
+        };
         opts.check()?;
         let index_file = dataset.root.join(crate::dataset::INDEX_FILE);
         let s = dataset
             .subject_index(subject)
             .ok_or_else(|| unknown_subject(dataset, "subject", subject))?;
-        let mut frames: Vec<usize> = dataset
-            .split_indices(Split::Train)
-            .into_iter()
-            .filter(|&i| dataset.frames[i].subject == s)
-            .collect();
-        frames.sort_by(|&a, &b| dataset.frames[a].time.total_cmp(&dataset.frames[b].time));
-        if let Some(limit) = clip_seconds
-            && let Some(&first) = frames.first()
-        {
-            let t0 = dataset.frames[first].time;
-            frames.retain(|&i| dataset.frames[i].time - t0 < limit);
-        }
+        let frames = clip_of(dataset, s, clip_seconds);
         if frames.is_empty() {
             return Err(TrainError::NoTrainFrames { file: index_file });
         }
@@ -744,10 +738,12 @@ pub fn train(
     Trainer::new(dataset, out, opts)?.run(progress)
 }
 
-/// The training frames of the chosen identities (all with training frames when `None`).
+/// The training frames of the chosen identities (all with training frames when `None`),
+/// each cut to its first `clip_seconds` of video when given.
 fn training_frames(
     dataset: &Dataset,
     identities: Option<&[String]>,
+    clip_seconds: Option<f64>,
 ) -> Result<Vec<usize>, TrainError> {
     let index_file = dataset.root.join(crate::dataset::INDEX_FILE);
     let chosen: Vec<usize> = match identities {
@@ -761,15 +757,44 @@ fn training_frames(
             })
             .collect::<Result<_, _>>()?,
     };
-    let frames: Vec<usize> = dataset
-        .split_indices(Split::Train)
-        .into_iter()
-        .filter(|&i| chosen.contains(&dataset.frames[i].subject))
-        .collect();
+    let frames: Vec<usize> = match clip_seconds {
+        None => dataset
+            .split_indices(Split::Train)
+            .into_iter()
+            .filter(|&i| chosen.contains(&dataset.frames[i].subject))
+            .collect(),
+        Some(_) => {
+            let mut frames: Vec<usize> = chosen
+                .iter()
+                .flat_map(|&s| clip_of(dataset, s, clip_seconds))
+                .collect();
+            frames.sort_unstable();
+            frames
+        }
+    };
     if frames.is_empty() {
         return Err(TrainError::NoTrainFrames { file: index_file });
     }
     Ok(frames)
+}
+
+/// Subject `s`'s training frames in time order, cut to those less than `clip_seconds`
+/// after its first one (all of them for `None`): the short clip a novel identity is
+/// learned from, by adaptation or from scratch.
+pub fn clip_of(dataset: &Dataset, s: usize, clip_seconds: Option<f64>) -> Vec<usize> {
+    let mut frames: Vec<usize> = dataset
+        .split_indices(Split::Train)
+        .into_iter()
+        .filter(|&i| dataset.frames[i].subject == s)
+        .collect();
+    frames.sort_by(|&a, &b| dataset.frames[a].time.total_cmp(&dataset.frames[b].time));
+    if let Some(limit) = clip_seconds
+        && let Some(&first) = frames.first()
+    {
+        let t0 = dataset.frames[first].time;
+        frames.retain(|&i| dataset.frames[i].time - t0 < limit);
+    }
+    frames
 }
 
 /// `field` names a subject `name` the dataset does not have; the error lists those it has.
