@@ -757,21 +757,13 @@ fn training_frames(
             })
             .collect::<Result<_, _>>()?,
     };
-    let frames: Vec<usize> = match clip_seconds {
-        None => dataset
-            .split_indices(Split::Train)
-            .into_iter()
-            .filter(|&i| chosen.contains(&dataset.frames[i].subject))
-            .collect(),
-        Some(_) => {
-            let mut frames: Vec<usize> = chosen
-                .iter()
-                .flat_map(|&s| clip_of(dataset, s, clip_seconds))
-                .collect();
-            frames.sort_unstable();
-            frames
-        }
-    };
+    // In dataset order, each frame once (a name may be listed twice).
+    let mut frames: Vec<usize> = chosen
+        .iter()
+        .flat_map(|&s| clip_of(dataset, s, clip_seconds))
+        .collect();
+    frames.sort_unstable();
+    frames.dedup();
     if frames.is_empty() {
         return Err(TrainError::NoTrainFrames { file: index_file });
     }
