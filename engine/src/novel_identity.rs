@@ -130,7 +130,7 @@ pub fn novel_identity(
             format!("no other subject of {} has training frames", names(dataset)),
         ));
     }
-    let video = own_frames(dataset, s, Split::Train);
+    let video = dataset.subject_frames(s, Split::Train);
     let Some(&first) = video.first() else {
         return Err(bad("subject", format!("`{name}` has no training frames")));
     };
@@ -140,7 +140,8 @@ pub fn novel_identity(
     let eval_sets: Vec<(Split, Vec<usize>)> = [Split::TestSame, Split::TestOod]
         .into_iter()
         .map(|split| {
-            let after: Vec<usize> = own_frames(dataset, s, split)
+            let after: Vec<usize> = dataset
+                .subject_frames(s, split)
                 .into_iter()
                 .filter(|&i| split != Split::TestSame || dataset.frames[i].time - t0 >= longest)
                 .collect();
@@ -202,21 +203,27 @@ pub fn novel_identity(
     };
     let mut rows = Vec::new();
     for &clip in &opts.clips_s {
-        let mut models = vec!["adapted"];
-        if opts.scratch {
-            models.push("scratch");
-        }
-        for model in models {
-            let trainer = if model == "adapted" {
+        let models: &[&str] = if opts.scratch {
+            &["adapted", "scratch"]
+        } else {
+            &["adapted"]
+        };
+        for &model in models {
+            let (trainer, doing) = if model == "adapted" {
                 let run = out.join("runs").join(format!("adapt-{clip}s"));
-                Trainer::adapt(dataset, &base_run, &name, Some(clip), &run, &adapt_opts)?
+                let trainer =
+                    Trainer::adapt(dataset, &base_run, &name, Some(clip), &run, &adapt_opts)?;
+                (trainer, "adapting the multi-identity model to")
             } else {
                 let run = out.join("runs").join(format!("scratch-{clip}s"));
                 let clip_opts = TrainOptions {
                     clip_seconds: Some(clip),
                     ..scratch_opts.clone()
                 };
-                Trainer::new(dataset, &run, &clip_opts)?
+                (
+                    Trainer::new(dataset, &run, &clip_opts)?,
+                    "training from scratch on",
+                )
             };
             // What the clip held, as the trainer cut it.
             let clip_frames = trainer.training_frames().len();
@@ -226,12 +233,7 @@ pub fn novel_identity(
                 .map(|&i| dataset.frames[i].time - t0 + 1.0 / crate::synth::FPS)
                 .fold(0.0, f64::max);
             progress(&format!(
-                "{} `{name}` from {clip} s of video ({clip_frames} training frames)",
-                if model == "adapted" {
-                    "adapting the multi-identity model to"
-                } else {
-                    "training from scratch on"
-                }
+                "{doing} `{name}` from {clip} s of video ({clip_frames} training frames)"
             ));
             let trainer = finish(trainer)?;
             let avatar = trainer.avatar();
@@ -263,16 +265,6 @@ pub fn novel_identity(
 fn names(dataset: &Dataset) -> String {
     let all: Vec<&str> = dataset.subjects.iter().map(|x| x.name.as_str()).collect();
     all.join(", ")
-}
-
-fn own_frames(dataset: &Dataset, s: usize, split: Split) -> Vec<usize> {
-    let mut frames: Vec<usize> = dataset
-        .split_indices(split)
-        .into_iter()
-        .filter(|&i| dataset.frames[i].subject == s)
-        .collect();
-    frames.sort_by(|&a, &b| dataset.frames[a].time.total_cmp(&dataset.frames[b].time));
-    frames
 }
 
 fn has_frames(dataset: &Dataset, s: usize, split: Split) -> bool {

@@ -124,6 +124,15 @@ impl Dataset {
             .collect()
     }
 
+    /// Indices of subject `s`'s frames of a split, in time order (its video).
+    pub fn subject_frames(&self, s: usize, split: Split) -> Vec<usize> {
+        let mut frames: Vec<usize> = (0..self.frames.len())
+            .filter(|&i| self.frames[i].split == split && self.frames[i].subject == s)
+            .collect();
+        frames.sort_by(|&a, &b| self.frames[a].time.total_cmp(&self.frames[b].time));
+        frames
+    }
+
     /// Index of a subject by name.
     pub fn subject_index(&self, name: &str) -> Option<usize> {
         self.subjects.iter().position(|s| s.name == name)

@@ -773,13 +773,8 @@ fn training_frames(
 /// Subject `s`'s training frames in time order, cut to those less than `clip_seconds`
 /// after its first one (all of them for `None`): the short clip a novel identity is
 /// learned from, by adaptation or from scratch.
-pub fn clip_of(dataset: &Dataset, s: usize, clip_seconds: Option<f64>) -> Vec<usize> {
-    let mut frames: Vec<usize> = dataset
-        .split_indices(Split::Train)
-        .into_iter()
-        .filter(|&i| dataset.frames[i].subject == s)
-        .collect();
-    frames.sort_by(|&a, &b| dataset.frames[a].time.total_cmp(&dataset.frames[b].time));
+fn clip_of(dataset: &Dataset, s: usize, clip_seconds: Option<f64>) -> Vec<usize> {
+    let mut frames = dataset.subject_frames(s, Split::Train);
     if let Some(limit) = clip_seconds
         && let Some(&first) = frames.first()
     {
