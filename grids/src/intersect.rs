@@ -91,6 +91,122 @@ pub fn ray_capsule(ray: &Ray, capsule: &Capsule) -> Option<(f32, f32)> {
     Some((t_in as f32, t_out as f32))
 }
 
+/// A capsule seen from one ray origin: the parts of [`ray_capsule`] that do not depend
+/// on the direction, in f64. [`CapsuleFromOrigin::hit`] gives `ray_capsule`'s interval,
+/// to rounding, for any ray from that origin at a fraction of its cost (a frame's pixel
+/// rays share the camera centre).
+#[derive(Clone, Copy, Debug)]
+pub struct CapsuleFromOrigin {
+    /// End centres relative to the origin.
+    a: DVec3,
+    b: DVec3,
+    r2: f64,
+    /// Zero for a sphere.
+    axis: DVec3,
+    inv_l2: f64,
+    /// The origin's axial coordinate (segment units) and its offset from the axis.
+    s0: f64,
+    o_perp: DVec3,
+}
+
+impl CapsuleFromOrigin {
+    pub fn new(capsule: &Capsule, origin: Vec3) -> CapsuleFromOrigin {
+        let o = origin.as_dvec3();
+        let a = capsule.a.as_dvec3() - o;
+        let b = capsule.b.as_dvec3() - o;
+        let axis = capsule.b.as_dvec3() - capsule.a.as_dvec3();
+        let l2 = axis.length_squared();
+        let w = -a;
+        let (inv_l2, s0) = if l2 > 0.0 {
+            (1.0 / l2, w.dot(axis) / l2)
+        } else {
+            (0.0, 0.0)
+        };
+        let r = capsule.radius as f64;
+        CapsuleFromOrigin {
+            a,
+            b,
+            r2: r * r,
+            axis,
+            inv_l2,
+            s0,
+            o_perp: w - s0 * axis,
+        }
+    }
+
+    /// [`ray_capsule`] for a ray from this origin along `d` (`dd = |d|^2`), clipped to
+    /// `[t_min, t_max]`.
+    #[inline]
+    pub fn hit(&self, d: DVec3, dd: f64, t_min: f32, t_max: f32) -> Option<(f32, f32)> {
+        let inv_dd = 1.0 / dd;
+        let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+        let mut sphere = |c: DVec3| {
+            let t_mid = c.dot(d) * inv_dd;
+            let perp = t_mid * d - c;
+            let disc = self.r2 - perp.length_squared();
+            if disc >= 0.0 {
+                let half = (disc * inv_dd).sqrt();
+                lo = lo.min(t_mid - half);
+                hi = hi.max(t_mid + half);
+            }
+        };
+        sphere(self.a);
+        if self.inv_l2 > 0.0 {
+            sphere(self.b);
+            if let Some((c0, c1)) = self.cylinder(d, dd) {
+                lo = lo.min(c0);
+                hi = hi.max(c1);
+            }
+        }
+        let t_in = lo.max(t_min as f64);
+        let t_out = hi.min(t_max as f64);
+        if !(t_in <= t_out) {
+            return None;
+        }
+        Some((t_in as f32, t_out as f32))
+    }
+
+    /// [`line_cylinder`] with the origin's terms precomputed.
+    #[inline]
+    fn cylinder(&self, d: DVec3, dd: f64) -> Option<(f64, f64)> {
+        let (s0, axis) = (self.s0, self.axis);
+        let s1 = d.dot(axis) * self.inv_l2;
+        let d_perp = d - s1 * axis;
+        let a = d_perp.length_squared();
+        let (mut lo, mut hi);
+        if a <= 1e-20 * dd {
+            if !(self.o_perp.length_squared() <= self.r2) {
+                return None;
+            }
+            lo = f64::NEG_INFINITY;
+            hi = f64::INFINITY;
+        } else {
+            let inv_a = 1.0 / a;
+            let t_mid = -self.o_perp.dot(d_perp) * inv_a;
+            let perp = self.o_perp + t_mid * d_perp;
+            let disc = self.r2 - perp.length_squared();
+            if !(disc >= 0.0) {
+                return None;
+            }
+            let half = (disc * inv_a).sqrt();
+            lo = t_mid - half;
+            hi = t_mid + half;
+        }
+        if s1 == 0.0 {
+            if !(0.0..=1.0).contains(&s0) {
+                return None;
+            }
+        } else {
+            let inv_s1 = 1.0 / s1;
+            let t0 = -s0 * inv_s1;
+            let t1 = (1.0 - s0) * inv_s1;
+            lo = lo.max(t0.min(t1));
+            hi = hi.min(t0.max(t1));
+        }
+        (lo <= hi).then_some((lo, hi))
+    }
+}
+
 /// Line `o + t d` against the sphere at `c`: the closest approach is computed first and
 /// the discriminant from the perpendicular distance, which avoids the cancellation of
 /// the textbook `b^2 - 4ac` for far-away origins.
@@ -290,5 +406,44 @@ mod tests {
         // Behind the origin does not count.
         let m = margin_to_hit(&ray(vec3(0.0, 0.0, 2.0), Vec3::Z), &c);
         assert!((m - 1.5).abs() < 1e-6, "{m}");
+    }
+
+    /// The origin-prepared test against the plain one: random capsules (spheres among
+    /// them) and directions, rays through the capsules' ends and axes, parallel rays.
+    #[test]
+    fn prepared_origin_matches_ray_capsule() {
+        let mut rng = crate::rng::SplitMix::new(41, 0);
+        let mut p = || vec3(rng.next_f32(), rng.next_f32(), rng.next_f32()) - 0.5;
+        let mut compared = 0;
+        for k in 0..300 {
+            let a = p();
+            let b = if k % 5 == 0 { a } else { a + p() };
+            let c = capsule(a, b, 0.02 + 0.2 * p().x.abs());
+            let origin = 3.0 * p();
+            let prepared = CapsuleFromOrigin::new(&c, origin);
+            let mut dirs: Vec<Vec3> = (0..20).map(|_| p()).collect();
+            dirs.extend([
+                c.a - origin,
+                c.b - origin,
+                c.b - c.a,
+                0.5 * (c.a + c.b) - origin,
+            ]);
+            for d in dirs {
+                let Ok(r) = Ray::new(origin, d, 0.0, f32::INFINITY) else {
+                    continue;
+                };
+                let d64 = r.direction.as_dvec3();
+                let got = prepared.hit(d64, d64.length_squared(), r.t_min, r.t_max);
+                match (got, ray_capsule(&r, &c)) {
+                    (None, None) => {}
+                    (Some(g), Some(w)) => {
+                        assert!((g.0 - w.0).abs() < 1e-5 && (g.1 - w.1).abs() < 1e-5);
+                        compared += 1;
+                    }
+                    (g, w) => panic!("{c:?} {r:?}: {g:?} vs {w:?}"),
+                }
+            }
+        }
+        assert!(compared > 500, "{compared}");
     }
 }

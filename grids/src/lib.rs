@@ -23,9 +23,12 @@
 //! 1. Once per subject: [`fit_part_margins`] on the training masks' foreground rays gives
 //!    [`PartMargins`] (how far clothes and hair stick out, per part).
 //! 2. Per frame: [`CapsuleBvh::build`] over `margins.inflate(&posed_capsules)`.
-//! 3. Per batch of rays: [`sample_dense`] (the baseline) or [`sample_accelerated`]
-//!    (capsule intervals, then culling by the canonical [`OccupancyGrid`]), picked by
-//!    [`SamplerKind`].
+//! 3. Per batch of rays: [`sample_dense`] (the baseline) or the accelerated sampler,
+//!    picked by [`SamplerKind`]: [`CapsuleSampler`] (exact capsule intervals up to the
+//!    first core, culled per bin by the canonical [`OccupancyGrid`] through
+//!    [`CanonicalCull`]; nothing built per frame). [`sample_accelerated`] and
+//!    [`sample_in_front_of_cores`] over the [`CapsuleBvh`] are the plain reference it is
+//!    tested against.
 //! 4. During training: [`OccupancyGrid::update_every_n_steps`] with the field's density.
 //!
 //! ```
@@ -62,13 +65,14 @@
 
 pub mod bvh;
 pub mod capsule;
+pub mod capsule_sampler;
+pub mod cull;
 pub mod error;
 pub mod intersect;
 pub mod intervals;
 pub mod margins;
 pub mod occupancy;
 mod packing;
-pub mod posed_grid;
 pub mod ray;
 mod rng;
 pub mod sampler;
@@ -79,6 +83,8 @@ pub mod truncate;
 
 pub use bvh::CapsuleBvh;
 pub use capsule::{Capsule, Part};
+pub use capsule_sampler::CapsuleSampler;
+pub use cull::{CanonicalCull, DilatedOccupancy};
 pub use error::GridError;
 pub use intersect::{CapsuleHit, brute_force_hits, ray_capsule};
 pub use intervals::{Interval, RayIntervals};
@@ -86,7 +92,6 @@ pub use margins::{
     LabelledRay, MarginFitOpts, MarginReport, PartFit, PartMargins, fit_part_margins,
 };
 pub use occupancy::{OccUpdateOpts, OccUpdateReport, OccupancyGrid};
-pub use posed_grid::{CanonicalCull, DilatedOccupancy, PosedGrid};
 pub use ray::Ray;
 pub use sampler::SamplerKind;
 pub use sampler_accelerated::{

@@ -7,11 +7,16 @@ use rayon::prelude::*;
 use crate::samples::{PackedSamples, Sample};
 
 /// Rays per rayon task: large enough to amortise the task, small enough to balance.
-const CHUNK: usize = 128;
+pub(crate) const CHUNK: usize = 128;
 
 /// A chunk's output buffer.
 pub(crate) trait ChunkBuffer: Default + Send {
     fn len(&self) -> usize;
+
+    /// An empty buffer for a chunk of `rays` rays.
+    fn for_rays(_rays: usize) -> Self {
+        Self::default()
+    }
 }
 
 impl<T: Send> ChunkBuffer for Vec<T> {
@@ -34,7 +39,7 @@ where
         .map_init(&init, |scratch, chunk| {
             let rays = chunk * CHUNK..n.min((chunk + 1) * CHUNK);
             let mut counts = Vec::with_capacity(rays.len());
-            let mut items = B::default();
+            let mut items = B::for_rays(rays.len());
             for i in rays {
                 let before = items.len();
                 f(scratch, i, &mut items);
@@ -97,9 +102,23 @@ impl SampleColumns {
     }
 }
 
+/// Room reserved per ray in a chunk's sample buffer: the accelerated samplers produce
+/// ~30 a ray, so most chunks never grow their buffers.
+const SAMPLES_PER_RAY_RESERVED: usize = 40;
+
 impl ChunkBuffer for SampleColumns {
     fn len(&self) -> usize {
         self.t_start.len()
+    }
+
+    fn for_rays(rays: usize) -> Self {
+        let n = rays * SAMPLES_PER_RAY_RESERVED;
+        SampleColumns {
+            t_start: Vec::with_capacity(n),
+            t_end: Vec::with_capacity(n),
+            part_mask: Vec::with_capacity(n),
+            bone_mask: Vec::with_capacity(n),
+        }
     }
 }
 

@@ -62,7 +62,7 @@ pub struct SamplingReport {
     /// Median over frames of (accelerated rays/s) / (dense rays/s).
     pub median_speed_ratio: f64,
     /// Share of the accelerated sampler's time spent building each frame's structures
-    /// (BVHs, posed grid) rather than sampling rays.
+    /// (BVHs, the accelerated sampler and its dilated grid) rather than sampling rays.
     pub accelerated_build_share: f64,
     /// Foreground pixels whose true surface point (ground-truth depth, or for data
     /// without depth: the ray itself) lies outside every accelerated sample.
@@ -166,7 +166,7 @@ pub fn bench_sampling(
         let shells = &subject_margins[frame.subject].shells;
         let grid = &grids[frame.subject];
         let seed = i as u64;
-        // Building the frame's structures (BVHs, posed grid) is part of the accelerated
+        // Building the frame's structures (BVHs, the accelerated sampler) is part of the accelerated
         // sampler's cost (once per frame).
         let (sampler, build_s) = median_time(|| {
             let sampler = FrameSampler::new(scene.clone(), shells, &rays)?;

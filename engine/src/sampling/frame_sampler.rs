@@ -1,14 +1,14 @@
 //! One frame's samplers, built once and used by training, rendering and the benchmark:
-//! the dense baseline in the posed box and the accelerated pipeline (a posed-space grid
-//! that answers the grown capsules, the solid cores and the canonical occupancy grid per
-//! cell, walked by 3D-DDA).
+//! the dense baseline in the posed box and the accelerated pipeline (per ray, the exact
+//! grown-capsule intervals up to the first core, culled per bin by the canonical
+//! occupancy grid through the bones' rigid maps: [`CapsuleSampler`]).
 
 use std::sync::{Arc, Mutex};
 
 use glam::{Affine3A, Vec3};
 use talkin_grids::{
-    AcceleratedOpts, CanonicalCull, Capsule, CapsuleBvh, DenseOpts, DilatedOccupancy, GridError,
-    OccupancyGrid, PackedSamples, PosedGrid, Ray, SamplerKind, sample_dense,
+    AcceleratedOpts, CanonicalCull, Capsule, CapsuleBvh, CapsuleSampler, DenseOpts,
+    DilatedOccupancy, GridError, OccupancyGrid, PackedSamples, Ray, SamplerKind, sample_dense,
 };
 
 use super::frame::{FrameScene, capsule_bounds, median_dense_step};
@@ -18,17 +18,19 @@ use crate::body::skeleton::body_ancestor;
 /// Dense samples per ray (the HumanNeRF baseline).
 pub const DENSE_SAMPLES_PER_RAY: u32 = 128;
 
-/// Edge of the posed grid's cells in accelerated steps. Finer cells answer more samples
-/// without exact tests but cost more to build per frame (2.5 and 4 steps measured the
-/// same overall rate on the default scene: sampling, not the build, dominates).
-pub const POSED_CELL_STEPS: f32 = 2.5;
+/// Canonical slack (metres) the cull's dilation adds to a bin's reach: the bones' rigid
+/// maps only approximate the skinning, and out-of-distribution poses put surface points
+/// up to about a centimetre outside the band carved around the training surfaces. On
+/// the default scene a dilation of the bin's reach alone (one canonical cell) lost 1
+/// test_ood surface point of 2.33 M; with this slack (two cells) none.
+pub const CULL_POSE_SLACK_M: f32 = 0.01;
 
 /// A posed frame's acceleration structures and sampling box.
 pub struct FrameSampler {
     pub scene: FrameScene,
     /// BVH over the grown capsules, and over their solid cores (the exact reference the
-    /// posed grid is checked against; the benchmark uses them to tell which stage lost a
-    /// surface point).
+    /// accelerated sampler is checked against; the benchmark uses them to tell which
+    /// stage lost a surface point).
     pub bvh: CapsuleBvh,
     pub core_bvh: CapsuleBvh,
     /// The dense sampler's box: the grown capsules plus 2 cm.
@@ -40,8 +42,8 @@ pub struct FrameSampler {
     cores: Vec<Capsule>,
     /// Per bone (0..64): posed -> canonical by its body ancestor's skinning transform.
     canonical_from_posed: Vec<Affine3A>,
-    /// The posed grid for the canonical grid with this fingerprint.
-    posed: Mutex<Option<(u64, Arc<PosedGrid>)>>,
+    /// The accelerated sampler for the canonical grid with this fingerprint.
+    accelerated: Mutex<Option<(u64, Arc<CapsuleSampler>)>>,
 }
 
 impl FrameSampler {
@@ -75,35 +77,34 @@ impl FrameSampler {
             grown,
             cores,
             canonical_from_posed,
-            posed: Mutex::new(None),
+            accelerated: Mutex::new(None),
         })
     }
 
-    /// The posed grid for `grid` (the subject's canonical occupancy grid), built on first
-    /// use and again only when the grid's bits change (occupancy updates).
-    pub fn prepare(&self, grid: &OccupancyGrid) -> Result<Arc<PosedGrid>, GridError> {
+    /// The accelerated sampler culling with `grid` (the subject's canonical occupancy
+    /// grid), made on first use and again only when the grid's bits change (occupancy
+    /// updates); the dilated grid is shared by the subject's frames.
+    pub fn prepare(&self, grid: &OccupancyGrid) -> Result<Arc<CapsuleSampler>, GridError> {
         let key = grid.fingerprint();
-        let mut cached = self.posed.lock().unwrap_or_else(|e| e.into_inner());
-        if let Some((k, posed)) = cached.as_ref()
+        let mut cached = self.accelerated.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some((k, sampler)) = cached.as_ref()
             && *k == key
         {
-            return Ok(posed.clone());
+            return Ok(sampler.clone());
         }
-        let cell = POSED_CELL_STEPS * self.step;
-        let dilated = dilated_occupancy(grid, PosedGrid::cull_reach(cell, self.step))?;
+        let reach = CapsuleSampler::cull_reach(self.step) + CULL_POSE_SLACK_M;
         let cull = CanonicalCull {
-            grid: dilated,
+            grid: dilated_occupancy(grid, reach)?,
             canonical_from_posed: self.canonical_from_posed.clone(),
         };
-        let posed = Arc::new(PosedGrid::build(
+        let sampler = Arc::new(CapsuleSampler::new(
             &self.grown,
             &self.cores,
             Some(cull),
-            cell,
             self.step,
         )?);
-        *cached = Some((key, posed.clone()));
-        Ok(posed)
+        *cached = Some((key, sampler.clone()));
+        Ok(sampler)
     }
 
     /// Samples `rays` with `kind` (jittered with `seed`). The accelerated sampler culls
