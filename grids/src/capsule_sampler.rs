@@ -344,43 +344,46 @@ mod tests {
     /// Three limbs of different bones (one a sphere), their cores, and per bone a rigid
     /// map.
     fn scene() -> (Vec<Capsule>, Vec<Capsule>, Vec<Affine3A>) {
-        let limb = |a: Vec3, b: Vec3, radius: f32, part: Part, bone: u16| Capsule {
-            a,
-            b,
-            radius,
-            part,
-            bone,
-        };
-        let capsules = vec![
-            limb(
+        // (a, b, radius, part, bone); the head is a sphere.
+        let capsules: Vec<Capsule> = [
+            (
                 vec3(0.0, 0.0, 0.0),
                 vec3(0.0, 0.5, 0.0),
                 0.15,
                 Part::Body,
                 3,
             ),
-            limb(
+            (
                 vec3(0.0, 0.5, 0.0),
                 vec3(0.3, 0.6, 0.0),
                 0.06,
                 Part::Arms,
                 16,
             ),
-            limb(
+            (
                 vec3(0.3, 0.6, 0.0),
                 vec3(0.4, 0.6, 0.02),
                 0.02,
                 Part::Hands,
                 20,
             ),
-            limb(
+            (
                 vec3(0.0, 0.7, 0.0),
                 vec3(0.0, 0.7, 0.0),
                 0.1,
                 Part::Head,
                 15,
             ),
-        ];
+        ]
+        .into_iter()
+        .map(|(a, b, radius, part, bone)| Capsule {
+            a,
+            b,
+            radius,
+            part,
+            bone,
+        })
+        .collect();
         let cores = capsules
             .iter()
             .map(|c| Capsule {
