@@ -345,45 +345,23 @@ mod tests {
     /// map.
     fn scene() -> (Vec<Capsule>, Vec<Capsule>, Vec<Affine3A>) {
         // (a, b, radius, part, bone); the head is a sphere.
-        let capsules: Vec<Capsule> = [
-            (
-                vec3(0.0, 0.0, 0.0),
-                vec3(0.0, 0.5, 0.0),
-                0.15,
-                Part::Body,
-                3,
-            ),
-            (
-                vec3(0.0, 0.5, 0.0),
-                vec3(0.3, 0.6, 0.0),
-                0.06,
-                Part::Arms,
-                16,
-            ),
-            (
-                vec3(0.3, 0.6, 0.0),
-                vec3(0.4, 0.6, 0.02),
-                0.02,
-                Part::Hands,
-                20,
-            ),
-            (
-                vec3(0.0, 0.7, 0.0),
-                vec3(0.0, 0.7, 0.0),
-                0.1,
-                Part::Head,
-                15,
-            ),
-        ]
-        .into_iter()
-        .map(|(a, b, radius, part, bone)| Capsule {
-            a,
-            b,
-            radius,
-            part,
-            bone,
-        })
-        .collect();
+        #[rustfmt::skip]
+        let limbs = [
+            (vec3(0.0, 0.0, 0.0), vec3(0.0, 0.5, 0.0), 0.15, Part::Body, 3),
+            (vec3(0.0, 0.5, 0.0), vec3(0.3, 0.6, 0.0), 0.06, Part::Arms, 16),
+            (vec3(0.3, 0.6, 0.0), vec3(0.4, 0.6, 0.02), 0.02, Part::Hands, 20),
+            (vec3(0.0, 0.7, 0.0), vec3(0.0, 0.7, 0.0), 0.1, Part::Head, 15),
+        ];
+        let capsules: Vec<Capsule> = limbs
+            .into_iter()
+            .map(|(a, b, radius, part, bone)| Capsule {
+                a,
+                b,
+                radius,
+                part,
+                bone,
+            })
+            .collect();
         let cores = capsules
             .iter()
             .map(|c| Capsule {
@@ -427,15 +405,36 @@ mod tests {
         }
     }
 
+    /// Samples `rays` with an unculled sampler and with the exact BVH pipeline, asserts
+    /// they agree sample for sample (t within 1e-5, same parts and bones), and returns
+    /// the sampler's.
+    fn assert_matches_exact(rays: &[Ray], step: f32, seed: u64) -> PackedSamples {
+        let (capsules, cores, _) = scene();
+        let sampler = CapsuleSampler::new(&capsules, &cores, None, step).unwrap();
+        let bvh = CapsuleBvh::build(&capsules).unwrap();
+        let core_bvh = CapsuleBvh::build(&cores).unwrap();
+        let got = sampler.sample(rays, &opts(step, seed)).unwrap();
+        let want =
+            sample_in_front_of_cores(&bvh, &core_bvh, rays, step, &opts(step, seed)).unwrap();
+        got.check_layout().unwrap();
+        assert_eq!(got.num_rays(), want.num_rays());
+        for i in 0..rays.len() {
+            let (g, w) = (got.range(i), want.range(i));
+            assert_eq!(g.len(), w.len(), "ray {i}: {:?}", rays[i]);
+            for (s, t) in g.zip(w) {
+                assert!((got.t_start[s] - want.t_start[t]).abs() < 1e-5, "ray {i}");
+                assert!((got.t_end[s] - want.t_end[t]).abs() < 1e-5, "ray {i}");
+                assert_eq!(got.part_mask[s], want.part_mask[t], "ray {i}");
+                assert_eq!(got.bone_mask[s], want.bone_mask[t], "ray {i}");
+            }
+        }
+        got
+    }
+
     /// Without a cull it is the exact BVH pipeline, sample for sample: shared-origin
     /// chunks (prepared capsules, cone culling) and mixed-origin chunks alike.
     #[test]
     fn matches_the_exact_pipeline() {
-        let (capsules, cores, _) = scene();
-        let step = 0.006;
-        let sampler = CapsuleSampler::new(&capsules, &cores, None, step).unwrap();
-        let bvh = CapsuleBvh::build(&capsules).unwrap();
-        let core_bvh = CapsuleBvh::build(&cores).unwrap();
         let mut rays = camera_rays(vec3(0.1, 0.4, -2.5), 700, 1);
         // A camera inside the scene's box looking every way (cones wider than 90
         // degrees), one inside the body capsule, and a chunk of mixed origins.
@@ -455,20 +454,7 @@ mod tests {
                 ..r
             });
         }
-        let got = sampler.sample(&rays, &opts(step, 4)).unwrap();
-        let want = sample_in_front_of_cores(&bvh, &core_bvh, &rays, step, &opts(step, 4)).unwrap();
-        got.check_layout().unwrap();
-        assert_eq!(got.num_rays(), want.num_rays());
-        for i in 0..rays.len() {
-            let (g, w) = (got.range(i), want.range(i));
-            assert_eq!(g.len(), w.len(), "ray {i}: {:?}", rays[i]);
-            for (s, t) in g.zip(w) {
-                assert!((got.t_start[s] - want.t_start[t]).abs() < 1e-5, "ray {i}");
-                assert!((got.t_end[s] - want.t_end[t]).abs() < 1e-5, "ray {i}");
-                assert_eq!(got.part_mask[s], want.part_mask[t], "ray {i}");
-                assert_eq!(got.bone_mask[s], want.bone_mask[t], "ray {i}");
-            }
-        }
+        let got = assert_matches_exact(&rays, 0.006, 4);
         assert!(got.num_samples() > 5_000, "{}", got.num_samples());
     }
 
@@ -534,11 +520,6 @@ mod tests {
     /// little off unit length (within the rays' tolerance).
     #[test]
     fn hard_rays_match_the_exact_pipeline() {
-        let (capsules, cores, _) = scene();
-        let step = 0.005;
-        let sampler = CapsuleSampler::new(&capsules, &cores, None, step).unwrap();
-        let bvh = CapsuleBvh::build(&capsules).unwrap();
-        let core_bvh = CapsuleBvh::build(&cores).unwrap();
         let ray = |o: Vec3, d: Vec3, t_min: f32| Ray::new(o, d, t_min, f32::INFINITY).unwrap();
         let mut rays = vec![
             // Along the body's axis, from below, through both caps.
@@ -557,15 +538,7 @@ mod tests {
         let mut off_unit = ray(vec3(0.0, 0.3, -2.0), vec3(0.05, 0.1, 1.0), 0.0);
         off_unit.direction *= 1.0008;
         rays.push(off_unit);
-        let got = sampler.sample(&rays, &opts(step, 1)).unwrap();
-        let want = sample_in_front_of_cores(&bvh, &core_bvh, &rays, step, &opts(step, 1)).unwrap();
-        for i in 0..rays.len() {
-            assert_eq!(got.range(i).len(), want.range(i).len(), "ray {i}");
-            for (s, t) in got.range(i).zip(want.range(i)) {
-                assert!((got.t_start[s] - want.t_start[t]).abs() < 1e-5, "ray {i}");
-                assert_eq!(got.bone_mask[s], want.bone_mask[t], "ray {i}");
-            }
-        }
+        let got = assert_matches_exact(&rays, 0.005, 1);
         assert!(got.range(0).len() > 10 && got.range(6).len() > 10);
     }
 
