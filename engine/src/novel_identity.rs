@@ -121,7 +121,7 @@ pub fn novel_identity(
         .subjects
         .iter()
         .enumerate()
-        .filter(|&(i, _)| i != s && has_frames(dataset, i, Split::Train))
+        .filter(|&(i, _)| i != s && !dataset.subject_frames(i, Split::Train).is_empty())
         .map(|(_, x)| x.name.clone())
         .collect();
     if others.is_empty() {
@@ -265,13 +265,6 @@ pub fn novel_identity(
 fn names(dataset: &Dataset) -> String {
     let all: Vec<&str> = dataset.subjects.iter().map(|x| x.name.as_str()).collect();
     all.join(", ")
-}
-
-fn has_frames(dataset: &Dataset, s: usize, split: Split) -> bool {
-    dataset
-        .frames
-        .iter()
-        .any(|f| f.subject == s && f.split == split)
 }
 
 /// The rows as a Markdown table (the README's).

@@ -388,8 +388,30 @@ mod tests {
             .collect()
     }
 
-    /// Pixel-like rays from one camera at `origin` towards random points of the scene,
-    /// in runs of neighbours (as a frame's foreground rays come).
+    /// Pixel rays from a camera at `origin` in small square tiles of 128 (8 x 16 rays over
+    /// 4 x 4 cm at the scene's plane z = 0), a tile every 10 cm over the scene: each tile
+    /// is one chunk with a narrow, round cone of directions, as a frame's neighbouring
+    /// foreground rays, so capsules at a cone's edge are the hard case.
+    fn tiled_rays(origin: Vec3) -> Vec<Ray> {
+        let mut rays = Vec::new();
+        for ty in 0..12 {
+            for tx in 0..9 {
+                let corner = vec3(-0.3 + 0.1 * tx as f32, -0.25 + 0.1 * ty as f32, 0.0);
+                for y in 0..16 {
+                    for x in 0..8 {
+                        let f = vec3((x as f32 + 0.5) / 8.0, (y as f32 + 0.5) / 16.0, 0.0);
+                        let target = corner + 0.04 * f;
+                        rays.push(Ray::new(origin, target - origin, 0.0, f32::INFINITY).unwrap());
+                    }
+                }
+            }
+        }
+        assert_eq!(CHUNK, 128, "one tile a chunk");
+        rays
+    }
+
+    /// Rays from one camera at `origin` towards random points of the scene, in random
+    /// order (every chunk's cone spans the scene).
     fn camera_rays(origin: Vec3, n: usize, seed: u64) -> Vec<Ray> {
         points(n, vec3(-0.25, -0.2, -0.2), vec3(0.55, 0.85, 0.2), seed)
             .into_iter()
@@ -432,10 +454,12 @@ mod tests {
     }
 
     /// Without a cull it is the exact BVH pipeline, sample for sample: shared-origin
-    /// chunks (prepared capsules, cone culling) and mixed-origin chunks alike.
+    /// chunks (prepared capsules, cone culling: narrow cones of pixel tiles and wide ones
+    /// of random rays) and mixed-origin chunks alike.
     #[test]
     fn matches_the_exact_pipeline() {
-        let mut rays = camera_rays(vec3(0.1, 0.4, -2.5), 700, 1);
+        let mut rays = tiled_rays(vec3(0.1, 0.4, -2.5));
+        rays.extend(camera_rays(vec3(0.1, 0.4, -2.5), 700, 1));
         // A camera inside the scene's box looking every way (cones wider than 90
         // degrees), one inside the body capsule, and a chunk of mixed origins.
         let mut rng = SplitMix::new(2, 0);

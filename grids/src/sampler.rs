@@ -12,7 +12,8 @@ use crate::GridError;
 pub enum SamplerKind {
     /// [`crate::sample_dense`].
     Dense,
-    /// [`crate::sample_accelerated`].
+    /// [`crate::CapsuleSampler`] (what the engine runs); [`crate::sample_accelerated`] is
+    /// the same pipeline over the BVH with a callback map, the plain reference.
     Accelerated,
 }
 

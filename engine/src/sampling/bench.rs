@@ -56,8 +56,9 @@ pub struct SamplingReport {
     pub truncated_samples_per_ray: f64,
     pub dense_rays_per_s: f64,
     pub accelerated_rays_per_s: f64,
-    /// The grown capsules' exact, merged intervals alone (the BVH query that any per-ray
-    /// design starts from, before a single sample is cut), for scale.
+    /// The grown capsules' exact, merged intervals alone through the BVH (a per-ray BVH
+    /// query, before a single sample is cut), for scale: the accelerated sampler finds
+    /// the same intervals without it (per-chunk cones, per-ray bounding spheres).
     pub bvh_intervals_rays_per_s: f64,
     /// Median over frames of (accelerated rays/s) / (dense rays/s).
     pub median_speed_ratio: f64,
