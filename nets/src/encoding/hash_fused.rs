@@ -107,6 +107,11 @@ impl Corners {
                         prefetch(table, row as usize * f);
                     }
                 }
+                if f == 2 {
+                    let jac = jacobian.then(|| &mut jac[i * l * 6..(i + 1) * l * 6]);
+                    self.levels_f2(table, p, out, jac);
+                    continue;
+                }
                 for level in 0..l {
                     let at = p * l + level;
                     let t = &self.frac[at * 3..at * 3 + 3];
@@ -149,6 +154,45 @@ impl Corners {
         (out, jac)
     }
 
+    /// [`Corners::interpolate`]'s work for point `p` with two features a level (both
+    /// presets' width): the same operations in the same order, so the same bits, with
+    /// each level's 8 rows read once into registers and no per-feature loops. `out`:
+    /// `[L 2]`, `jac`: `[L 2, 3]` (both zeroed).
+    #[inline]
+    fn levels_f2(&self, table: &[f32], p: usize, out: &mut [f32], jac: Option<&mut [f32]>) {
+        let l = self.levels();
+        let mut jac = jac;
+        for level in 0..l {
+            let at = p * l + level;
+            let t = &self.frac[at * 3..at * 3 + 3];
+            let w = weights(t);
+            let rows = &self.rows[at * 8..at * 8 + 8];
+            let mut v = [[0f32; 2]; 8];
+            let mut o = [0f32; 2];
+            for k in 0..8 {
+                let row = rows[k] as usize * 2;
+                let r = &table[row..row + 2];
+                v[k] = [r[0], r[1]];
+                o[0] += w[k] * v[k][0];
+                o[1] += w[k] * v[k][1];
+            }
+            out[level * 2..level * 2 + 2].copy_from_slice(&o);
+            if let Some(jac) = jac.as_deref_mut() {
+                let dw = weight_derivatives(t);
+                let res = self.resolutions[level];
+                let mut d = [0f32; 6];
+                for k in 0..8 {
+                    for j in 0..2 {
+                        for a in 0..3 {
+                            d[j * 3 + a] += res * dw[k][a] * v[k][j];
+                        }
+                    }
+                }
+                jac[level * 6..level * 6 + 6].copy_from_slice(&d);
+            }
+        }
+    }
+
     /// `[entries, F]`: the table's gradient for the output gradient `grad` `[n, L F]`.
     /// Each level's rows are a disjoint block, filled by its own task.
     pub(crate) fn table_grad(&self, grad: &[f32]) -> Vec<f32> {
@@ -180,6 +224,16 @@ impl Corners {
                     continue;
                 }
                 let w = weights(&self.frac[at * 3..at * 3 + 3]);
+                if let &[g0, g1] = g {
+                    // Two features (both presets): no per-feature loop.
+                    for (k, &wk) in w.iter().enumerate() {
+                        let row = (self.rows[at * 8 + k] as usize - first) * 2;
+                        let d = &mut block[row..row + 2];
+                        d[0] += wk * g0;
+                        d[1] += wk * g1;
+                    }
+                    continue;
+                }
                 for (k, &wk) in w.iter().enumerate() {
                     let row = (self.rows[at * 8 + k] as usize - first) * f;
                     for (d, &gv) in block[row..row + f].iter_mut().zip(g) {

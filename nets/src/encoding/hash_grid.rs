@@ -400,12 +400,34 @@ pub(crate) mod tests {
 
     /// The fused CPU op and the composed tensor ops (kept for other backends) give the same
     /// encoding and the same gradients for the table and the points, for every identity
-    /// and one past them; and on Flex the fused op is the one `forward` takes.
+    /// and one past them, with two features a level (the fused op's own path) and three
+    /// (its general one); and on Flex the fused op is the one `forward` takes.
     #[test]
     fn fused_op_matches_composed_ops() {
+        for features in [2, 3] {
+            fused_matches_composed(features);
+        }
+        // Without autodiff (rendering) the fused op is taken too.
+        let plain = Device::flex();
+        let grid = HashGridConfig::new().with_n_levels(3).init(&plain);
+        let x = floats(vec![0.3, 0.6, 0.9], [1, 3], &plain);
+        let (res, off) = (&grid.resolutions, &grid.offsets);
+        let fused = hash_fused::encode(&grid.table.val(), &x, |points| {
+            let cells = CellRows::new(res, off, 0);
+            Corners::new(points, res, off, 2, &|l, c| cells.rows(l, c))
+        })
+        .expect("Flex tensors take the fused op");
+        let composed = grid.forward_composed(grid.table.val(), x, 0);
+        for (u, v) in host(&fused).iter().zip(host(&composed).iter()) {
+            assert!((u - v).abs() < 1e-6, "{u} {v}");
+        }
+    }
+
+    fn fused_matches_composed(features: usize) {
         let device = Device::flex().autodiff();
         let grid = HashGridConfig::new()
             .with_n_levels(5)
+            .with_n_features_per_level(features)
             .with_log2_hashmap_size(10)
             .with_base_resolution(3)
             .with_per_level_scale(1.7)
@@ -453,27 +475,13 @@ pub(crate) mod tests {
                 for (i, (u, v)) in a.iter().zip(b.iter()).enumerate() {
                     assert!(
                         (u - v).abs() <= 1e-4 * (1.0 + v.abs()),
-                        "identity {id}, {what}[{i}]: fused {u}, composed {v}"
+                        "{features} features, identity {id}, {what}[{i}]: fused {u}, composed {v}"
                     );
                 }
             }
             // Clamped coordinates carry no point gradient.
             assert_eq!(fused.2[3 * 3], 0.0);
             assert_eq!(fused.2[3 * 3 + 2], 0.0);
-        }
-        // Without autodiff (rendering) the fused op is taken too.
-        let plain = Device::flex();
-        let grid = HashGridConfig::new().with_n_levels(3).init(&plain);
-        let x = floats(vec![0.3, 0.6, 0.9], [1, 3], &plain);
-        let (res, off) = (&grid.resolutions, &grid.offsets);
-        let fused = hash_fused::encode(&grid.table.val(), &x, |points| {
-            let cells = CellRows::new(res, off, 0);
-            Corners::new(points, res, off, 2, &|l, c| cells.rows(l, c))
-        })
-        .expect("Flex tensors take the fused op");
-        let composed = grid.forward_composed(grid.table.val(), x, 0);
-        for (u, v) in host(&fused).iter().zip(host(&composed).iter()) {
-            assert!((u - v).abs() < 1e-6, "{u} {v}");
         }
     }
 
