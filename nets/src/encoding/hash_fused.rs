@@ -159,9 +159,8 @@ impl Corners {
     /// each level's 8 rows read once into registers and no per-feature loops. `out`:
     /// `[L 2]`, `jac`: `[L 2, 3]` (both zeroed).
     #[inline]
-    fn levels_f2(&self, table: &[f32], p: usize, out: &mut [f32], jac: Option<&mut [f32]>) {
+    fn levels_f2(&self, table: &[f32], p: usize, out: &mut [f32], mut jac: Option<&mut [f32]>) {
         let l = self.levels();
-        let mut jac = jac;
         for level in 0..l {
             let at = p * l + level;
             let t = &self.frac[at * 3..at * 3 + 3];
