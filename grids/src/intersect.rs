@@ -2,9 +2,9 @@
 //!
 //! All arithmetic runs in f64 on coordinates taken relative to the ray's origin, so rays
 //! far from the world origin (1e6 m) or tiny scenes (1e-6 m) keep their precision and
-//! squares of f32 coordinates cannot overflow. A capsule is the union of a finite cylinder and two
-//! end spheres; it is convex, so a line meets it in one interval, which is the union of
-//! the three pieces' intervals.
+//! squares of f32 coordinates cannot overflow. A capsule is the union of a finite
+//! cylinder and two end spheres; it is convex, so a line meets it in one interval, which
+//! is the union of the three pieces' intervals.
 
 use glam::{DVec3, Vec3};
 

@@ -3,9 +3,10 @@
 //! grown-capsule intervals up to the first core, culled per bin by the canonical
 //! occupancy grid through the bones' rigid maps: [`CapsuleSampler`]).
 
-use std::sync::{Arc, Mutex};
+use std::sync::{Arc, Mutex, OnceLock};
 
 use glam::{Affine3A, Vec3};
+use talkin_grids::intersect::validate_capsules;
 use talkin_grids::{
     AcceleratedOpts, CanonicalCull, Capsule, CapsuleBvh, CapsuleSampler, DenseOpts,
     DilatedOccupancy, GridError, OccupancyGrid, PackedSamples, Ray, SamplerKind, sample_dense,
@@ -28,11 +29,10 @@ pub const CULL_POSE_SLACK_M: f32 = 0.01;
 /// A posed frame's acceleration structures and sampling box.
 pub struct FrameSampler {
     pub scene: FrameScene,
-    /// BVH over the grown capsules, and over their solid cores (the exact reference the
-    /// accelerated sampler is checked against; the benchmark uses them to tell which
-    /// stage lost a surface point).
-    pub bvh: CapsuleBvh,
-    pub core_bvh: CapsuleBvh,
+    /// BVHs over the grown capsules and over their solid cores, built on first use: the
+    /// exact reference the accelerated sampler is checked against (the benchmark uses
+    /// them to tell which stage lost a surface point). Training and rendering never ask.
+    bvhs: OnceLock<(CapsuleBvh, CapsuleBvh)>,
     /// The dense sampler's box: the grown capsules plus 2 cm.
     pub box_min: Vec3,
     pub box_max: Vec3,
@@ -57,8 +57,8 @@ impl FrameSampler {
     ) -> Result<FrameSampler, GridError> {
         let grown = shells.inflate(&scene.capsules);
         let cores = shells.cores(&scene.capsules);
-        let bvh = CapsuleBvh::build(&grown)?;
-        let core_bvh = CapsuleBvh::build(&cores)?;
+        validate_capsules(&grown)?;
+        validate_capsules(&cores)?;
         let (box_min, box_max) = capsule_bounds(&grown, 0.02);
         let step = median_dense_step(step_rays, box_min, box_max, DENSE_SAMPLES_PER_RAY);
         let canonical_from_posed = (0..64)
@@ -69,8 +69,7 @@ impl FrameSampler {
             .collect();
         Ok(FrameSampler {
             scene,
-            bvh,
-            core_bvh,
+            bvhs: OnceLock::new(),
             box_min,
             box_max,
             step,
@@ -79,6 +78,18 @@ impl FrameSampler {
             canonical_from_posed,
             accelerated: Mutex::new(None),
         })
+    }
+
+    /// The BVH over the grown capsules and the one over their cores (built on first use).
+    pub fn bvhs(&self) -> Result<&(CapsuleBvh, CapsuleBvh), GridError> {
+        if let Some(built) = self.bvhs.get() {
+            return Ok(built);
+        }
+        let built = (
+            CapsuleBvh::build(&self.grown)?,
+            CapsuleBvh::build(&self.cores)?,
+        );
+        Ok(self.bvhs.get_or_init(|| built))
     }
 
     /// The accelerated sampler culling with `grid` (the subject's canonical occupancy
