@@ -122,15 +122,12 @@ impl Avatar {
         let rays = pixel_rays(camera)?;
         let frame_sampler = FrameSampler::new(scene, &model.shells, &rays)?;
 
-        // Chunks render in parallel (the field's inference runs on about one core);
-        // each chunk's jitter seed is its index, so the image is the same on any number
-        // of threads.
+        // Chunks render in parallel (the field's inference runs on about one core); the
+        // samples sit at their bins' regular places (no jitter), so the image is the same
+        // on any number of threads.
         let chunks: Vec<ChunkOut> = rays
             .par_chunks(RENDER_CHUNK_RAYS)
-            .enumerate()
-            .map(|(c, chunk)| {
-                self.render_chunk(&frame_sampler, kind, &model.grid, &conditions, chunk, c)
-            })
+            .map(|chunk| self.render_chunk(&frame_sampler, kind, &model.grid, &conditions, chunk))
             .collect::<Result<_, _>>()?;
         let n = rays.len();
         let mut rgb = Vec::with_capacity(3 * n);
@@ -154,7 +151,7 @@ impl Avatar {
         })
     }
 
-    /// One chunk of a frame's rays (`c`: the chunk's index, its jitter seed).
+    /// One chunk of a frame's rays.
     fn render_chunk(
         &self,
         frame_sampler: &FrameSampler,
@@ -162,9 +159,8 @@ impl Avatar {
         grid: &talkin_grids::OccupancyGrid,
         conditions: &talkin_nets::FrameConditions,
         chunk: &[Ray],
-        c: usize,
     ) -> Result<ChunkOut, AvatarError> {
-        let samples = frame_sampler.sample(kind, chunk, grid, c as u64)?;
+        let samples = frame_sampler.sample(kind, chunk, grid, None)?;
         if samples.num_samples() == 0 {
             return Ok(ChunkOut {
                 rgb: chunk.iter().flat_map(|_| self.background).collect(),

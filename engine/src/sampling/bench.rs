@@ -178,10 +178,10 @@ pub fn bench_sampling(
         let sampler = sampler.map_err(|e| grid_error(dataset, i, e))?;
         steps.push(sampler.step);
         let (dense, dense_s) =
-            median_time(|| sampler.sample(SamplerKind::Dense, &rays, grid, seed));
+            median_time(|| sampler.sample(SamplerKind::Dense, &rays, grid, Some(seed)));
         let dense = dense.map_err(|e| grid_error(dataset, i, e))?;
         let (acc, acc_s) =
-            median_time(|| sampler.sample(SamplerKind::Accelerated, &rays, grid, seed));
+            median_time(|| sampler.sample(SamplerKind::Accelerated, &rays, grid, Some(seed)));
         let acc = acc.map_err(|e| grid_error(dataset, i, e))?;
         let (bvh, core_bvh) = sampler.bvhs().map_err(|e| grid_error(dataset, i, e))?;
         let (intervals, intervals_s) = median_time(|| bvh.intervals(&rays));
@@ -192,7 +192,7 @@ pub fn bench_sampling(
         // Outside the timing, for the counts and to tell which stage loses a surface
         // point: the grown capsules alone, and with the cores (deterministic, so the same
         // samples as inside the timed pipeline).
-        let acc_opts = sampler.accelerated_opts(seed);
+        let acc_opts = sampler.accelerated_opts(Some(seed));
         let stages = sample_in_capsules(bvh, &rays, &acc_opts)
             .and_then(|all| {
                 let front =

@@ -529,7 +529,12 @@ impl Trainer<'_> {
             .wrapping_add(self.step as u64);
         let samples = fc
             .sampler
-            .sample(self.opts.sampler, &batch.rays, &model.grid, jitter_seed)
+            .sample(
+                self.opts.sampler,
+                &batch.rays,
+                &model.grid,
+                Some(jitter_seed),
+            )
             .map_err(grid_err)?;
         let n_rays = batch.rays.len();
         let n_samples = samples.num_samples();
