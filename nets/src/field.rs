@@ -100,6 +100,21 @@ pub struct FieldConfig {
     /// Condition F_face on `e = [psi; jaw]` (13); false: psi only (10).
     #[config(default = true)]
     pub face_uses_jaw: bool,
+    /// How canonical points map into the nets' unit cube; `None` (checkpoints written
+    /// before the choice existed) is [`UnitMap::PerAxis`].
+    #[config(default = "None")]
+    pub unit_map: Option<UnitMap>,
+}
+
+/// How canonical points map into the unit cube the encodings and deformation nets see.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub enum UnitMap {
+    /// Each axis of the canonical box stretched to [0, 1]: the demo's ~0.74 m deep box got
+    /// ~2.9x finer hash cells in depth than in height.
+    PerAxis,
+    /// The box's bounding cube (same centre, its longest side): one scale on every axis,
+    /// so the encodings resolve a centimetre alike along x, y and z (the presets).
+    Isotropic,
 }
 
 /// The presets' posed-prior temperature (metres): 5 mm, so weights blend only within
@@ -124,6 +139,7 @@ impl FieldConfig {
             SkinningConfig::new().with_posed_tau(Some(POSED_TAU_M)),
         )
         .with_n_identities(n_identities)
+        .with_unit_map(Some(UnitMap::Isotropic))
     }
 
     /// The CPU default: a 12-level hash grid (2^17 entries per level, shared by the
@@ -149,6 +165,7 @@ impl FieldConfig {
             SkinningConfig::new().with_posed_tau(Some(POSED_TAU_M)),
         )
         .with_n_identities(n_identities)
+        .with_unit_map(Some(UnitMap::Isotropic))
     }
 
     /// A preset by name (`"paper"` or `"fast"`).
@@ -211,6 +228,7 @@ impl FieldConfig {
                 non_rigid_start_step: self.non_rigid_start_step,
                 hand_background: self.hand_background,
                 face_uses_jaw: self.face_uses_jaw,
+                unit_map: self.unit_map.unwrap_or(UnitMap::PerAxis),
                 pose_dim: self.pose_dim,
                 n_identities: self.n_identities.max(1),
             },
@@ -269,8 +287,23 @@ struct FieldSettings {
     non_rigid_start_step: Option<usize>,
     hand_background: bool,
     face_uses_jaw: bool,
+    unit_map: UnitMap,
     pose_dim: usize,
     n_identities: usize,
+}
+
+impl FieldSettings {
+    /// The unit cube's corner (metres) and per-axis scale: `unit = (x - min) * inv`.
+    fn unit_map(&self) -> ([f32; 3], [f32; 3]) {
+        let (lo, hi) = (self.aabb_min, self.aabb_max);
+        let extent: [f32; 3] = std::array::from_fn(|a| hi[a] - lo[a]);
+        if self.unit_map == UnitMap::PerAxis {
+            return (lo, extent.map(|e| 1.0 / e));
+        }
+        let side = extent.into_iter().fold(0.0f32, f32::max);
+        let min = std::array::from_fn(|a| 0.5 * (lo[a] + hi[a]) - 0.5 * side);
+        (min, [1.0 / side; 3])
+    }
 }
 
 /// Per-frame conditions (one frame per forward call).
@@ -426,15 +459,13 @@ impl TalkinField {
         self.identity.val().device()
     }
 
-    /// Maps canonical metres to the unit cube of the canonical box. `[n, 3]`
+    /// Maps canonical metres to the nets' unit cube: the canonical box's bounding cube
+    /// (same centre, its longest side), or for [`UnitMap::PerAxis`] the box itself
+    /// stretched per axis. `[n, 3]`
     pub fn to_unit(&self, x: Tensor<2>) -> Tensor<2> {
         let device = x.device();
-        let s = &self.settings;
-        let min = floats(s.aabb_min.to_vec(), [1, 3], &device);
-        let inv: Vec<f32> = (0..3)
-            .map(|a| 1.0 / (s.aabb_max[a] - s.aabb_min[a]))
-            .collect();
-        (x - min) * floats(inv, [1, 3], &device)
+        let (min, inv) = self.settings.unit_map();
+        (x - floats(min.to_vec(), [1, 3], &device)) * floats(inv.to_vec(), [1, 3], &device)
     }
 
     /// Identity codes this field holds.
@@ -718,6 +749,43 @@ mod tests {
     fn poison(net: &mut RadianceNet) {
         let w = net.mlp.output.weight.val().full_like(f32::NAN);
         net.mlp.output.weight = Param::from_tensor(w);
+    }
+
+    /// The isotropic unit map: the box's bounding cube (a centimetre is the same unit
+    /// length on every axis, the box's points land in [0, 1], centred on the short axes);
+    /// the per-axis map stretches each axis of the box to [0, 1]; a config written before
+    /// the choice existed reads as the per-axis map.
+    #[test]
+    fn unit_map_is_isotropic_unless_an_old_config_says_otherwise() {
+        let device = Device::flex();
+        let mut config = tiny_fast()
+            .with_aabb_min([-1.0, 0.0, -0.25])
+            .with_aabb_max([1.0, 4.0, 0.25]);
+        assert_eq!(
+            config.unit_map,
+            Some(UnitMap::Isotropic),
+            "the presets' map"
+        );
+        let corners = floats(vec![-1.0, 0.0, -0.25, 1.0, 4.0, 0.25], [2, 3], &device);
+        let unit = |config: &FieldConfig| {
+            let field = config.init(&prior(), &device).unwrap();
+            host(&field.to_unit(corners.clone()))
+        };
+        let got = unit(&config);
+        let want = [0.25, 0.0, 0.4375, 0.75, 1.0, 0.5625];
+        for (g, w) in got.iter().zip(want) {
+            assert!((g - w).abs() < 1e-6, "{got:?}");
+        }
+        config.unit_map = Some(UnitMap::PerAxis);
+        let got = unit(&config);
+        for (g, w) in got.iter().zip([0.0, 0.0, 0.0, 1.0, 1.0, 1.0]) {
+            assert!((g - w).abs() < 1e-6, "{got:?}");
+        }
+        let mut json = serde_json::to_value(&config).unwrap();
+        json.as_object_mut().unwrap().remove("unit_map");
+        let old: FieldConfig = serde_json::from_value(json).unwrap();
+        assert_eq!(old.unit_map, None);
+        assert_eq!(unit(&old), unit(&config));
     }
 
     #[test]

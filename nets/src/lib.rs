@@ -37,5 +37,5 @@ pub mod skinning;
 mod util;
 
 pub use error::NetsError;
-pub use field::{FieldConfig, FieldInput, FieldOutput, FrameConditions, TalkinField};
+pub use field::{FieldConfig, FieldInput, FieldOutput, FrameConditions, TalkinField, UnitMap};
 pub use render::{RaySamples, RenderedRays, render_packed};
