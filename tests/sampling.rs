@@ -8,10 +8,11 @@ use glam::Vec3;
 use talkin::engine::body::canonical_params;
 use talkin::engine::dataset::{Dataset, Split};
 use talkin::engine::sampling::{
-    CanonicalGrid, bench_sampling, canonical_surface_points, fit_subject_margins, shell_capsules,
+    CanonicalGrid, FrameSampler, FrameScene, bench_sampling, canonical_surface_points,
+    fit_subject_margins, foreground_rays, shell_capsules,
 };
 use talkin::engine::synth::{SynthConfig, generate};
-use talkin::grids::{MarginFitOpts, OccupancyGrid, Part};
+use talkin::grids::{MarginFitOpts, OccupancyGrid, PackedSamples, Part, SamplerKind};
 
 #[test]
 fn accelerated_sampling_keeps_every_training_surface_point() {
@@ -118,4 +119,49 @@ fn trained_grids_must_match_the_dataset() {
         .unwrap_err()
         .to_string();
     assert!(err.contains("2 trained grids for 1 subjects"), "{err}");
+}
+
+/// Renders sample at the bins' regular places (`jitter: None`): adjacent bins of a ray
+/// are equally wide, for both samplers; training's seeded jitter moves their shared
+/// boundaries, and the same seed gives the same samples.
+#[test]
+fn unjittered_samples_sit_at_regular_bins() {
+    let dataset = common::synthetic_scene("unjittered_scene", 1, 64, 4);
+    let train = dataset.split_indices(Split::Train);
+    let shells = fit_subject_margins(&dataset, 0, &MarginFitOpts::default())
+        .unwrap()
+        .shells;
+    let skeleton = &dataset.subjects[0].skeleton;
+    let params = train.iter().map(|&i| &dataset.frames[i].params);
+    let grid = CanonicalGrid::initial(skeleton, params, &shells, 64, None).unwrap();
+    let i = train[0];
+    let frame = &dataset.frames[i];
+    let canonical = skeleton.pose(&canonical_params());
+    let scene = FrameScene::new(skeleton, &canonical, &frame.params);
+    let (labelled, _) = foreground_rays(&frame.camera, &dataset.images(i).unwrap()).unwrap();
+    let rays: Vec<_> = labelled.iter().map(|l| l.ray).collect();
+    let sampler = FrameSampler::new(scene, &shells, &rays).unwrap();
+    // The largest width difference between adjacent bins of a ray, relative to the step.
+    let spread = |s: &PackedSamples| {
+        let mut worst = 0.0f32;
+        for r in 0..s.num_rays() {
+            let range = s.range(r);
+            for k in range.start..range.end.saturating_sub(1) {
+                if s.t_end[k] == s.t_start[k + 1] {
+                    let (w0, w1) = (s.t_end[k] - s.t_start[k], s.t_end[k + 1] - s.t_start[k + 1]);
+                    worst = worst.max((w0 - w1).abs());
+                }
+            }
+        }
+        worst / sampler.step
+    };
+    for kind in [SamplerKind::Accelerated, SamplerKind::Dense] {
+        let regular = sampler.sample(kind, &rays, &grid, None).unwrap();
+        let jittered = sampler.sample(kind, &rays, &grid, Some(7)).unwrap();
+        assert!(regular.num_samples() > 1000, "{kind:?}");
+        assert!(spread(&regular) < 1e-3, "{kind:?}: {}", spread(&regular));
+        assert!(spread(&jittered) > 0.3, "{kind:?}: {}", spread(&jittered));
+        let again = sampler.sample(kind, &rays, &grid, Some(7)).unwrap();
+        assert_eq!(again.t_start, jittered.t_start, "{kind:?}");
+    }
 }

@@ -17,7 +17,7 @@ pub struct DemoArgs {
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// Training minutes (wall clock).
-    #[arg(long, default_value_t = 8.0)]
+    #[arg(long, default_value_t = 10.0)]
     pub minutes: f64,
     /// Train with the paper's loss (one LPIPS patch + 0.2 MSE + 0.05 CE, 1024 rays)
     /// instead of the short-run recipe (MSE + 0.05 CE, 512 rays a step).
