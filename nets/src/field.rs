@@ -119,8 +119,9 @@ pub enum UnitMap {
 
 /// The presets' posed-prior temperature (metres): 5 mm, so weights blend only within
 /// millimetres of where two cores meet. Measured against the synthetic scene's true
-/// canonical points (a throwaway diagnostic; the README's design note "A posed-space prior"), 5 mm and 1 cm put the surface within
-/// the same 0.2-0.3 cm on the forearms; 5 mm is tighter on the hands.
+/// canonical points (a throwaway diagnostic; the README's design note "A posed-space
+/// prior"), 5 mm and 1 cm put the surface within the same 0.2-0.3 cm on the forearms;
+/// 5 mm is tighter on the hands.
 pub const POSED_TAU_M: f64 = 0.005;
 
 impl FieldConfig {
