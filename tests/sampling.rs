@@ -8,11 +8,18 @@ use glam::Vec3;
 use talkin::engine::body::canonical_params;
 use talkin::engine::dataset::{Dataset, Split};
 use talkin::engine::sampling::{
-    CanonicalGrid, FrameSampler, FrameScene, bench_sampling, canonical_surface_points,
-    fit_subject_margins, foreground_rays, shell_capsules,
+    CanonicalGrid, CapsuleShells, FrameSampler, FrameScene, bench_sampling,
+    canonical_surface_points, fit_subject_margins, foreground_rays, shell_capsules,
 };
 use talkin::engine::synth::{SynthConfig, generate};
 use talkin::grids::{MarginFitOpts, OccupancyGrid, PackedSamples, Part, SamplerKind};
+
+/// The capsule shells the training masks and depth fit for subject 0.
+fn first_subject_shells(dataset: &Dataset) -> CapsuleShells {
+    fit_subject_margins(dataset, 0, &MarginFitOpts::default())
+        .unwrap()
+        .shells
+}
 
 #[test]
 fn accelerated_sampling_keeps_every_training_surface_point() {
@@ -53,9 +60,7 @@ fn accelerated_sampling_keeps_every_training_surface_point() {
 fn the_initial_grid_is_carved_to_the_training_surfaces_when_depth_is_known() {
     let dataset = common::synthetic_scene("carve_scene", 1, 96, 5);
     let train = dataset.split_indices(Split::Train);
-    let shells = fit_subject_margins(&dataset, 0, &MarginFitOpts::default())
-        .unwrap()
-        .shells;
+    let shells = first_subject_shells(&dataset);
     let points = canonical_surface_points(&dataset, &train, &shells)
         .unwrap()
         .expect("synthetic frames have depth");
@@ -93,9 +98,7 @@ fn the_initial_grid_is_carved_to_the_training_surfaces_when_depth_is_known() {
 fn frames_without_depth_give_no_surface_points() {
     let dataset = common::write_tiny_dataset(&common::temp_dir("carve_no_depth"));
     let train = dataset.split_indices(Split::Train);
-    let shells = fit_subject_margins(&dataset, 0, &MarginFitOpts::default())
-        .unwrap()
-        .shells;
+    let shells = first_subject_shells(&dataset);
     assert!(
         canonical_surface_points(&dataset, &train, &shells)
             .unwrap()
@@ -128,9 +131,7 @@ fn trained_grids_must_match_the_dataset() {
 fn unjittered_samples_sit_at_regular_bins() {
     let dataset = common::synthetic_scene("unjittered_scene", 1, 64, 4);
     let train = dataset.split_indices(Split::Train);
-    let shells = fit_subject_margins(&dataset, 0, &MarginFitOpts::default())
-        .unwrap()
-        .shells;
+    let shells = first_subject_shells(&dataset);
     let skeleton = &dataset.subjects[0].skeleton;
     let params = train.iter().map(|&i| &dataset.frames[i].params);
     let grid = CanonicalGrid::initial(skeleton, params, &shells, 64, None).unwrap();
