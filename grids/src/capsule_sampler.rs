@@ -5,51 +5,46 @@
 //! [`crate::cull_with_grid`], with nothing built per frame.
 //!
 //! What makes it fast: a frame's pixel rays share one origin (the camera centre) and
-//! neighbouring rays look the same way. Per chunk of rays that share an origin, the
-//! capsules whose bounding spheres lie outside the chunk's cone of directions are dropped
-//! once, and the rest are prepared for that origin ([`CapsuleFromOrigin`]); a ray then
-//! rejects most of those with one bounding-sphere distance and runs the exact f64 test
-//! on the few it may meet. Chunks whose rays do not share an origin test every capsule.
+//! neighbouring rays look the same way, so per chunk of rays a [`ChunkView`] keeps the
+//! few capsules they may meet, prepared for that origin (chunks whose rays do not share
+//! an origin test every capsule). Along a ray, the bins of a merged interval are visited
+//! in order, so which capsules hold a bin's midpoint is kept up to date as the sweep
+//! passes capsule ends ([`Sweep`]) instead of asked of every capsule per bin.
 
 use glam::Vec3;
 use rayon::prelude::*;
 
+use crate::chunk_view::{ChunkView, CoreNesting};
 use crate::cull::{CanonicalCull, check_cull};
-use crate::intersect::{CapsuleFromOrigin, ray_capsule, validate_capsules};
+use crate::intersect::{DirectionF64, ray_capsule, validate_capsules};
 use crate::packing::{CHUNK, SampleColumns, par_pack_samples};
 use crate::ray::validate_rays;
 use crate::rng::SplitMix;
-use crate::samples::{PackedSamples, Sample, stratified_bins};
-use crate::{AcceleratedOpts, Capsule, GridError, Ray};
-
-/// A capsule that may meet some ray of a chunk, prepared for the chunk's origin.
-#[derive(Clone, Copy)]
-struct Candidate {
-    /// Bounding sphere: centre relative to the origin, squared radius (padded against
-    /// f32 rounding: it only decides which capsules reach the exact test).
-    centre: Vec3,
-    reach2: f32,
-    exact: CapsuleFromOrigin,
-    index: u32,
-}
-
-/// The capsules and cores a chunk of rays sharing one origin may meet, prepared for that
-/// origin (a chunk whose rays do not share one has no view: every capsule is tested).
-struct ChunkView {
-    capsules: Vec<Candidate>,
-    cores: Vec<Candidate>,
-}
+use crate::samples::{Sample, stratified_bins};
+use crate::{AcceleratedOpts, Capsule, GridError, PackedSamples, Ray};
 
 /// A capsule a ray crosses, with what the bins need of it.
 #[derive(Clone, Copy)]
 struct Hit {
     t_in: f32,
     t_out: f32,
+    /// Index of the part's bit ([`crate::Part::bit`]) and the bone.
     part: u8,
-    bone: u64,
-    /// The ray through the bone's rigid map: canonical `q(t) = q0 + t dq`.
+    bone: u8,
+    /// Its slot in the chunk's view.
+    slot: u32,
+    /// The ray through the bone's rigid map, in the dilated grid's cell units:
+    /// `q(t) = q0 + t dq` ([`crate::DilatedOccupancy::cell_ray`]).
     q0: Vec3,
     dq: Vec3,
+}
+
+/// A worker's buffers, reused from ray to ray.
+#[derive(Default)]
+struct Scratch {
+    hits: Vec<Hit>,
+    /// A merged interval's hits by exit: `(t_out, index in the interval)`.
+    exits: Vec<(f32, u32)>,
 }
 
 /// See the module docs. Built per frame from the grown capsules, their cores and the
@@ -57,6 +52,7 @@ struct Hit {
 pub struct CapsuleSampler {
     capsules: Vec<Capsule>,
     cores: Vec<Capsule>,
+    nesting: CoreNesting,
     cull: Option<CanonicalCull>,
     max_step: f32,
 }
@@ -93,6 +89,7 @@ impl CapsuleSampler {
         Ok(CapsuleSampler {
             capsules: capsules.to_vec(),
             cores: cores.to_vec(),
+            nesting: CoreNesting::new(capsules, cores),
             cull,
             max_step,
         })
@@ -111,99 +108,75 @@ impl CapsuleSampler {
                 expected: "finite, > 0 and <= the sampler's max_step",
             });
         }
-        let views: Vec<Option<ChunkView>> =
-            rays.par_chunks(CHUNK).map(|c| self.chunk_view(c)).collect();
-        Ok(par_pack_samples(rays.len(), Vec::new, |hits, i, out| {
-            self.sample_ray(&rays[i], i, views[i / CHUNK].as_ref(), opts, hits, out)
-        }))
+        let views: Vec<Option<ChunkView>> = rays
+            .par_chunks(CHUNK)
+            .map(|c| ChunkView::new(c, &self.capsules, &self.cores, &self.nesting))
+            .collect();
+        Ok(par_pack_samples(
+            rays.len(),
+            Scratch::default,
+            |scratch, i, out| {
+                self.sample_ray(&rays[i], i, views[i / CHUNK].as_ref(), opts, scratch, out)
+            },
+        ))
     }
 
-    /// The candidates of a chunk whose rays share an origin and start at `t_min >= 0`:
-    /// the capsules whose bounding sphere meets the cone around the chunk's mean
-    /// direction that holds all its directions.
-    fn chunk_view(&self, rays: &[Ray]) -> Option<ChunkView> {
-        let origin = rays.first()?.origin;
-        if rays.iter().any(|r| r.origin != origin || r.t_min < 0.0) {
-            return None;
-        }
-        let sum: Vec3 = rays.iter().map(|r| r.direction).sum();
-        let axis = sum.try_normalize()?;
-        let cos_min = rays
-            .iter()
-            .map(|r| r.direction.normalize().dot(axis))
-            .fold(1.0f32, f32::min);
-        let (cos_s, sin_s) = (
-            cos_min.clamp(-1.0, 1.0),
-            (1.0 - cos_min * cos_min).max(0.0).sqrt(),
-        );
-        let prepare = |list: &[Capsule]| -> Vec<Candidate> {
-            list.iter()
-                .enumerate()
-                .filter_map(|(k, c)| {
-                    let centre = 0.5 * (c.a + c.b) - origin;
-                    let dist = centre.length();
-                    let radius = 0.5 * (c.b - c.a).length() + c.radius;
-                    // The sphere seen from the origin is a cone of half-angle h around
-                    // its centre; it meets the chunk's cone (half-angle s) if the axes
-                    // are at most s + h apart: cos(apart) >= cos(s + h), with 1e-4 of
-                    // slack against f32 rounding.
-                    let sin_h = radius / dist;
-                    let seen = !(sin_h < 1.0 - 1e-5) || {
-                        let cos_h = (1.0 - sin_h * sin_h).sqrt();
-                        let cos_both = cos_s * cos_h - sin_s * sin_h;
-                        // s + h >= pi: the cones cover every direction between them.
-                        cos_s <= -cos_h || centre.dot(axis) / dist >= cos_both - 1e-4
-                    };
-                    let reach = radius + 1e-5 * dist + 1e-6;
-                    seen.then(|| Candidate {
-                        centre,
-                        reach2: reach * reach,
-                        exact: CapsuleFromOrigin::new(c, origin),
-                        index: k as u32,
-                    })
-                })
-                .collect()
-        };
-        Some(ChunkView {
-            capsules: prepare(&self.capsules),
-            cores: prepare(&self.cores),
-        })
-    }
-
-    /// Calls `f(capsule index, t_in, t_out)` for every capsule of `list` (or, without a
-    /// view, of `all`) the ray crosses.
-    #[inline]
-    fn for_each_hit(
+    /// Collects in `hits`, by entry, every capsule `ray` crosses that it enters before
+    /// `stop`: `step` past its first core entry (through the chunk's `view`, or testing
+    /// every capsule). Returns `stop`.
+    fn crossings(
+        &self,
         ray: &Ray,
-        view: Option<&[Candidate]>,
-        all: &[Capsule],
-        mut f: impl FnMut(usize, f32, f32),
-    ) {
-        match view {
-            Some(list) => {
-                // Unit within the rays' tolerance; the sphere test needs it exactly.
-                let d = ray.direction.normalize();
-                let dd = ray.direction.as_dvec3();
-                let dd2 = dd.length_squared();
-                for c in list {
-                    // Closest approach of the line to the bounding sphere's centre.
-                    let s = c.centre.dot(d);
-                    if (c.centre - s * d).length_squared() > c.reach2 {
-                        continue;
-                    }
-                    if let Some((t_in, t_out)) = c.exact.hit(dd, dd2, ray.t_min, ray.t_max) {
-                        f(c.index as usize, t_in, t_out);
-                    }
-                }
+        view: Option<&ChunkView>,
+        step: f32,
+        hits: &mut Vec<Hit>,
+    ) -> f32 {
+        hits.clear();
+        let mut push = |slot: u32, k: u32, t_in: f32, t_out: f32| {
+            let c = &self.capsules[k as usize];
+            hits.push(Hit {
+                t_in,
+                t_out,
+                part: c.part.bit().trailing_zeros() as u8,
+                bone: c.bone as u8,
+                slot,
+                q0: Vec3::ZERO,
+                dq: Vec3::ZERO,
+            });
+        };
+        let dir = DirectionF64::new(ray.direction);
+        let t_core = match view {
+            Some(view) => {
+                view.crossings(ray, &dir, push);
+                hits.sort_unstable_by(|x, y| x.t_in.total_cmp(&y.t_in));
+                view.core_entry(ray, &dir, hits.iter().map(|h| (h.slot, h.t_in)))
             }
             None => {
-                for (k, c) in all.iter().enumerate() {
+                for (k, c) in self.capsules.iter().enumerate() {
                     if let Some((t_in, t_out)) = ray_capsule(ray, c) {
-                        f(k, t_in, t_out);
+                        push(0, k as u32, t_in, t_out);
                     }
                 }
+                hits.sort_unstable_by(|x, y| x.t_in.total_cmp(&y.t_in));
+                self.cores
+                    .iter()
+                    .filter_map(|c| ray_capsule(ray, c))
+                    .fold(f32::INFINITY, |t, (t_in, _)| t.min(t_in))
+            }
+        };
+        let stop = t_core + step;
+        let kept = hits.partition_point(|h| h.t_in < stop);
+        hits.truncate(kept);
+        if let Some(cull) = &self.cull {
+            for h in hits.iter_mut() {
+                let m = &cull.canonical_from_posed[h.bone as usize];
+                (h.q0, h.dq) = cull.grid.cell_ray(
+                    m.transform_point3(ray.origin),
+                    m.transform_vector3(ray.direction),
+                );
             }
         }
+        stop
     }
 
     fn sample_ray(
@@ -212,50 +185,14 @@ impl CapsuleSampler {
         index: usize,
         view: Option<&ChunkView>,
         opts: &AcceleratedOpts,
-        hits: &mut Vec<Hit>,
+        scratch: &mut Scratch,
         out: &mut SampleColumns,
     ) {
-        let mut t_core = f32::INFINITY;
-        Self::for_each_hit(
-            ray,
-            view.map(|v| &v.cores[..]),
-            &self.cores,
-            |_, t_in, _| t_core = t_core.min(t_in),
-        );
-        let stop = t_core + opts.step;
-        hits.clear();
-        Self::for_each_hit(
-            ray,
-            view.map(|v| &v.capsules[..]),
-            &self.capsules,
-            |k, t_in, t_out| {
-                if t_in < stop {
-                    let c = &self.capsules[k];
-                    let (q0, dq) = match &self.cull {
-                        Some(cull) => {
-                            let m = &cull.canonical_from_posed[c.bone as usize];
-                            (
-                                m.transform_point3(ray.origin),
-                                m.transform_vector3(ray.direction),
-                            )
-                        }
-                        None => (Vec3::ZERO, Vec3::ZERO),
-                    };
-                    hits.push(Hit {
-                        t_in,
-                        t_out,
-                        part: c.part.bit(),
-                        bone: 1u64 << c.bone,
-                        q0,
-                        dq,
-                    });
-                }
-            },
-        );
+        let Scratch { hits, exits } = scratch;
+        let stop = self.crossings(ray, view, opts.step, hits);
         if hits.is_empty() {
             return;
         }
-        hits.sort_unstable_by(|x, y| x.t_in.total_cmp(&y.t_in));
         let mut rng = SplitMix::new(opts.seed, index as u64);
         let mut first = 0;
         while first < hits.len() {
@@ -276,49 +213,109 @@ impl CapsuleSampler {
             }
             let n = (length / opts.step * (1.0 - 1e-5)).ceil().max(1.0) as u32;
             let rng = opts.jitter.then_some(&mut rng);
+            let mut sweep = Sweep::new(group, exits);
+            // Kept bins gather here and go out a block at a time.
+            let mut block = [Sample::default(); 32];
+            let mut len = 0;
             stratified_bins(t_in, t_end, n, rng, |a, b| {
-                if let Some(s) = self.bin(group, a, b) {
-                    out.push(s);
+                if let Some(s) = sweep.bin(self.cull.as_ref(), a, b) {
+                    block[len] = s;
+                    len += 1;
+                    if len == block.len() {
+                        out.extend(&block);
+                        len = 0;
+                    }
                 }
             });
+            out.extend(&block[..len]);
+        }
+    }
+}
+
+/// The bins of one merged interval, visited in order: which of its capsules hold the
+/// current midpoint, kept up to date as the midpoint passes their entries and exits.
+/// A capsule holds `mid` iff `t_in <= mid <= t_out` (what [`crate::sample_in_capsules`]
+/// asks of every capsule per bin).
+struct Sweep<'a> {
+    /// The interval's hits by entry.
+    group: &'a [Hit],
+    /// `(t_out, index in group)` by exit.
+    exits: &'a [(f32, u32)],
+    entered: usize,
+    exited: usize,
+    /// How many held capsules have each part and each bone, and those as masks.
+    part_count: [u32; 8],
+    bone_count: [u32; 64],
+    parts: u8,
+    bones: u64,
+    /// The hit whose bone found the last kept bin occupied: tried first for the next.
+    last_occupied: usize,
+}
+
+impl<'a> Sweep<'a> {
+    fn new(group: &'a [Hit], exits: &'a mut Vec<(f32, u32)>) -> Sweep<'a> {
+        exits.clear();
+        exits.extend(group.iter().enumerate().map(|(k, h)| (h.t_out, k as u32)));
+        exits.sort_unstable_by(|x, y| x.0.total_cmp(&y.0));
+        Sweep {
+            group,
+            exits,
+            entered: 0,
+            exited: 0,
+            part_count: [0; 8],
+            bone_count: [0; 64],
+            parts: 0,
+            bones: 0,
+            last_occupied: 0,
         }
     }
 
-    /// The sample `[a, b]` of a merged interval's capsules `group`, or `None` if the cull
-    /// drops it: no bone of a capsule overlapping it maps its midpoint into the dilated
-    /// canonical grid.
+    /// Moves the midpoint to `mid` (never backwards).
     #[inline]
-    fn bin(&self, group: &[Hit], a: f32, b: f32) -> Option<Sample> {
-        let mid = 0.5 * (a + b);
-        let (mut parts, mut bones) = (0u8, 0u64);
-        let mut occupied = self.cull.is_none();
-        let mut tried = 0u64;
-        for h in group {
-            // Branch-free: which capsules hold the midpoint is unpredictable.
-            let inside = (h.t_in <= mid) & (mid <= h.t_out);
-            parts |= h.part & 0u8.wrapping_sub(inside as u8);
-            bones |= h.bone & 0u64.wrapping_sub(inside as u64);
+    fn advance(&mut self, mid: f32) {
+        while let Some(h) = self.group.get(self.entered)
+            && h.t_in <= mid
+        {
+            self.part_count[h.part as usize] += 1;
+            self.bone_count[h.bone as usize] += 1;
+            self.parts |= 1 << h.part;
+            self.bones |= 1 << h.bone;
+            self.entered += 1;
         }
-        if !occupied && let Some(cull) = &self.cull {
-            for h in group {
-                if h.t_in <= b && a <= h.t_out && tried & h.bone == 0 {
-                    tried |= h.bone;
-                    if cull.grid.is_occupied(h.q0 + mid * h.dq) {
-                        occupied = true;
-                        break;
-                    }
-                }
+        while let Some(&(t_out, k)) = self.exits.get(self.exited)
+            && t_out < mid
+        {
+            let h = &self.group[k as usize];
+            self.part_count[h.part as usize] -= 1;
+            self.bone_count[h.bone as usize] -= 1;
+            if self.part_count[h.part as usize] == 0 {
+                self.parts &= !(1 << h.part);
             }
+            if self.bone_count[h.bone as usize] == 0 {
+                self.bones &= !(1 << h.bone);
+            }
+            self.exited += 1;
         }
-        if !occupied {
+    }
+
+    /// The sample `[a, b]`, or `None` if the cull drops it: no bone of a capsule
+    /// overlapping it maps its midpoint into the dilated canonical grid.
+    #[inline]
+    fn bin(&mut self, cull: Option<&CanonicalCull>, a: f32, b: f32) -> Option<Sample> {
+        let mid = 0.5 * (a + b);
+        self.advance(mid);
+        if let Some(cull) = cull
+            && !self.occupied(cull, a, b, mid)
+        {
             return None;
         }
+        let (mut parts, mut bones) = (self.parts, self.bones);
         if parts == 0 {
-            // Float rounding at a capsule boundary: the group's union is a correct
+            // Float rounding at a capsule boundary: the interval's union is a correct
             // (looser) candidate set.
-            for h in group {
-                parts |= h.part;
-                bones |= h.bone;
+            for h in self.group {
+                parts |= 1 << h.part;
+                bones |= 1 << h.bone;
             }
         }
         Some(Sample {
@@ -327,6 +324,31 @@ impl CapsuleSampler {
             part_mask: parts,
             bone_mask: bones,
         })
+    }
+
+    /// Whether some bone of a capsule overlapping `[a, b]` maps `mid` into an occupied
+    /// cell: the bone that found the last bin occupied first, then every other.
+    #[inline]
+    fn occupied(&mut self, cull: &CanonicalCull, a: f32, b: f32, mid: f32) -> bool {
+        let overlaps = |h: &Hit| h.t_in <= b && a <= h.t_out;
+        let h = &self.group[self.last_occupied];
+        let mut tried = 0u64;
+        if overlaps(h) {
+            if cull.grid.is_occupied_cell(h.q0 + mid * h.dq) {
+                return true;
+            }
+            tried = 1 << h.bone;
+        }
+        for (k, h) in self.group.iter().enumerate() {
+            if overlaps(h) && tried & (1 << h.bone) == 0 {
+                tried |= 1 << h.bone;
+                if cull.grid.is_occupied_cell(h.q0 + mid * h.dq) {
+                    self.last_occupied = k;
+                    return true;
+                }
+            }
+        }
+        false
     }
 }
 
@@ -432,9 +454,19 @@ mod tests {
     /// the sampler's.
     fn assert_matches_exact(rays: &[Ray], step: f32, seed: u64) -> PackedSamples {
         let (capsules, cores, _) = scene();
-        let sampler = CapsuleSampler::new(&capsules, &cores, None, step).unwrap();
-        let bvh = CapsuleBvh::build(&capsules).unwrap();
-        let core_bvh = CapsuleBvh::build(&cores).unwrap();
+        assert_matches_exact_with(&capsules, &cores, rays, step, seed)
+    }
+
+    fn assert_matches_exact_with(
+        capsules: &[Capsule],
+        cores: &[Capsule],
+        rays: &[Ray],
+        step: f32,
+        seed: u64,
+    ) -> PackedSamples {
+        let sampler = CapsuleSampler::new(capsules, cores, None, step).unwrap();
+        let bvh = CapsuleBvh::build(capsules).unwrap();
+        let core_bvh = CapsuleBvh::build(cores).unwrap();
         let got = sampler.sample(rays, &opts(step, seed)).unwrap();
         let want =
             sample_in_front_of_cores(&bvh, &core_bvh, rays, step, &opts(step, seed)).unwrap();
@@ -537,6 +569,34 @@ mod tests {
             }
         }
         assert!(checked > 1_000, "{checked}");
+    }
+
+    /// Cores no capsule holds (one sticking out of its limb, one where no limb is) are
+    /// tested on their own, and a core inside a big capsule and a small one rides on the
+    /// small one: still the exact pipeline, sample for sample.
+    #[test]
+    fn loose_and_shared_cores_match_the_exact_pipeline() {
+        let (capsules, mut cores, _) = scene();
+        // The arm's core grows past its shell; a core floats in front of the body.
+        cores[1].radius = 1.5 * capsules[1].radius;
+        cores.push(Capsule {
+            a: vec3(0.0, 0.25, -0.4),
+            b: vec3(0.05, 0.3, -0.4),
+            radius: 0.03,
+            ..cores[0]
+        });
+        // A small capsule inside the body shell holding the body's core as well.
+        let mut capsules = capsules;
+        capsules.push(Capsule {
+            radius: 0.13,
+            ..capsules[0]
+        });
+        let nesting = CoreNesting::new(&capsules, &cores);
+        assert_eq!(nesting.loose(), &[1, 4]);
+        let mut rays = tiled_rays(vec3(0.1, 0.4, -2.5));
+        rays.extend(camera_rays(vec3(0.1, 0.4, -2.5), 700, 8));
+        let got = assert_matches_exact_with(&capsules, &cores, &rays, 0.006, 9);
+        assert!(got.num_samples() > 5_000, "{}", got.num_samples());
     }
 
     /// Hard rays: parallel to a limb's axis, grazing a capsule, starting inside a

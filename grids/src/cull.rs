@@ -108,7 +108,22 @@ impl DilatedOccupancy {
     /// dilation outside the box count as their border cell).
     #[inline]
     pub fn is_occupied(&self, p_canonical: Vec3) -> bool {
-        let f = (p_canonical - self.min) * self.inv_cell;
+        self.is_occupied_cell((p_canonical - self.min) * self.inv_cell)
+    }
+
+    /// The canonical ray `p(t) = p0 + t dp` in cell units (the box's minimum at zero, one
+    /// cell per unit), as [`DilatedOccupancy::is_occupied_cell`] takes points.
+    pub fn cell_ray(&self, p0_canonical: Vec3, dp_canonical: Vec3) -> (Vec3, Vec3) {
+        (
+            (p0_canonical - self.min) * self.inv_cell,
+            dp_canonical * self.inv_cell,
+        )
+    }
+
+    /// [`DilatedOccupancy::is_occupied`] for a point in cell units: what a sampler
+    /// stepping along a [`DilatedOccupancy::cell_ray`] asks.
+    #[inline]
+    pub fn is_occupied_cell(&self, f: Vec3) -> bool {
         let lo = -(self.cells as f32);
         let hi = self.res.as_vec3() + self.cells as f32;
         if !(f.cmpge(Vec3::splat(lo)).all() && f.cmplt(hi).all()) {

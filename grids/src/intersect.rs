@@ -61,16 +61,24 @@ pub fn validate_capsules(capsules: &[Capsule]) -> Result<(), GridError> {
 /// Inputs are assumed validated ([`Ray::validate`], [`validate_capsule`]); non-finite
 /// values give `None`, never a panic.
 pub fn ray_capsule(ray: &Ray, capsule: &Capsule) -> Option<(f32, f32)> {
-    let d = ray.direction.as_dvec3();
-    CapsuleFromOrigin::new(capsule, ray.origin).hit(d, d.length_squared(), ray.t_min, ray.t_max)
+    CapsuleFromOrigin::new(capsule, ray.origin).hit(
+        &DirectionF64::new(ray.direction),
+        ray.t_min,
+        ray.t_max,
+    )
 }
 
 /// A capsule seen from one ray origin: the parts of [`ray_capsule`] that do not depend
 /// on the direction, in f64, so the many rays that share an origin (a frame's pixel rays
-/// share the camera centre) each pay only the rest. The pieces: each end sphere by its
-/// closest approach first and the discriminant from the perpendicular distance (which
-/// avoids the cancellation of the textbook `b^2 - 4ac` for far-away origins), and the
-/// cylinder between them without its end discs (the spheres cover those).
+/// share the camera centre) each pay only the rest.
+///
+/// The infinite cylinder first: a ray that misses it misses the capsule. Where it enters
+/// (leaves) the cylinder beyond an end, it enters (leaves) the capsule through that end's
+/// sphere, or not at all: to reach the segment's slab from beyond an end while inside the
+/// cylinder, it crosses the end's disc, which lies in the sphere. So a ray crossing a
+/// limb sideways pays one square root. Each sphere is solved by its closest approach and
+/// the discriminant from the perpendicular distance (which avoids the cancellation of
+/// the textbook `b^2 - 4ac` for far-away origins).
 #[derive(Clone, Copy, Debug)]
 pub struct CapsuleFromOrigin {
     /// End centres relative to the origin.
@@ -83,6 +91,27 @@ pub struct CapsuleFromOrigin {
     /// The origin's axial coordinate (segment units) and its offset from the axis.
     s0: f64,
     o_perp: DVec3,
+}
+
+/// A ray direction as [`CapsuleFromOrigin::hit`] takes it: `d` with `|d|^2` and its
+/// inverse, worked out once per ray.
+#[derive(Clone, Copy, Debug)]
+pub struct DirectionF64 {
+    pub d: DVec3,
+    pub dd: f64,
+    pub inv_dd: f64,
+}
+
+impl DirectionF64 {
+    pub fn new(direction: Vec3) -> DirectionF64 {
+        let d = direction.as_dvec3();
+        let dd = d.length_squared();
+        DirectionF64 {
+            d,
+            dd,
+            inv_dd: 1.0 / dd,
+        }
+    }
 }
 
 impl CapsuleFromOrigin {
@@ -110,30 +139,15 @@ impl CapsuleFromOrigin {
         }
     }
 
-    /// [`ray_capsule`] for a ray from this origin along `d` (`dd = |d|^2`), clipped to
+    /// [`ray_capsule`] for a ray from this origin along `dir`, clipped to
     /// `[t_min, t_max]`.
     #[inline]
-    pub fn hit(&self, d: DVec3, dd: f64, t_min: f32, t_max: f32) -> Option<(f32, f32)> {
-        let inv_dd = 1.0 / dd;
-        let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
-        let mut sphere = |c: DVec3| {
-            let t_mid = c.dot(d) * inv_dd;
-            let perp = t_mid * d - c;
-            let disc = self.r2 - perp.length_squared();
-            if disc >= 0.0 {
-                let half = (disc * inv_dd).sqrt();
-                lo = lo.min(t_mid - half);
-                hi = hi.max(t_mid + half);
-            }
+    pub fn hit(&self, dir: &DirectionF64, t_min: f32, t_max: f32) -> Option<(f32, f32)> {
+        let (lo, hi) = if self.inv_l2 == 0.0 {
+            self.sphere(self.a, dir)?
+        } else {
+            self.capsule(dir)?
         };
-        sphere(self.a);
-        if self.inv_l2 > 0.0 {
-            sphere(self.b);
-            if let Some((c0, c1)) = self.cylinder(d, dd) {
-                lo = lo.min(c0);
-                hi = hi.max(c1);
-            }
-        }
         let t_in = lo.max(t_min as f64);
         let t_out = hi.min(t_max as f64);
         if !(t_in <= t_out) {
@@ -142,46 +156,73 @@ impl CapsuleFromOrigin {
         Some((t_in as f32, t_out as f32))
     }
 
-    /// The infinite cylinder's interval, clipped to where the ray's projection on the
-    /// axis lies between the ends. A ray parallel to the axis (within ~1e-10 rad) is
-    /// inside it for all `t` or never.
+    /// The ray's interval in the sphere of radius `r` around `c`, unclipped.
     #[inline]
-    fn cylinder(&self, d: DVec3, dd: f64) -> Option<(f64, f64)> {
-        let (s0, axis) = (self.s0, self.axis);
-        let s1 = d.dot(axis) * self.inv_l2;
-        let d_perp = d - s1 * axis;
+    fn sphere(&self, c: DVec3, dir: &DirectionF64) -> Option<(f64, f64)> {
+        let t_mid = c.dot(dir.d) * dir.inv_dd;
+        let perp = t_mid * dir.d - c;
+        let disc = self.r2 - perp.length_squared();
+        if !(disc >= 0.0) {
+            return None;
+        }
+        let half = (disc * dir.inv_dd).sqrt();
+        Some((t_mid - half, t_mid + half))
+    }
+
+    /// The end sphere on the side of axial coordinate `s` (segment units) if `s` lies
+    /// beyond an end, else `None`.
+    #[inline]
+    fn end_beyond(&self, s: f64) -> Option<DVec3> {
+        if s < 0.0 {
+            Some(self.a)
+        } else if s > 1.0 {
+            Some(self.b)
+        } else {
+            None
+        }
+    }
+
+    /// A capsule of positive length: the cylinder, and end spheres where needed (see the
+    /// type's docs), unclipped.
+    #[inline]
+    fn capsule(&self, dir: &DirectionF64) -> Option<(f64, f64)> {
+        let d = dir.d;
+        let s1 = d.dot(self.axis) * self.inv_l2;
+        let d_perp = d - s1 * self.axis;
         let a = d_perp.length_squared();
-        let (mut lo, mut hi);
-        if a <= 1e-20 * dd {
-            if !(self.o_perp.length_squared() <= self.r2) {
+        if a <= 1e-20 * dir.dd {
+            // Parallel to the axis (within ~1e-10 rad): inside the cylinder for all `t`
+            // or never; across the segment's slab, and the end spheres (which a ray
+            // grazing the cylinder may miss by rounding).
+            if !(self.o_perp.length_squared() <= self.r2 && s1 != 0.0) {
                 return None;
             }
-            lo = f64::NEG_INFINITY;
-            hi = f64::INFINITY;
-        } else {
-            let inv_a = 1.0 / a;
-            let t_mid = -self.o_perp.dot(d_perp) * inv_a;
-            let perp = self.o_perp + t_mid * d_perp;
-            let disc = self.r2 - perp.length_squared();
-            if !(disc >= 0.0) {
-                return None;
-            }
-            let half = (disc * inv_a).sqrt();
-            lo = t_mid - half;
-            hi = t_mid + half;
-        }
-        if s1 == 0.0 {
-            if !(0.0..=1.0).contains(&s0) {
-                return None;
-            }
-        } else {
             let inv_s1 = 1.0 / s1;
-            let t0 = -s0 * inv_s1;
-            let t1 = (1.0 - s0) * inv_s1;
-            lo = lo.max(t0.min(t1));
-            hi = hi.min(t0.max(t1));
+            let (t0, t1) = (-self.s0 * inv_s1, (1.0 - self.s0) * inv_s1);
+            let (mut lo, mut hi) = (t0.min(t1), t0.max(t1));
+            for end in [self.a, self.b] {
+                if let Some((e0, e1)) = self.sphere(end, dir) {
+                    (lo, hi) = (lo.min(e0), hi.max(e1));
+                }
+            }
+            return Some((lo, hi));
         }
-        (lo <= hi).then_some((lo, hi))
+        let inv_a = 1.0 / a;
+        let t_mid = -self.o_perp.dot(d_perp) * inv_a;
+        let perp = self.o_perp + t_mid * d_perp;
+        let disc = self.r2 - perp.length_squared();
+        if !(disc >= 0.0) {
+            return None;
+        }
+        let half = (disc * inv_a).sqrt();
+        let (mut lo, mut hi) = (t_mid - half, t_mid + half);
+        if let Some(end) = self.end_beyond(self.s0 + lo * s1) {
+            lo = self.sphere(end, dir)?.0;
+        }
+        if let Some(end) = self.end_beyond(self.s0 + hi * s1) {
+            hi = self.sphere(end, dir)?.1;
+        }
+        Some((lo, hi))
     }
 }
 
@@ -370,5 +411,88 @@ mod tests {
             }
         }
         assert!(hits > 500 && inside > 10_000, "{hits} {inside}");
+    }
+
+    /// The capsule as the union of its three pieces (both end spheres and the cylinder
+    /// clipped to the segment's slab), each solved in full: the plain reference for the
+    /// cylinder-first shortcut of [`CapsuleFromOrigin::hit`].
+    fn hit_by_pieces(c: &Capsule, r: &Ray) -> Option<(f64, f64)> {
+        let (o, d) = (r.origin.as_dvec3(), r.direction.as_dvec3());
+        let (a, b) = (c.a.as_dvec3() - o, c.b.as_dvec3() - o);
+        let r2 = (c.radius as f64).powi(2);
+        let dd = d.length_squared();
+        let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+        for centre in [a, b] {
+            let t_mid = centre.dot(d) / dd;
+            let disc = r2 - (t_mid * d - centre).length_squared();
+            if disc >= 0.0 {
+                let half = (disc / dd).sqrt();
+                (lo, hi) = (lo.min(t_mid - half), hi.max(t_mid + half));
+            }
+        }
+        let axis = b - a;
+        let (s1, s0) = (
+            d.dot(axis) / axis.length_squared(),
+            -a.dot(axis) / axis.length_squared(),
+        );
+        let (d_perp, o_perp) = (d - s1 * axis, -a - s0 * axis);
+        let qa = d_perp.length_squared();
+        let t_mid = -o_perp.dot(d_perp) / qa;
+        let disc = r2 - (o_perp + t_mid * d_perp).length_squared();
+        if disc >= 0.0 {
+            let half = (disc / qa).sqrt();
+            let (t0, t1) = (-s0 / s1, (1.0 - s0) / s1);
+            let (c0, c1) = (
+                (t_mid - half).max(t0.min(t1)),
+                (t_mid + half).min(t0.max(t1)),
+            );
+            if c0 <= c1 {
+                (lo, hi) = (lo.min(c0), hi.max(c1));
+            }
+        }
+        (lo <= hi).then_some((lo, hi))
+    }
+
+    /// The cylinder-first shortcut agrees with the union of the pieces, on random rays
+    /// and on rays through the rims where the cylinder meets the end spheres (where it
+    /// picks one piece over the other).
+    #[test]
+    fn cylinder_first_matches_the_union_of_pieces() {
+        let mut rng = crate::rng::SplitMix::new(43, 0);
+        let mut p = || vec3(rng.next_f32(), rng.next_f32(), rng.next_f32()) - 0.5;
+        let mut compared = 0;
+        for _ in 0..300 {
+            let a = p();
+            let c = capsule(a, a + p(), 0.02 + 0.2 * p().x.abs());
+            let origin = 3.0 * p();
+            // A point on each rim: an end plus the radius perpendicular to the axis.
+            let side = (c.b - c.a).any_orthonormal_vector() * c.radius;
+            let mut targets: Vec<Vec3> = (0..6).map(|_| p()).collect();
+            targets.extend([
+                c.a + side,
+                c.b - side,
+                c.a + 0.999 * side,
+                c.b + 1.001 * side,
+            ]);
+            for target in targets {
+                let Ok(r) = Ray::new(origin, target - origin, 0.0, f32::INFINITY) else {
+                    continue;
+                };
+                let got = ray_capsule(&r, &c);
+                let want = hit_by_pieces(&c, &r);
+                match (got, want) {
+                    (Some((t0, t1)), Some((w0, w1))) => {
+                        compared += 1;
+                        assert!((t0 as f64 - w0).abs() < 1e-5, "{c:?} {r:?}: {t0} vs {w0}");
+                        assert!((t1 as f64 - w1).abs() < 1e-5, "{c:?} {r:?}: {t1} vs {w1}");
+                    }
+                    (None, None) => {}
+                    // Only a ray touching the surface may go either way.
+                    (got, Some((w0, w1))) => assert!(w1 - w0 < 1e-4, "{c:?} {r:?}: {got:?}"),
+                    (Some((t0, t1)), None) => assert!(t1 - t0 < 1e-4, "{c:?} {r:?}"),
+                }
+            }
+        }
+        assert!(compared > 600, "{compared}");
     }
 }

@@ -66,6 +66,7 @@
 pub mod bvh;
 pub mod capsule;
 pub mod capsule_sampler;
+mod chunk_view;
 pub mod cull;
 pub mod error;
 pub mod intersect;
