@@ -299,17 +299,7 @@ mod tests {
     use glam::vec3;
 
     use super::*;
-    use crate::Part;
-
-    fn capsule(a: Vec3, b: Vec3, radius: f32) -> Capsule {
-        Capsule {
-            a,
-            b,
-            radius,
-            part: Part::Body,
-            bone: 0,
-        }
-    }
+    use crate::intersect::tests::capsule;
 
     #[test]
     fn cores_nest_in_the_capsules_that_hold_them() {

@@ -309,12 +309,13 @@ pub fn margin_to_hit(ray: &Ray, capsule: &Capsule) -> f32 {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::Part;
     use glam::vec3;
 
-    fn capsule(a: Vec3, b: Vec3, radius: f32) -> Capsule {
+    /// A body capsule of bone 0 (shared by the crate's geometry tests).
+    pub(crate) fn capsule(a: Vec3, b: Vec3, radius: f32) -> Capsule {
         Capsule {
             a,
             b,
