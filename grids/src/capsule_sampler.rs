@@ -214,20 +214,11 @@ impl CapsuleSampler {
             let n = (length / opts.step * (1.0 - 1e-5)).ceil().max(1.0) as u32;
             let rng = opts.jitter.then_some(&mut rng);
             let mut sweep = Sweep::new(group, exits);
-            // Kept bins gather here and go out a block at a time.
-            let mut block = [Sample::default(); 32];
-            let mut len = 0;
             stratified_bins(t_in, t_end, n, rng, |a, b| {
                 if let Some(s) = sweep.bin(self.cull.as_ref(), a, b) {
-                    block[len] = s;
-                    len += 1;
-                    if len == block.len() {
-                        out.extend(&block);
-                        len = 0;
-                    }
+                    out.push(s);
                 }
             });
-            out.extend(&block[..len]);
         }
     }
 }

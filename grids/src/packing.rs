@@ -100,15 +100,6 @@ impl SampleColumns {
         self.part_mask.push(s.part_mask);
         self.bone_mask.push(s.bone_mask);
     }
-
-    /// Appends `samples` in order: one capacity check per column, not per sample.
-    #[inline]
-    pub(crate) fn extend(&mut self, samples: &[Sample]) {
-        self.t_start.extend(samples.iter().map(|s| s.t_start));
-        self.t_end.extend(samples.iter().map(|s| s.t_end));
-        self.part_mask.extend(samples.iter().map(|s| s.part_mask));
-        self.bone_mask.extend(samples.iter().map(|s| s.bone_mask));
-    }
 }
 
 /// Room reserved per ray in a chunk's sample buffer: the accelerated samplers produce

@@ -30,7 +30,7 @@ pub struct PackedSamples {
 
 /// One sample while it is being produced, handed to the packer
 /// ([`crate::packing::SampleColumns::push`]) that stores it as columns.
-#[derive(Clone, Copy, Debug, Default)]
+#[derive(Clone, Copy, Debug)]
 pub(crate) struct Sample {
     pub t_start: f32,
     pub t_end: f32,
@@ -194,7 +194,6 @@ impl PackedSamples {
 /// uniformly within +-0.45 of a bin width around its regular place (stratified jitter:
 /// bins stay contiguous, tile `[t0, t1]` exactly and keep at least 0.1 of a width);
 /// without, the bins are regular.
-#[inline]
 pub(crate) fn stratified_bins(
     t0: f32,
     t1: f32,
