@@ -5,7 +5,7 @@
 //! Built once per chunk: the capsules whose bounding spheres lie outside the cone of the
 //! chunk's directions are dropped, the rest are prepared for the origin
 //! ([`CapsuleFromOrigin`]) with their bounding spheres laid out eight at a time, so a ray
-//! rejects most of them with a few vector instructions. Cores ride on a capsule that
+//! rejects most of them in one branch-free loop per eight. Cores ride on a capsule that
 //! contains them (a ray misses the core of a capsule it misses), so the ray tests them
 //! only after their capsule's exact test hits; a core no capsule contains is tested on
 //! its own.
@@ -62,8 +62,8 @@ struct Candidate {
     cores: std::ops::Range<u32>,
 }
 
-/// A core prepared for the chunk's origin: bounding sphere (as a [`SphereBlock`] lane)
-/// first, then the exact test.
+/// A core prepared for the chunk's origin: its bounding sphere (centre relative to the
+/// origin, padded squared reach) first, then the exact test.
 struct PreparedCore {
     centre: Vec3,
     reach2: f32,
