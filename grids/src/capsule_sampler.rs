@@ -5,11 +5,11 @@
 //! [`crate::cull_with_grid`], with nothing built per frame.
 //!
 //! What makes it fast: a frame's pixel rays share one origin (the camera centre) and
-//! neighbouring rays look the same way, so per chunk of rays a [`ChunkView`] keeps the
+//! neighbouring rays look the same way, so per chunk of rays a `ChunkView` keeps the
 //! few capsules they may meet, prepared for that origin (chunks whose rays do not share
 //! an origin test every capsule). Along a ray, the bins of a merged interval are visited
 //! in order, so which capsules hold a bin's midpoint is kept up to date as the sweep
-//! passes capsule ends ([`Sweep`]) instead of asked of every capsule per bin.
+//! passes capsule ends (`Sweep`) instead of asked of every capsule per bin.
 
 use glam::Vec3;
 use rayon::prelude::*;
