@@ -145,24 +145,25 @@ impl CapsuleSampler {
             });
         };
         let dir = DirectionF64::new(ray.direction);
-        let t_core = match view {
-            Some(view) => {
-                view.crossings(ray, &dir, push);
-                hits.sort_unstable_by(|x, y| x.t_in.total_cmp(&y.t_in));
-                view.core_entry(ray, &dir, hits.iter().map(|h| (h.slot, h.t_in)))
-            }
+        match view {
+            Some(view) => view.crossings(ray, &dir, push),
             None => {
                 for (k, c) in self.capsules.iter().enumerate() {
                     if let Some((t_in, t_out)) = ray_capsule(ray, c) {
                         push(0, k as u32, t_in, t_out);
                     }
                 }
-                hits.sort_unstable_by(|x, y| x.t_in.total_cmp(&y.t_in));
-                self.cores
-                    .iter()
-                    .filter_map(|c| ray_capsule(ray, c))
-                    .fold(f32::INFINITY, |t, (t_in, _)| t.min(t_in))
             }
+        }
+        // By entry: the cores are searched in this order, the bins sweep in it.
+        hits.sort_unstable_by(|x, y| x.t_in.total_cmp(&y.t_in));
+        let t_core = match view {
+            Some(view) => view.core_entry(ray, &dir, hits.iter().map(|h| (h.slot, h.t_in))),
+            None => self
+                .cores
+                .iter()
+                .filter_map(|c| ray_capsule(ray, c))
+                .fold(f32::INFINITY, |t, (t_in, _)| t.min(t_in)),
         };
         let stop = t_core + step;
         let kept = hits.partition_point(|h| h.t_in < stop);

@@ -138,6 +138,13 @@ fn bounding_sphere(c: &Capsule, origin: Vec3) -> (Vec3, f32) {
     )
 }
 
+/// The squared reach of a bounding sphere (`centre` relative to the origin), padded
+/// against f32 rounding: it only decides which capsules reach the exact test.
+fn padded_reach2(centre: Vec3, radius: f32) -> f32 {
+    let reach = radius + 1e-5 * centre.length() + 1e-6;
+    reach * reach
+}
+
 impl ChunkView {
     /// The view of a chunk whose rays share an origin and start at `t_min >= 0`: the
     /// capsules whose bounding sphere meets the cone around the chunk's mean direction
@@ -162,8 +169,7 @@ impl ChunkView {
             cos_min.clamp(-1.0, 1.0),
             (1.0 - cos_min * cos_min).max(0.0).sqrt(),
         );
-        // The squared reach of a bounding sphere that meets the cone (padded against f32
-        // rounding: it only decides which capsules reach the exact test), or `None`.
+        // The padded squared reach of a bounding sphere that meets the cone, or `None`.
         let seen = |centre: Vec3, radius: f32| -> Option<f32> {
             let dist = centre.length();
             // The sphere seen from the origin is a cone of half-angle h around its
@@ -177,8 +183,7 @@ impl ChunkView {
                 // s + h >= pi: the cones cover every direction between them.
                 cos_s <= -cos_h || centre.dot(axis) / dist >= cos_both - 1e-4
             };
-            let reach = radius + 1e-5 * dist + 1e-6;
-            meets.then_some(reach * reach)
+            meets.then(|| padded_reach2(centre, radius))
         };
         let mut view = ChunkView {
             spheres: Vec::new(),
@@ -203,10 +208,9 @@ impl ChunkView {
                 let core = &cores[i as usize];
                 let (centre, radius) = bounding_sphere(core, origin);
                 // Inside a capsule the cone meets, the core may meet it too: no cone test.
-                let reach = radius + 1e-5 * centre.length() + 1e-6;
                 view.nested_cores.push(PreparedCore {
                     centre,
-                    reach2: reach * reach,
+                    reach2: padded_reach2(centre, radius),
                     exact: CapsuleFromOrigin::new(core, origin),
                 });
             }
