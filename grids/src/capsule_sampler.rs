@@ -145,8 +145,11 @@ impl CapsuleSampler {
             });
         };
         let dir = DirectionF64::new(ray.direction);
+        // Unit within the rays' tolerance; the view's bounding-sphere rejects need it
+        // exactly.
+        let unit = ray.direction.normalize();
         match view {
-            Some(view) => view.crossings(ray, &dir, push),
+            Some(view) => view.crossings(ray, &dir, unit, push),
             None => {
                 for (k, c) in self.capsules.iter().enumerate() {
                     if let Some((t_in, t_out)) = ray_capsule(ray, c) {
@@ -158,7 +161,7 @@ impl CapsuleSampler {
         // By entry: the cores are searched in this order, the bins sweep in it.
         hits.sort_unstable_by(|x, y| x.t_in.total_cmp(&y.t_in));
         let t_core = match view {
-            Some(view) => view.core_entry(ray, &dir, hits.iter().map(|h| (h.slot, h.t_in))),
+            Some(view) => view.core_entry(ray, &dir, unit, hits.iter().map(|h| (h.slot, h.t_in))),
             None => self
                 .cores
                 .iter()

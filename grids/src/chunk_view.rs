@@ -236,15 +236,16 @@ impl ChunkView {
 
     /// Calls `hit(slot, capsule index, t_in, t_out)` for every capsule `ray` (from the
     /// view's origin, along `dir`) crosses; `slot` names it to [`ChunkView::core_entry`].
+    /// `d` is the ray's direction normalised: the rays' directions are unit only within
+    /// a tolerance, and the bounding-sphere rejects need it exactly.
     #[inline]
     pub(crate) fn crossings(
         &self,
         ray: &Ray,
         dir: &DirectionF64,
+        d: Vec3,
         mut hit: impl FnMut(u32, u32, f32, f32),
     ) {
-        // Unit within the rays' tolerance; the sphere test needs it exactly.
-        let d = ray.direction.normalize();
         for (b, block) in self.spheres.iter().enumerate() {
             let mut near = block.near(d);
             while near != 0 {
@@ -262,14 +263,15 @@ impl ChunkView {
     /// every capsule it crosses in order of `t_in`: a core inside a capsule is entered no
     /// sooner than the capsule, so the capsules entered after the best core entry so far
     /// need no test.
+    /// `d` as in [`ChunkView::crossings`].
     #[inline]
     pub(crate) fn core_entry(
         &self,
         ray: &Ray,
         dir: &DirectionF64,
+        d: Vec3,
         by_entry: impl Iterator<Item = (u32, f32)>,
     ) -> f32 {
-        let d = ray.direction.normalize();
         let entry = |c: &PreparedCore| -> Option<f32> {
             let s = c.centre.dot(d);
             if !((c.centre - s * d).length_squared() <= c.reach2) {
