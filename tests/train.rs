@@ -48,6 +48,9 @@ fn check_run(dataset: &Dataset, sampler: SamplerKind) {
         assert!(l.loss.is_finite() && l.psnr.is_finite(), "{l:?}");
         assert_eq!(l.rays, 256);
         assert!(l.samples > 0 && l.rays_per_s > 0.0, "{l:?}");
+        // The sampler's share of the step: timed, and a part of it.
+        let step_s = l.rays as f64 / l.rays_per_s;
+        assert!(l.sampling_s > 0.0 && l.sampling_s < step_s, "{l:?}");
     }
     assert_eq!(logs[STEPS - 1].progress, 1.0);
     let (first, last) = (&logs[..4], &logs[STEPS - 4..]);
@@ -72,6 +75,7 @@ fn check_run(dataset: &Dataset, sampler: SamplerKind) {
     // The log: a header and one row per step.
     let csv = std::fs::read_to_string(out.join(LOG_FILE)).unwrap();
     assert!(csv.starts_with("step,seconds,loss,"), "{csv}");
+    assert!(csv.lines().all(|l| l.split(',').count() == 12), "{csv}");
     assert_eq!(csv.lines().count(), STEPS + 1);
 
     // The checkpoint: LATEST names a complete directory, nothing temporary is left.

@@ -157,14 +157,17 @@ pub fn run_trainer(trainer: Trainer, data: &std::path::Path) -> anyhow::Result<(
         let mean = |f: &dyn Fn(&train::StepLog) -> f64| {
             tail.iter().map(f).sum::<f64>() / tail.len() as f64
         };
+        let sampling_s: f64 = report.logs.iter().map(|l| l.sampling_s).sum();
         println!(
-            "trained {} steps ({} sampler, {} preset) in {:.1} s: {:.2} steps/s; last {} \
-             steps: loss {:.4}, batch psnr {:.2} dB, {:.0} rays/s, {:.0} samples/s",
+            "trained {} steps ({} sampler, {} preset) in {:.1} s: {:.2} steps/s, {:.1}% of \
+             it drawing samples; last {} steps: loss {:.4}, batch psnr {:.2} dB, {:.0} \
+             rays/s, {:.0} samples/s",
             n,
             opts.sampler.name(),
             opts.preset,
             report.seconds,
             n as f64 / report.seconds.max(1e-9),
+            100.0 * sampling_s / report.seconds.max(1e-9),
             tail.len(),
             mean(&|l| f64::from(l.loss)),
             mean(&|l| f64::from(l.psnr)),

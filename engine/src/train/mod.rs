@@ -53,8 +53,7 @@ pub const LOG_FILE: &str = "train_log.csv";
 /// The recipe (options and the derived schedule) inside the run directory.
 pub const RECIPE_FILE: &str = "recipe.json";
 const LOG_HEADER: &str =
-    "step,seconds,loss,mse,psnr,rays,samples,rays_per_s,samples_per_s,lr,grid_occupied";
-
+    "step,seconds,loss,mse,psnr,rays,samples,rays_per_s,samples_per_s,lr,grid_occupied,sampling_s";
 /// One row of the training log.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct StepLog {
@@ -75,6 +74,9 @@ pub struct StepLog {
     pub progress: f64,
     /// Occupied fraction of the canonical grid last updated (1 before any update).
     pub grid_occupied: f64,
+    /// Seconds of this step spent drawing the batch's samples (the chosen sampler, with
+    /// any per-frame structure it builds on first use), out of the step's wall time.
+    pub sampling_s: f64,
 }
 
 /// What a run did.
@@ -527,6 +529,7 @@ impl Trainer<'_> {
             .seed
             .wrapping_mul(0x9E37_79B9)
             .wrapping_add(self.step as u64);
+        let sampling_start = Instant::now();
         let samples = fc
             .sampler
             .sample(
@@ -536,6 +539,7 @@ impl Trainer<'_> {
                 Some(jitter_seed),
             )
             .map_err(grid_err)?;
+        let sampling_s = sampling_start.elapsed().as_secs_f64();
         let n_rays = batch.rays.len();
         let n_samples = samples.num_samples();
         let StepLoss {
@@ -613,12 +617,13 @@ impl Trainer<'_> {
             lr,
             progress: self.progress(),
             grid_occupied: self.grid_occupied,
+            sampling_s,
         };
         // Only errors name the log file: no path allocated on the step's happy path.
         let log_file = || self.out.join(LOG_FILE);
         writeln!(
             self.log,
-            "{},{:.3},{},{},{},{},{},{:.1},{:.1},{:e},{:.4}",
+            "{},{:.3},{},{},{},{},{},{:.1},{:.1},{:e},{:.4},{:.6}",
             entry.step,
             entry.seconds,
             entry.loss,
@@ -629,7 +634,8 @@ impl Trainer<'_> {
             entry.rays_per_s,
             entry.samples_per_s,
             entry.lr,
-            entry.grid_occupied
+            entry.grid_occupied,
+            entry.sampling_s
         )
         .map_err(|source| TrainError::Io {
             file: log_file(),
@@ -883,7 +889,7 @@ fn write_recipe(out: &Path, opts: &TrainOptions, config: &FieldConfig) -> Result
 
 /// Opens the log: fresh with a header, or (resuming at `step`) keeping the header and
 /// the rows of steps up to `step` (a killed run may have logged steps past its last
-/// checkpoint).
+/// checkpoint). Rows of a log written before a column was added get it empty.
 fn open_log(
     path: &Path,
     resume_at: Option<usize>,
@@ -900,6 +906,9 @@ fn open_log(
             match line.split(',').next().and_then(|s| s.parse::<usize>().ok()) {
                 Some(s) if s <= step => {
                     kept.push_str(line);
+                    for _ in line.split(',').count()..LOG_HEADER.split(',').count() {
+                        kept.push(',');
+                    }
                     kept.push('\n');
                 }
                 _ => {}
@@ -931,4 +940,40 @@ fn scalar(t: &Tensor<1>) -> f32 {
         .ok()
         .and_then(|v| v.first().copied())
         .unwrap_or(f32::NAN)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Resuming keeps the rows up to the checkpoint's step, and rows of a log written
+    /// before the last column was added get it empty, so every row has the header's
+    /// columns.
+    #[test]
+    fn resumed_log_keeps_rows_up_to_the_step_with_every_column() {
+        let dir = std::env::temp_dir().join(format!("talkin_open_log_{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join(LOG_FILE);
+        let old_header = LOG_HEADER.rsplit_once(',').unwrap().0;
+        std::fs::write(
+            &path,
+            format!(
+                "{old_header}\n1,0.1,1,1,1,8,8,1,1,1e-2,1\n2,0.2,1,1,1,8,8,1,1,1e-2,1\n\
+                 3,0.3,1,1,1,8,8,1,1,1e-2,1\n"
+            ),
+        )
+        .unwrap();
+        drop(open_log(&path, Some(2)).unwrap());
+        let text = std::fs::read_to_string(&path).unwrap();
+        let lines: Vec<&str> = text.lines().collect();
+        let columns = LOG_HEADER.split(',').count();
+        assert_eq!(lines[0], LOG_HEADER);
+        assert_eq!(lines.len(), 3, "{text}");
+        assert!(
+            lines.iter().all(|l| l.split(',').count() == columns),
+            "{text}"
+        );
+        assert_eq!(lines[2], "2,0.2,1,1,1,8,8,1,1,1e-2,1,");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 }
