@@ -54,6 +54,7 @@ pub const LOG_FILE: &str = "train_log.csv";
 pub const RECIPE_FILE: &str = "recipe.json";
 const LOG_HEADER: &str =
     "step,seconds,loss,mse,psnr,rays,samples,rays_per_s,samples_per_s,lr,grid_occupied,sampling_s";
+
 /// One row of the training log.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct StepLog {
