@@ -6,7 +6,7 @@ mod common;
 use std::path::Path;
 use std::process::Command;
 
-use talkin::engine::dataset::{Dataset, DatasetError};
+use talkin::data::dataset::{Dataset, DatasetError};
 
 fn edit_json(dir: &Path, edit: impl FnOnce(&mut serde_json::Value)) {
     let file = dir.join("dataset.json");

@@ -8,15 +8,15 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 use std::sync::OnceLock;
 
-use talkin::engine::avatar::Avatar;
-use talkin::engine::body::joint;
-use talkin::engine::dataset::{Dataset, Split};
-use talkin::engine::eval::{
+use talkin::data::dataset::{Dataset, Split};
+use talkin::grids::SamplerKind;
+use talkin::human::body::joint;
+use talkin::render::avatar::Avatar;
+use talkin::render::eval::{
     self, CropKind, EvalOptions, LpipsScorer, PSNR_CAP_DB, Rect, evaluate, frame_crops, rescore_png,
 };
-use talkin::engine::sequence::split_frames;
-use talkin::engine::train::train;
-use talkin::grids::SamplerKind;
+use talkin::render::sequence::split_frames;
+use talkin::train::train;
 
 /// A two-identity scene (40x48 px) and a run trained on it for a few steps, made once.
 fn scene() -> &'static (PathBuf, PathBuf) {

@@ -10,10 +10,10 @@ mod common;
 
 use std::path::Path;
 
-use talkin::engine::avatar::Avatar;
-use talkin::engine::checkpoint::{self, CHECKPOINT_DIR};
-use talkin::engine::train::{LOG_FILE, TrainOptions, Trainer, train};
 use talkin::grids::SamplerKind;
+use talkin::render::avatar::Avatar;
+use talkin::train::checkpoint::{self, CHECKPOINT_DIR};
+use talkin::train::{LOG_FILE, TrainOptions, Trainer, train};
 
 fn small_opts(sampler: SamplerKind, steps: usize) -> TrainOptions {
     common::small_train_opts(sampler, steps)

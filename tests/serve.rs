@@ -14,12 +14,13 @@ use std::sync::{Arc, Barrier, OnceLock};
 use std::time::{Duration, Instant};
 
 use serde_json::{Value, json};
-use talkin::engine::avatar::Avatar;
-use talkin::engine::dataset::Dataset;
-use talkin::engine::serve::client::{self, HttpResponse};
-use talkin::engine::serve::{ServeConfig, Server};
-use talkin::engine::train::{TrainOptions, train};
+use talkin::data::dataset::Dataset;
+use talkin::data::params_json::ParamsJson;
 use talkin::grids::SamplerKind;
+use talkin::render::avatar::Avatar;
+use talkin::serve::client::{self, HttpResponse};
+use talkin::serve::{ServeConfig, Server};
+use talkin::train::{TrainOptions, train};
 
 const WAIT: Duration = Duration::from_secs(120);
 
@@ -505,7 +506,7 @@ fn sequences_come_back_as_a_zip_of_the_single_frames() {
     // Smoothed: the frames are the single renders of the library-smoothed poses.
     let raw: Vec<_> = (0..3).map(|i| f[i].params.clone()).collect();
     let smoothed =
-        talkin::engine::smooth::smooth_params(&raw, &talkin::engine::smooth::Smoothing::PAPER)
+        talkin::human::smooth::smooth_params(&raw, &talkin::human::smooth::Smoothing::PAPER)
             .unwrap();
     let r = post(
         addr,

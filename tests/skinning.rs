@@ -9,16 +9,16 @@ mod common;
 
 use burn::prelude::*;
 use glam::Vec3;
-use talkin::engine::avatar::frame_conditions;
-use talkin::engine::body::canonical_params;
-use talkin::engine::body::skeleton::body_ancestor;
-use talkin::engine::dataset::{Dataset, Split};
-use talkin::engine::sampling::{CapsuleShells, FrameScene, fit_subject_margins, foreground_rays};
-use talkin::engine::subject_model::bone_prior;
-use talkin::engine::synth::{body::figure, look, proportions};
+use talkin::data::dataset::{Dataset, Split};
 use talkin::grids::MarginFitOpts;
 use talkin::grids::intersect::signed_distance;
+use talkin::human::body::canonical_params;
+use talkin::human::body::skeleton::body_ancestor;
 use talkin::nets::skinning::SkinningConfig;
+use talkin::synth::{body::figure, look, proportions};
+use talkin::train::field_inputs::frame_conditions;
+use talkin::train::scene::{CapsuleShells, FrameScene, fit_subject_margins, foreground_rays};
+use talkin::train::subject::bone_prior;
 
 /// Per joint group (torso and legs, upper arms, forearms, hands, head): pixels and the
 /// mean distance (metres) from the mapped to the true canonical point.

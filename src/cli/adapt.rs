@@ -1,9 +1,9 @@
 use std::path::PathBuf;
 
 use anyhow::Context;
-use talkin_engine::dataset::Dataset;
-use talkin_engine::novel_identity::adapt_lr_ratio;
-use talkin_engine::train::Trainer;
+use talkin_benches::novel_identity::adapt_lr_ratio;
+use talkin_data::dataset::Dataset;
+use talkin_train::Trainer;
 
 use super::train::{RecipeArgs, run_trainer};
 

@@ -2,11 +2,12 @@ use std::path::PathBuf;
 use std::sync::Arc;
 
 use anyhow::Context;
-use talkin_engine::avatar::Avatar;
-use talkin_engine::body::FrameParams;
-use talkin_engine::dataset::Dataset;
-use talkin_engine::sampling;
-use talkin_engine::serve::{Server, bench};
+use talkin_benches::sampling;
+use talkin_data::dataset::Dataset;
+use talkin_data::params_json::ParamsJson;
+use talkin_human::body::FrameParams;
+use talkin_render::avatar::Avatar;
+use talkin_serve::{Server, bench};
 
 use super::serve::LimitArgs;
 use crate::progress::Progress;
@@ -253,7 +254,7 @@ fn trained_grids(
     run: &std::path::Path,
     dataset: &Dataset,
 ) -> anyhow::Result<Vec<talkin_grids::OccupancyGrid>> {
-    let checkpoint = talkin_engine::checkpoint::Checkpoint::load(run)?;
+    let checkpoint = talkin_train::checkpoint::Checkpoint::load(run)?;
     dataset
         .subjects
         .iter()
@@ -277,7 +278,7 @@ fn trained_grids(
 }
 
 fn speed_vs_error_bench(args: SpeedVsErrorArgs) -> anyhow::Result<()> {
-    use talkin_engine::speed_vs_error::{SpeedVsErrorOptions, format_summary, speed_vs_error};
+    use talkin_benches::speed_vs_error::{SpeedVsErrorOptions, format_summary, speed_vs_error};
     let dataset = Dataset::load(&args.data)?;
     let train = args.recipe.options()?;
     let lpips_dir = Some(args.recipe.lpips_dir.clone());
@@ -298,7 +299,7 @@ fn speed_vs_error_bench(args: SpeedVsErrorArgs) -> anyhow::Result<()> {
 }
 
 fn ablations_bench(args: AblationArgs) -> anyhow::Result<()> {
-    use talkin_engine::ablations::{AblationOptions, ablations, format_table};
+    use talkin_benches::ablations::{AblationOptions, ablations, format_table};
     let dataset = Dataset::load(&args.data)?;
     let opts = AblationOptions {
         budget_s: args.minutes_each * 60.0,
@@ -314,8 +315,8 @@ fn ablations_bench(args: AblationArgs) -> anyhow::Result<()> {
 }
 
 fn novel_identity_bench(args: NovelIdentityArgs) -> anyhow::Result<()> {
-    use talkin_engine::novel_identity::{NovelIdentityOptions, format_table, novel_identity};
-    use talkin_engine::train::Budget;
+    use talkin_benches::novel_identity::{NovelIdentityOptions, format_table, novel_identity};
+    use talkin_train::Budget;
     let budget = |flag: &str, minutes: f64, steps: Option<usize>| match steps {
         Some(0) => anyhow::bail!("{flag}-steps: expected a positive number of steps"),
         Some(n) => Ok(Budget::Steps(n)),
@@ -332,7 +333,7 @@ fn novel_identity_bench(args: NovelIdentityArgs) -> anyhow::Result<()> {
         base_run: args.base_run.clone(),
         adapt_lr_ratio: args
             .adapt_lr_ratio
-            .unwrap_or_else(|| talkin_engine::novel_identity::adapt_lr_ratio(&args.recipe.preset)),
+            .unwrap_or_else(|| talkin_benches::novel_identity::adapt_lr_ratio(&args.recipe.preset)),
         adapt,
         scratch: !args.no_scratch,
         eval_frames: args.eval_frames,

@@ -43,7 +43,7 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
         .with_context(|| format!("creating {}", args.out.display()))?;
     let data = args.out.join("data");
     let run_dir = args.out.join("run");
-    let defaults = talkin_engine::synth::SynthConfig::default();
+    let defaults = talkin_synth::SynthConfig::default();
     println!("== 1/4 generate the synthetic scene -> {}", data.display());
     synth::generate(&SynthArgs {
         out: data.clone(),
@@ -157,8 +157,8 @@ fn ensure_lpips_weights(dir: &Path) {
 /// Ground truth | render | error for 12 evaluated frames spread over the split, from the
 /// renders the evaluation scored (nothing is rendered twice).
 fn contact_sheet(data: &Path, report: &serde_json::Value, file: &Path) -> anyhow::Result<()> {
-    use talkin_engine::sequence::{SHEET_MAX_FRAMES, SheetRow, comparison_sheet, write_png};
-    let dataset = talkin_engine::dataset::Dataset::load(data)?;
+    use talkin_render::sequence::{SHEET_MAX_FRAMES, SheetRow, comparison_sheet, write_png};
+    let dataset = talkin_data::dataset::Dataset::load(data)?;
     let frames = report["frames"].as_array().cloned().unwrap_or_default();
     let n = frames.len().min(SHEET_MAX_FRAMES);
     let mut rows = Vec::with_capacity(n);

@@ -1,10 +1,10 @@
 use std::path::PathBuf;
 
 use anyhow::Context;
-use talkin_engine::avatar::Avatar;
-use talkin_engine::dataset::{Dataset, Split};
-use talkin_engine::eval::{EvalOptions, evaluate_with_progress};
-use talkin_engine::sequence::split_frames;
+use talkin_data::dataset::{Dataset, Split};
+use talkin_render::avatar::Avatar;
+use talkin_render::eval::{EvalOptions, evaluate_with_progress};
+use talkin_render::sequence::split_frames;
 
 use super::train::DEFAULT_LPIPS_DIR;
 use crate::progress::Progress;

@@ -1,8 +1,8 @@
 use std::path::PathBuf;
 
 use anyhow::{Context, bail};
-use talkin_engine::dataset::Dataset;
-use talkin_engine::inspect;
+use talkin_data::dataset::Dataset;
+use talkin_data::inspect;
 
 use crate::progress::Progress;
 

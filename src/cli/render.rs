@@ -1,13 +1,13 @@
 use std::path::PathBuf;
 
 use anyhow::Context;
-use talkin_engine::avatar::Avatar;
-use talkin_engine::dataset::{Dataset, Split};
-use talkin_engine::sequence::{
+use talkin_data::dataset::{Dataset, Split};
+use talkin_human::smooth::Smoothing;
+use talkin_render::avatar::Avatar;
+use talkin_render::sequence::{
     read_poses_file, render_sequence, shots_from_frames, shots_from_poses, smooth_shots,
     split_frames,
 };
-use talkin_engine::smooth::Smoothing;
 
 use crate::progress::Progress;
 

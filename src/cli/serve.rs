@@ -1,7 +1,7 @@
 use std::path::PathBuf;
 use std::time::Duration;
 
-use talkin_engine::serve::{ServeConfig, Server};
+use talkin_serve::{ServeConfig, Server};
 
 #[derive(clap::Args, Debug)]
 pub struct ServeArgs {

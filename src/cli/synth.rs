@@ -1,7 +1,8 @@
 use std::path::PathBuf;
 
-use talkin_engine::dataset::Dataset;
-use talkin_engine::{motion, synth};
+use talkin_data::dataset::Dataset;
+use talkin_data::motion;
+use talkin_synth as synth;
 
 use crate::progress::Progress;
 

@@ -1,8 +1,8 @@
 use std::path::PathBuf;
 
 use anyhow::Context;
-use talkin_engine::dataset::Dataset;
-use talkin_engine::train::{self, Budget, SamplerKind, StepLog, TrainOptions, Trainer};
+use talkin_data::dataset::Dataset;
+use talkin_train::{Budget, SamplerKind, StepLog, TrainOptions, Trainer};
 
 use crate::progress::Progress;
 
@@ -154,9 +154,8 @@ pub fn run_trainer(trainer: Trainer, data: &std::path::Path) -> anyhow::Result<(
         println!("trained 0 steps: the run's budget was already spent");
     } else {
         let tail = &report.logs[n.saturating_sub(20)..];
-        let mean = |f: &dyn Fn(&train::StepLog) -> f64| {
-            tail.iter().map(f).sum::<f64>() / tail.len() as f64
-        };
+        let mean =
+            |f: &dyn Fn(&StepLog) -> f64| tail.iter().map(f).sum::<f64>() / tail.len() as f64;
         let sampling_s: f64 = report.logs.iter().map(|l| l.sampling_s).sum();
         println!(
             "trained {} steps ({} sampler, {} preset) in {:.1} s: {:.2} steps/s, {:.1}% of \

@@ -5,9 +5,9 @@
 use std::path::Path;
 
 use glam::DVec3;
-use talkin::engine::body::{FrameParams, N_JOINTS, PARENTS, Skeleton};
-use talkin::engine::camera::Camera;
-use talkin::engine::dataset::{Dataset, Frame, Split, Subject};
+use talkin::data::dataset::{Dataset, Frame, Split, Subject};
+use talkin::human::body::{FrameParams, N_JOINTS, PARENTS, Skeleton};
+use talkin::human::camera::Camera;
 
 /// A 1.7 m adult-ish T-pose skeleton in SMPL-X conventions (y up, facing +z, +x left).
 pub fn t_pose_skeleton() -> Skeleton {
@@ -148,14 +148,14 @@ pub fn temp_dir(name: &str) -> std::path::PathBuf {
 /// subjects, 4 training frames each, `size` px high, seeded.
 pub fn synthetic_scene(name: &str, identities: usize, size: u32, seed: u64) -> Dataset {
     let data = temp_dir(name);
-    let cfg = talkin::engine::synth::SynthConfig {
+    let cfg = talkin::synth::SynthConfig {
         identities,
         frames: 4,
         size,
         seed,
         motion: None,
     };
-    talkin::engine::synth::generate(&cfg, &data, &mut |_, _| {}).unwrap();
+    talkin::synth::generate(&cfg, &data, &mut |_, _| {}).unwrap();
     Dataset::load(&data).unwrap()
 }
 
@@ -164,15 +164,15 @@ pub fn synthetic_scene(name: &str, identities: usize, size: u32, seed: u64) -> D
 pub fn small_train_opts(
     sampler: talkin::grids::SamplerKind,
     steps: usize,
-) -> talkin::engine::train::TrainOptions {
-    talkin::engine::train::TrainOptions {
+) -> talkin::train::TrainOptions {
+    talkin::train::TrainOptions {
         sampler,
-        budget: talkin::engine::train::Budget::Steps(steps),
+        budget: talkin::train::Budget::Steps(steps),
         seed: 3,
         batch_rays: 256,
         patches: 0,
         occ_every: 4,
         grid_resolution: 32,
-        ..talkin::engine::train::TrainOptions::default()
+        ..talkin::train::TrainOptions::default()
     }
 }

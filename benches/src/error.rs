@@ -1,0 +1,25 @@
+//! The error of the training benchmarks (speed-vs-error, ablations): training,
+//! evaluation, writing the report, or a bad option.
+
+use std::path::PathBuf;
+
+use talkin_train::TrainError;
+
+#[derive(Debug, thiserror::Error)]
+pub enum BenchError {
+    #[error(transparent)]
+    Train(#[from] TrainError),
+    #[error("evaluation: {0}")]
+    Eval(#[from] talkin_render::eval::EvalError),
+    #[error("{}: {source}", file.display())]
+    Io {
+        file: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("option `{field}`: {problem}")]
+    BadOption {
+        field: &'static str,
+        problem: String,
+    },
+}

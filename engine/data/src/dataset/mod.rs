@@ -1,0 +1,140 @@
+//! Dataset format v1: a directory with `dataset.json` and per-frame PNGs (image, mask,
+//! segmentation). The format real data is converted into and the synthetic generator
+//! writes. See the README for the schema.
+//!
+//! [`Dataset::load`] validates the whole JSON and every image header up front, so a
+//! training run never dies on frame 900; pixels are decoded lazily ([`Dataset::image`]).
+
+mod error;
+mod images;
+mod load;
+mod write;
+
+use std::path::PathBuf;
+
+pub use error::DatasetError;
+pub use images::{FrameImages, LABEL_NAMES, N_LABELS};
+pub use load::camera_field;
+pub use load::parse_camera;
+
+use talkin_human::body::{FrameParams, Skeleton};
+use talkin_human::camera::Camera;
+
+/// The `format` value of a dataset.json.
+pub const FORMAT: &str = "talkin-dataset";
+/// The only version this build reads.
+pub const VERSION: u64 = 1;
+/// The file name inside a dataset directory.
+pub const INDEX_FILE: &str = "dataset.json";
+/// Metres per unit of the optional 16-bit depth PNGs (0.1 mm: 6.5 m range).
+pub const DEPTH_UNIT_M: f64 = 1e-4;
+
+/// Which evaluation a frame belongs to.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Split {
+    /// Training frames.
+    Train,
+    /// Held-out frames of the same subject and motion.
+    TestSame,
+    /// A subject driven by another subject's motion.
+    TestCross,
+    /// A wider motion range than training.
+    TestOod,
+}
+
+impl Split {
+    pub const ALL: [Split; 4] = [
+        Split::Train,
+        Split::TestSame,
+        Split::TestCross,
+        Split::TestOod,
+    ];
+
+    pub const fn name(self) -> &'static str {
+        match self {
+            Split::Train => "train",
+            Split::TestSame => "test_same",
+            Split::TestCross => "test_cross",
+            Split::TestOod => "test_ood",
+        }
+    }
+
+    pub fn from_name(name: &str) -> Option<Split> {
+        Split::ALL.into_iter().find(|s| s.name() == name)
+    }
+}
+
+impl std::fmt::Display for Split {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl std::str::FromStr for Split {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        Split::from_name(s).ok_or_else(|| {
+            format!("unknown split {s:?}: expected one of train, test_same, test_cross, test_ood")
+        })
+    }
+}
+
+/// One subject (identity).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Subject {
+    pub name: String,
+    pub skeleton: Skeleton,
+}
+
+/// One frame: which subject, which split, its camera, pose and image files.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Frame {
+    pub subject: usize,
+    pub split: Split,
+    /// Seconds since the start of the subject's clip.
+    pub time: f64,
+    /// Paths relative to the dataset directory.
+    pub image: PathBuf,
+    pub mask: PathBuf,
+    pub segmentation: PathBuf,
+    /// Optional ground-truth depth (16-bit PNG, camera z in units of [`DEPTH_UNIT_M`],
+    /// 0 = no surface). Only synthetic data has it; benchmarks use it to find the true
+    /// surface point of each pixel.
+    pub depth: Option<PathBuf>,
+    pub camera: Camera,
+    pub params: FrameParams,
+}
+
+/// A validated dataset.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Dataset {
+    /// The directory holding dataset.json.
+    pub root: PathBuf,
+    /// Colour the matted images are composited on, RGB in [0, 1].
+    pub background: [f32; 3],
+    pub subjects: Vec<Subject>,
+    pub frames: Vec<Frame>,
+}
+
+impl Dataset {
+    /// Indices of the frames of a split.
+    pub fn split_indices(&self, split: Split) -> Vec<usize> {
+        (0..self.frames.len())
+            .filter(|&i| self.frames[i].split == split)
+            .collect()
+    }
+
+    /// Indices of subject `s`'s frames of a split, in time order (its video).
+    pub fn subject_frames(&self, s: usize, split: Split) -> Vec<usize> {
+        let mut frames: Vec<usize> = (0..self.frames.len())
+            .filter(|&i| self.frames[i].split == split && self.frames[i].subject == s)
+            .collect();
+        frames.sort_by(|&a, &b| self.frames[a].time.total_cmp(&self.frames[b].time));
+        frames
+    }
+
+    /// Index of a subject by name.
+    pub fn subject_index(&self, name: &str) -> Option<usize> {
+        self.subjects.iter().position(|s| s.name == name)
+    }
+}

@@ -1,0 +1,176 @@
+//! Decoding every frame and summarising what a dataset holds and whether it is sound.
+
+use rayon::prelude::*;
+
+use crate::dataset::{Dataset, DatasetError, LABEL_NAMES, N_LABELS, Split};
+use talkin_human::body::{N_BODY_JOINTS, N_JOINTS};
+
+/// What `talkin inspect` prints.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct Summary {
+    pub subjects: Vec<String>,
+    /// Frames per split, per subject: `[subject][split]` in `Split::ALL` order.
+    pub frames_per_split: Vec<[usize; 4]>,
+    pub image_sizes: Vec<(u32, u32)>,
+    /// Fraction of all pixels with each segmentation label.
+    pub label_fractions: [f64; N_LABELS],
+    /// Frames in which each label is absent (e.g. hands never visible).
+    pub frames_without_label: [usize; N_LABELS],
+    /// Fraction of pixels where `mask >= 128` disagrees with `segmentation > 0`.
+    pub mask_seg_disagreement: f64,
+    /// Fraction of in-image projected body joints (0..22) that land on the person mask:
+    /// low values mean poses or cameras do not line up with the images.
+    pub joints_on_person: f64,
+    pub frames_with_depth: usize,
+}
+
+/// Decodes every frame (in parallel) and summarises; the first broken file is the error.
+pub fn summarize(
+    dataset: &Dataset,
+    progress: &(dyn Fn(usize) + Sync),
+) -> Result<Summary, DatasetError> {
+    struct PerFrame {
+        labels: [u64; N_LABELS],
+        disagree: u64,
+        pixels: u64,
+        joints_in_image: u32,
+        joints_on_person: u32,
+    }
+    let done = std::sync::atomic::AtomicUsize::new(0);
+    let per_frame: Vec<PerFrame> = (0..dataset.frames.len())
+        .into_par_iter()
+        .map(|i| {
+            let images = dataset.images(i)?;
+            dataset.depth(i)?;
+            let mut labels = [0u64; N_LABELS];
+            let mut disagree = 0;
+            for (seg, mask) in images.segmentation.pixels().zip(images.mask.pixels()) {
+                labels[seg.0[0] as usize] += 1;
+                disagree += u64::from((seg.0[0] > 0) != (mask.0[0] >= 128));
+            }
+            let frame = &dataset.frames[i];
+            let posed = dataset.subjects[frame.subject].skeleton.pose(&frame.params);
+            let (mut joints_in_image, mut joints_on_person) = (0, 0);
+            for j in 0..N_BODY_JOINTS.min(N_JOINTS) {
+                let Some(p) = frame.camera.project(posed.joint(j)) else {
+                    continue;
+                };
+                let (x, y) = (p.x.floor(), p.y.floor());
+                if x < 0.0
+                    || y < 0.0
+                    || x >= frame.camera.width as f64
+                    || y >= frame.camera.height as f64
+                {
+                    continue;
+                }
+                joints_in_image += 1;
+                joints_on_person +=
+                    u32::from(images.mask.get_pixel(x as u32, y as u32).0[0] >= 128);
+            }
+            progress(done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1);
+            Ok(PerFrame {
+                labels,
+                disagree,
+                pixels: images.mask.len() as u64,
+                joints_in_image,
+                joints_on_person,
+            })
+        })
+        .collect::<Result<_, DatasetError>>()?;
+
+    let mut frames_per_split = vec![[0usize; 4]; dataset.subjects.len()];
+    for f in &dataset.frames {
+        let s = Split::ALL
+            .iter()
+            .position(|s| *s == f.split)
+            .expect("every split is in ALL");
+        frames_per_split[f.subject][s] += 1;
+    }
+    let mut image_sizes: Vec<(u32, u32)> = dataset
+        .frames
+        .iter()
+        .map(|f| (f.camera.width, f.camera.height))
+        .collect();
+    image_sizes.sort_unstable();
+    image_sizes.dedup();
+    let total_pixels: u64 = per_frame.iter().map(|f| f.pixels).sum();
+    let mut label_fractions = [0.0; N_LABELS];
+    let mut frames_without_label = [0; N_LABELS];
+    for f in &per_frame {
+        for l in 0..N_LABELS {
+            label_fractions[l] += f.labels[l] as f64 / total_pixels as f64;
+            frames_without_label[l] += usize::from(f.labels[l] == 0);
+        }
+    }
+    let in_image: u32 = per_frame.iter().map(|f| f.joints_in_image).sum();
+    let on_person: u32 = per_frame.iter().map(|f| f.joints_on_person).sum();
+    Ok(Summary {
+        subjects: dataset.subjects.iter().map(|s| s.name.clone()).collect(),
+        frames_per_split,
+        image_sizes,
+        label_fractions,
+        frames_without_label,
+        mask_seg_disagreement: per_frame.iter().map(|f| f.disagree).sum::<u64>() as f64
+            / total_pixels as f64,
+        joints_on_person: if in_image == 0 {
+            0.0
+        } else {
+            on_person as f64 / in_image as f64
+        },
+        frames_with_depth: dataset.frames.iter().filter(|f| f.depth.is_some()).count(),
+    })
+}
+
+impl std::fmt::Display for Summary {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        writeln!(f, "subjects: {}", self.subjects.len())?;
+        writeln!(
+            f,
+            "  {:<16} {:>6} {:>10} {:>11} {:>9}",
+            "name", "train", "test_same", "test_cross", "test_ood"
+        )?;
+        for (name, n) in self.subjects.iter().zip(&self.frames_per_split) {
+            writeln!(
+                f,
+                "  {name:<16} {:>6} {:>10} {:>11} {:>9}",
+                n[0], n[1], n[2], n[3]
+            )?;
+        }
+        let sizes: Vec<String> = self
+            .image_sizes
+            .iter()
+            .map(|(w, h)| format!("{w}x{h}"))
+            .collect();
+        writeln!(f, "image sizes: {}", sizes.join(", "))?;
+        write!(f, "pixels by label:")?;
+        for l in 0..N_LABELS {
+            write!(
+                f,
+                " {} {:.2}%",
+                LABEL_NAMES[l],
+                100.0 * self.label_fractions[l]
+            )?;
+        }
+        writeln!(f)?;
+        write!(f, "frames missing a label:")?;
+        for l in 1..N_LABELS {
+            write!(f, " {} {}", LABEL_NAMES[l], self.frames_without_label[l])?;
+        }
+        writeln!(f)?;
+        writeln!(
+            f,
+            "mask vs segmentation disagreement: {:.3}% of pixels",
+            100.0 * self.mask_seg_disagreement
+        )?;
+        writeln!(
+            f,
+            "projected body joints on the person mask: {:.1}%",
+            100.0 * self.joints_on_person
+        )?;
+        write!(
+            f,
+            "frames with ground-truth depth: {}",
+            self.frames_with_depth
+        )
+    }
+}

@@ -1,0 +1,15 @@
+//! data: what comes in from disk. Owns the dataset format (reading with errors that name
+//! the file, field and expected shape, validating, writing atomically), frame parameters
+//! as JSON, motion files, `talkin inspect` and the raster helpers of its contact sheets.
+//!
+//! Must not know about neural nets, samplers or training: it hands the later stages
+//! validated frames, cameras and parameters.
+
+pub mod atomic;
+pub mod dataset;
+pub mod draw;
+pub mod inspect;
+pub mod json_shape;
+pub mod motion;
+pub mod params_json;
+pub mod text;

@@ -1,0 +1,146 @@
+//! A trained avatar ready to render: the field on an inference device plus each subject's
+//! skeleton, shells and occupancy grid. Loaded once from a run's checkpoint (render,
+//! eval, the server) or wrapped around a field still in training (the speed-vs-error
+//! benchmark's evaluations).
+
+mod render;
+
+use std::path::{Path, PathBuf};
+
+use burn::prelude::*;
+use talkin_grids::SamplerKind;
+use talkin_nets::{FieldConfig, TalkinField};
+
+pub use render::{MAX_RENDER_PIXELS, RENDER_CHUNK_RAYS, RenderedFrame};
+
+use talkin_train::Trainer;
+use talkin_train::checkpoint::{Checkpoint, CheckpointError, SubjectSlot};
+use talkin_train::subject::SubjectModel;
+
+/// Why an avatar could not be loaded or could not render.
+#[derive(Debug, thiserror::Error)]
+pub enum AvatarError {
+    #[error(transparent)]
+    Checkpoint(#[from] CheckpointError),
+    #[error("{}: state.json: field `{field}`: {problem}", file.display())]
+    State {
+        file: PathBuf,
+        field: &'static str,
+        problem: String,
+    },
+    #[error("{0}")]
+    Subject(String),
+    #[error("{what}: {problem}")]
+    BadInput { what: String, problem: String },
+    #[error("sampling: {0}")]
+    Grid(#[from] talkin_grids::GridError),
+    #[error("field: {0}")]
+    Field(#[from] talkin_nets::NetsError),
+}
+
+/// A field with what it needs to render any pose of its subjects.
+pub struct Avatar {
+    pub field: TalkinField,
+    pub config: FieldConfig,
+    pub background: [f32; 3],
+    pub subjects: Vec<SubjectSlot>,
+    /// The sampler the field was trained with (and renders with by default).
+    pub sampler: SamplerKind,
+    /// The step passed to the field (D_nr switch, Hann windows): the run's last.
+    pub field_step: usize,
+}
+
+impl Avatar {
+    /// The field of a run in progress as it is now, ready to render (the benchmarks'
+    /// evaluations during a run).
+    pub fn from_trainer(trainer: &Trainer) -> Avatar {
+        Avatar {
+            field: trainer.inference_field(),
+            config: trainer.config().clone(),
+            background: trainer.background(),
+            subjects: trainer.subjects().to_vec(),
+            sampler: trainer.options().sampler,
+            field_step: trainer.field_step(),
+        }
+    }
+
+    /// Loads the newest checkpoint of `run` onto the CPU (Flex) device.
+    pub fn load(run: &Path) -> Result<Avatar, AvatarError> {
+        let checkpoint = Checkpoint::load(run)?;
+        let field = checkpoint.field(&Device::flex())?;
+        let state_file = checkpoint.dir.join(talkin_train::checkpoint::STATE_FILE);
+        let bad = |field: &'static str, problem: &str| AvatarError::State {
+            file: state_file.clone(),
+            field,
+            problem: problem.to_string(),
+        };
+        let sampler = checkpoint
+            .state
+            .get("options")
+            .and_then(|o| o.get("sampler"))
+            .and_then(|s| s.as_str())
+            .ok_or_else(|| bad("options.sampler", "expected \"dense\" or \"accelerated\""))?
+            .parse::<SamplerKind>()
+            .map_err(|e| bad("options.sampler", &e.to_string()))?;
+        let field_step = checkpoint
+            .state
+            .get("field_step")
+            .and_then(|s| s.as_u64())
+            .ok_or_else(|| bad("field_step", "expected a non-negative integer"))?
+            as usize;
+        Ok(Avatar {
+            field,
+            config: checkpoint.config,
+            background: checkpoint.background,
+            subjects: checkpoint.subjects,
+            sampler,
+            field_step,
+        })
+    }
+
+    /// The subject named `name` and its index; the error lists the trained subjects.
+    pub fn subject(&self, name: &str) -> Result<(usize, &SubjectModel), AvatarError> {
+        let trained = || {
+            self.subjects
+                .iter()
+                .filter(|s| s.model.is_some())
+                .map(|s| format!("`{}`", s.name))
+                .collect::<Vec<_>>()
+                .join(", ")
+        };
+        match self.subjects.iter().position(|s| s.name == name) {
+            Some(i) => match &self.subjects[i].model {
+                Some(m) => Ok((i, m)),
+                None => Err(AvatarError::Subject(format!(
+                    "subject `{name}` has an identity code but was never trained; trained: {}",
+                    trained()
+                ))),
+            },
+            None => Err(AvatarError::Subject(format!(
+                "unknown subject `{name}`; trained: {}",
+                trained()
+            ))),
+        }
+    }
+
+    /// The model of subject index `s`, if trained.
+    pub fn subject_at(&self, s: usize) -> Result<&SubjectModel, AvatarError> {
+        self.subjects
+            .get(s)
+            .and_then(|slot| slot.model.as_ref())
+            .ok_or_else(|| {
+                AvatarError::Subject(format!(
+                    "subject index {s} is not a trained subject of this avatar"
+                ))
+            })
+    }
+
+    /// Names of the trained subjects, in identity order.
+    pub fn trained_subjects(&self) -> Vec<&str> {
+        self.subjects
+            .iter()
+            .filter(|s| s.model.is_some())
+            .map(|s| s.name.as_str())
+            .collect()
+    }
+}

@@ -1,0 +1,223 @@
+//! Rendering one frame: every pixel's ray through the frame's sampler, the field in
+//! chunks, volume rendering over the background.
+
+use std::time::Instant;
+
+use burn::prelude::*;
+use image::{GrayImage, RgbImage};
+use rayon::prelude::*;
+use talkin_grids::{Ray, SamplerKind};
+use talkin_nets::FieldInput;
+use talkin_train::field_inputs::{frame_conditions, packed_layout};
+
+use super::{Avatar, AvatarError};
+use talkin_human::body::FrameParams;
+use talkin_human::camera::Camera;
+use talkin_train::scene::{FrameSampler, FrameScene};
+
+/// Rays per field evaluation when rendering (bounds the memory of one forward).
+pub const RENDER_CHUNK_RAYS: usize = 8192;
+/// Largest image a render accepts (pixels): 4096 x 4096.
+pub const MAX_RENDER_PIXELS: u64 = 4096 * 4096;
+
+/// One chunk of a frame's rays, rendered.
+struct ChunkOut {
+    rgb: Vec<f32>,
+    opacity: Vec<f32>,
+    labels: Vec<u8>,
+    samples: usize,
+}
+
+/// A rendered image.
+#[derive(Clone, Debug)]
+pub struct RenderedFrame {
+    pub width: u32,
+    pub height: u32,
+    /// Row-major RGB over the background, in [0, 1]. `[h * w * 3]`
+    pub rgb: Vec<f32>,
+    /// Accumulated opacity. `[h * w]`
+    pub opacity: Vec<f32>,
+    /// Argmax of the rendered segmentation logits (0 where the opacity is below 0.5).
+    /// `[h * w]`
+    pub labels: Vec<u8>,
+    /// Field samples evaluated.
+    pub samples: usize,
+    pub seconds: f64,
+}
+
+impl RenderedFrame {
+    /// The colour as an 8-bit image.
+    pub fn to_image(&self) -> RgbImage {
+        let bytes = self
+            .rgb
+            .iter()
+            .map(|v| (v.clamp(0.0, 1.0) * 255.0).round() as u8)
+            .collect();
+        RgbImage::from_raw(self.width, self.height, bytes).expect("w * h * 3 values")
+    }
+
+    /// The opacity as an 8-bit mask.
+    pub fn mask_image(&self) -> GrayImage {
+        let bytes = self
+            .opacity
+            .iter()
+            .map(|v| (v.clamp(0.0, 1.0) * 255.0).round() as u8)
+            .collect();
+        GrayImage::from_raw(self.width, self.height, bytes).expect("w * h values")
+    }
+}
+
+/// Pixel rays of `camera`, row-major.
+pub(crate) fn pixel_rays(camera: &Camera) -> Result<Vec<Ray>, talkin_grids::GridError> {
+    let mut rays = Vec::with_capacity((camera.width * camera.height) as usize);
+    for y in 0..camera.height {
+        for x in 0..camera.width {
+            let (o, d) = camera.pixel_ray(x, y);
+            rays.push(Ray::new(o.as_vec3(), d.as_vec3(), 0.0, f32::INFINITY)?);
+        }
+    }
+    Ok(rays)
+}
+
+impl Avatar {
+    /// Renders subject `subject` (identity index) in pose `params` through `camera`, with
+    /// `sampler` (`None`: the one the avatar was trained with). Deterministic.
+    pub fn render(
+        &self,
+        subject: usize,
+        params: &FrameParams,
+        camera: &Camera,
+        sampler: Option<SamplerKind>,
+    ) -> Result<RenderedFrame, AvatarError> {
+        let start = Instant::now();
+        let model = self.subject_at(subject)?;
+        if !params.is_finite() {
+            return Err(AvatarError::BadInput {
+                what: "params".into(),
+                problem: "every pose, expression and translation value must be finite".into(),
+            });
+        }
+        let pixels = u64::from(camera.width) * u64::from(camera.height);
+        if pixels > MAX_RENDER_PIXELS {
+            return Err(AvatarError::BadInput {
+                what: "camera".into(),
+                problem: format!(
+                    "{}x{} is {pixels} pixels, more than the {MAX_RENDER_PIXELS} a render accepts",
+                    camera.width, camera.height
+                ),
+            });
+        }
+        let kind = sampler.unwrap_or(self.sampler);
+        let scene = FrameScene::new(&model.skeleton, &model.canonical, params);
+        let conditions = frame_conditions(subject, params, &scene, &model.shells);
+        let rays = pixel_rays(camera)?;
+        let frame_sampler = FrameSampler::new(scene, &model.shells, &rays)?;
+
+        // Chunks render in parallel (the field's inference runs on about one core); the
+        // samples sit at their bins' regular places (no jitter), so the image is the same
+        // on any number of threads.
+        let chunks: Vec<ChunkOut> = rays
+            .par_chunks(RENDER_CHUNK_RAYS)
+            .map(|chunk| self.render_chunk(&frame_sampler, kind, &model.grid, &conditions, chunk))
+            .collect::<Result<_, _>>()?;
+        let n = rays.len();
+        let mut rgb = Vec::with_capacity(3 * n);
+        let mut opacity = Vec::with_capacity(n);
+        let mut labels = Vec::with_capacity(n);
+        let mut total_samples = 0;
+        for c in chunks {
+            rgb.extend_from_slice(&c.rgb);
+            opacity.extend_from_slice(&c.opacity);
+            labels.extend_from_slice(&c.labels);
+            total_samples += c.samples;
+        }
+        Ok(RenderedFrame {
+            width: camera.width,
+            height: camera.height,
+            rgb,
+            opacity,
+            labels,
+            samples: total_samples,
+            seconds: start.elapsed().as_secs_f64(),
+        })
+    }
+
+    /// One chunk of a frame's rays.
+    fn render_chunk(
+        &self,
+        frame_sampler: &FrameSampler,
+        kind: SamplerKind,
+        grid: &talkin_grids::OccupancyGrid,
+        conditions: &talkin_nets::FrameConditions,
+        chunk: &[Ray],
+    ) -> Result<ChunkOut, AvatarError> {
+        let samples = frame_sampler.sample(kind, chunk, grid, None)?;
+        if samples.num_samples() == 0 {
+            return Ok(ChunkOut {
+                rgb: chunk.iter().flat_map(|_| self.background).collect(),
+                opacity: vec![0.0; chunk.len()],
+                labels: vec![0; chunk.len()],
+                samples: 0,
+            });
+        }
+        let points: Vec<[f32; 3]> = samples
+            .midpoints_in_world(chunk)
+            .into_iter()
+            .map(|p| p.to_array())
+            .collect();
+        let input = FieldInput {
+            points: &points,
+            bone_masks: &samples.bone_mask,
+            part_masks: &samples.part_mask,
+            frame: conditions,
+            step: self.field_step,
+        };
+        let output = self.field.forward(&input)?;
+        let layout = packed_layout(&samples);
+        let rendered = output.render(&layout.view())?;
+        let to_vec = |t: Tensor<2>| t.try_to_vec_as::<f32>().unwrap_or_default();
+        let rgb = to_vec(rendered.rgb_over(self.background));
+        let opacity = rendered
+            .opacity
+            .clone()
+            .try_to_vec_as::<f32>()
+            .unwrap_or_default();
+        let seg = to_vec(rendered.seg_logits.clone());
+        if rgb.len() != 3 * chunk.len() || opacity.len() != chunk.len() {
+            return Err(AvatarError::BadInput {
+                what: "render".into(),
+                problem: "the field returned the wrong number of values".into(),
+            });
+        }
+        if rgb.iter().chain(&opacity).any(|v| !v.is_finite()) {
+            return Err(AvatarError::BadInput {
+                what: "render".into(),
+                problem: "the field produced a non-finite colour or opacity \
+                          (a diverged checkpoint?)"
+                    .into(),
+            });
+        }
+        let classes = seg.len() / chunk.len().max(1);
+        let labels = opacity
+            .iter()
+            .enumerate()
+            .map(|(r, &alpha)| {
+                let logits = &seg[r * classes..(r + 1) * classes];
+                if alpha < 0.5 || classes == 0 {
+                    0
+                } else {
+                    // Argmax among the person classes.
+                    (1..classes)
+                        .max_by(|&a, &b| logits[a].total_cmp(&logits[b]))
+                        .unwrap_or(0) as u8
+                }
+            })
+            .collect();
+        Ok(ChunkOut {
+            rgb,
+            opacity,
+            labels,
+            samples: samples.num_samples(),
+        })
+    }
+}

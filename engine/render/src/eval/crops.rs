@@ -1,0 +1,241 @@
+//! Face and hand crops from the projected skeleton.
+//!
+//! Face: the bounding square of the projected head, jaw and eye joints and of the head
+//! capsule (each end a sphere of the capsule's radius, times [`HEAD_GROWTH`] for hair).
+//! Hands: the bounding square of the projected wrist and finger joints and of the hand's
+//! capsules (finger tips included), grown by [`HAND_MARGIN`]. Every crop is a square of at
+//! least [`MIN_CROP`] px (LPIPS needs it), shrunk to the image's shorter side and shifted
+//! inside the image. A part whose box misses the image, or that lies behind the camera,
+//! gives no crop and says why.
+
+use glam::DVec3;
+use serde::Serialize;
+use talkin_grids::Part;
+
+use super::metrics::Rect;
+use talkin_human::body::joint::*;
+use talkin_human::body::{FrameParams, Skeleton, limb_capsules};
+use talkin_human::camera::Camera;
+
+/// Smallest crop side in pixels (AlexNet LPIPS needs >= 31).
+pub const MIN_CROP: u32 = 32;
+/// The head capsule is the bare skull; hair and ears stick out of it by about this factor.
+pub const HEAD_GROWTH: f64 = 1.3;
+/// Hand boxes grow by this fraction of their side (finger thickness, cloth at the cuff).
+pub const HAND_MARGIN: f64 = 0.25;
+
+/// Which crop.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum CropKind {
+    Face,
+    LeftHand,
+    RightHand,
+}
+
+impl CropKind {
+    pub const ALL: [CropKind; 3] = [CropKind::Face, CropKind::LeftHand, CropKind::RightHand];
+
+    pub const fn name(self) -> &'static str {
+        match self {
+            CropKind::Face => "face",
+            CropKind::LeftHand => "left_hand",
+            CropKind::RightHand => "right_hand",
+        }
+    }
+}
+
+/// Spheres (centre, radius in metres) and joints whose projections a crop must cover.
+struct Cover {
+    joints: Vec<usize>,
+    spheres: Vec<(DVec3, f64)>,
+    growth: f64,
+}
+
+/// The crops of a frame: for each kind its square, or why there is none.
+pub fn frame_crops(
+    skeleton: &Skeleton,
+    params: &FrameParams,
+    camera: &Camera,
+) -> Vec<(CropKind, Result<Rect, String>)> {
+    let posed = skeleton.pose(params);
+    let capsules = limb_capsules(skeleton, &posed);
+    let head_spheres = capsules
+        .iter()
+        .filter(|c| c.part == Part::Head)
+        .flat_map(|c| {
+            let r = c.radius as f64 * HEAD_GROWTH;
+            [(c.a.as_dvec3(), r), (c.b.as_dvec3(), r)]
+        })
+        .collect();
+    let hand = |wrist: usize, first: usize| {
+        let in_hand = |bone: usize| bone == wrist || (first..first + 15).contains(&bone);
+        Cover {
+            joints: std::iter::once(wrist).chain(first..first + 15).collect(),
+            spheres: capsules
+                .iter()
+                .filter(|c| c.part == Part::Hands && in_hand(c.bone as usize))
+                .flat_map(|c| {
+                    let r = c.radius as f64;
+                    [(c.a.as_dvec3(), r), (c.b.as_dvec3(), r)]
+                })
+                .collect(),
+            growth: 1.0 + HAND_MARGIN,
+        }
+    };
+    let covers = [
+        (
+            CropKind::Face,
+            Cover {
+                joints: vec![HEAD, JAW, LEFT_EYE, RIGHT_EYE],
+                spheres: head_spheres,
+                growth: 1.0,
+            },
+        ),
+        (CropKind::LeftHand, hand(LEFT_WRIST, LEFT_HAND_FIRST)),
+        (CropKind::RightHand, hand(RIGHT_WRIST, RIGHT_HAND_FIRST)),
+    ];
+    covers
+        .into_iter()
+        .map(|(kind, cover)| {
+            let points = cover
+                .joints
+                .iter()
+                .map(|&j| (posed.joint(j), 0.0))
+                .chain(cover.spheres);
+            (kind, square_crop(camera, points, cover.growth))
+        })
+        .collect()
+}
+
+/// The square covering the projections of `spheres` (centre, radius in metres), grown by
+/// `growth`, at least [`MIN_CROP`] px, inside the image.
+fn square_crop(
+    camera: &Camera,
+    spheres: impl Iterator<Item = (DVec3, f64)>,
+    growth: f64,
+) -> Result<Rect, String> {
+    let focal = camera.intrinsics.x_axis.x.max(camera.intrinsics.y_axis.y);
+    let (mut lo, mut hi) = (
+        glam::DVec2::splat(f64::INFINITY),
+        glam::DVec2::splat(f64::NEG_INFINITY),
+    );
+    for (centre, radius) in spheres {
+        let Some(p) = camera.project(centre) else {
+            return Err("behind the camera".into());
+        };
+        let r = focal * radius / p.z;
+        lo = lo.min(p.truncate() - r);
+        hi = hi.max(p.truncate() + r);
+    }
+    if !(lo.is_finite() && hi.is_finite()) {
+        return Err("no finite projection".into());
+    }
+    let (w, h) = (camera.width as f64, camera.height as f64);
+    if hi.x <= 0.0 || hi.y <= 0.0 || lo.x >= w || lo.y >= h {
+        return Err(format!(
+            "outside the image (projected box x {:.0}..{:.0}, y {:.0}..{:.0} in {}x{})",
+            lo.x, hi.x, lo.y, hi.y, camera.width, camera.height
+        ));
+    }
+    let size = hi - lo;
+    let side = (size.x.max(size.y) * growth)
+        .ceil()
+        .max(MIN_CROP as f64)
+        .min(w.min(h));
+    let centre = (lo + hi) * 0.5;
+    let place = |c: f64, limit: f64| (c - side / 2.0).round().clamp(0.0, limit - side) as u32;
+    let side_px = side as u32;
+    Ok(Rect {
+        x: place(centre.x, w),
+        y: place(centre.y, h),
+        width: side_px,
+        height: side_px,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A T-pose-ish skeleton: every joint a small step up and out from its parent.
+    fn skeleton() -> Skeleton {
+        let mut rest = [DVec3::ZERO; talkin_human::body::N_JOINTS];
+        rest[0] = DVec3::new(0.0, 0.95, 0.0);
+        for j in 1..talkin_human::body::N_JOINTS {
+            let p = talkin_human::body::PARENTS[j] as usize;
+            let side = match j {
+                LEFT_COLLAR | LEFT_SHOULDER | LEFT_ELBOW | LEFT_WRIST => 0.15,
+                RIGHT_COLLAR | RIGHT_SHOULDER | RIGHT_ELBOW | RIGHT_WRIST => -0.15,
+                j if (LEFT_HAND_FIRST..RIGHT_HAND_FIRST).contains(&j) => 0.03,
+                j if j >= RIGHT_HAND_FIRST => -0.03,
+                _ => 0.0,
+            };
+            let up = if side == 0.0 { 0.12 } else { 0.0 };
+            rest[j] = rest[p] + DVec3::new(side, up, 0.0);
+        }
+        Skeleton { rest_joints: rest }
+    }
+
+    #[test]
+    fn crops_are_inside_squares_covering_their_joints() {
+        let s = skeleton();
+        let cam = Camera::look_at(
+            120,
+            160,
+            200.0,
+            DVec3::new(0.0, 1.2, 3.0),
+            DVec3::new(0.0, 1.2, 0.0),
+            DVec3::Y,
+        )
+        .unwrap();
+        let p = FrameParams::default();
+        let posed = s.pose(&p);
+        for (kind, crop) in frame_crops(&s, &p, &cam) {
+            let r = crop.unwrap();
+            assert!(r.is_inside(cam.width, cam.height), "{kind:?} {r:?}");
+            assert_eq!(r.width, r.height);
+            assert!(r.width >= MIN_CROP);
+            let j = match kind {
+                CropKind::Face => HEAD,
+                CropKind::LeftHand => LEFT_WRIST,
+                CropKind::RightHand => RIGHT_WRIST,
+            };
+            let q = cam.project(posed.joint(j)).unwrap();
+            assert!(r.contains(q.x, q.y), "{kind:?} {r:?} misses {q:?}");
+        }
+    }
+
+    #[test]
+    fn crops_off_screen_or_behind_are_skipped_with_a_reason() {
+        let s = skeleton();
+        // Looking far to the side: nothing of the person is in view.
+        let away = Camera::look_at(
+            64,
+            64,
+            80.0,
+            DVec3::new(0.0, 1.2, 3.0),
+            DVec3::new(30.0, 1.2, 3.0),
+            DVec3::Y,
+        )
+        .unwrap();
+        for (_, crop) in frame_crops(&s, &FrameParams::default(), &away) {
+            let why = crop.unwrap_err();
+            assert!(why.contains("outside") || why.contains("behind"), "{why}");
+        }
+        // A small image: the crop shrinks to the image, still inside.
+        let tiny = Camera::look_at(
+            24,
+            40,
+            20.0,
+            DVec3::new(0.0, 1.2, 3.0),
+            DVec3::new(0.0, 1.2, 0.0),
+            DVec3::Y,
+        )
+        .unwrap();
+        for (_, crop) in frame_crops(&s, &FrameParams::default(), &tiny) {
+            let r = crop.unwrap();
+            assert!(r.is_inside(24, 40) && r.width == 24, "{r:?}");
+        }
+    }
+}

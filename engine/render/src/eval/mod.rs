@@ -1,0 +1,222 @@
+//! Evaluation of an avatar against a dataset's frames: PSNR, SSIM and LPIPS (x1000, the
+//! paper's LPIPS*) on the full frame, the face crop and the two hand crops.
+//!
+//! What is scored is the 8-bit render exactly as written to PNG, so re-scoring a written
+//! PNG gives the same numbers. Crops come from the ground-truth pose projected through the
+//! frame's camera ([`crops`]); a crop that misses the image is skipped and reported,
+//! never faked, and without LPIPS weights every LPIPS value is `null` with a note.
+
+pub mod crops;
+pub mod lpips;
+pub mod metrics;
+mod report;
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use image::RgbImage;
+
+pub use crops::{CropKind, MIN_CROP, frame_crops};
+pub use lpips::LpipsScorer;
+pub use metrics::{PSNR_CAP_DB, Rect, psnr, ssim};
+pub use report::{CropScore, EvalReport, FrameScore, LPIPS_SCALE, SkippedCrop};
+
+use crate::avatar::{Avatar, AvatarError};
+use crate::sequence::{SequenceError, Shot, shots_from_frames, smooth_shots, write_png};
+use talkin_data::dataset::{Dataset, DatasetError};
+use talkin_human::smooth::Smoothing;
+
+/// How to evaluate.
+#[derive(Clone, Debug, Default)]
+pub struct EvalOptions {
+    /// Write each scored render here as `frame_<dataset index>.png` (the path is recorded
+    /// per frame); `None`: score without writing.
+    pub renders_dir: Option<PathBuf>,
+    /// Directory holding `alex.safetensors`; `None` or a missing file: LPIPS is `null`.
+    pub lpips_dir: Option<PathBuf>,
+    /// Smooth each subject's poses and cameras over time (in the evaluated frames' time
+    /// order) before rendering, with the paper's filter.
+    pub smooth: bool,
+}
+
+/// Why an evaluation failed.
+#[derive(Debug, thiserror::Error)]
+pub enum EvalError {
+    #[error(transparent)]
+    Sequence(#[from] SequenceError),
+    #[error(transparent)]
+    Dataset(#[from] DatasetError),
+    #[error(transparent)]
+    Avatar(#[from] AvatarError),
+    #[error("LPIPS: {0}")]
+    Lpips(#[from] talkin_nets::loss::LossError),
+    #[error("no frames to evaluate")]
+    NoFrames,
+    #[error(
+        "{}: frames[{frame}]: the ground truth is {found:?} px but the render is {expected:?} px",
+        dir.display()
+    )]
+    SizeMismatch {
+        dir: PathBuf,
+        frame: usize,
+        found: (u32, u32),
+        expected: (u32, u32),
+    },
+    #[error("{}: {source}", file.display())]
+    Io {
+        file: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+}
+
+/// Renders dataset frames `frames` (each as its own subject, matched by name) and scores
+/// them against their images.
+pub fn evaluate(
+    avatar: &Avatar,
+    dataset: &Dataset,
+    frames: &[usize],
+    opts: &EvalOptions,
+) -> Result<EvalReport, EvalError> {
+    evaluate_with_progress(avatar, dataset, frames, opts, &mut |_, _| {})
+}
+
+/// [`evaluate`], calling `progress(done, total)` after each frame.
+pub fn evaluate_with_progress(
+    avatar: &Avatar,
+    dataset: &Dataset,
+    frames: &[usize],
+    opts: &EvalOptions,
+    progress: &mut dyn FnMut(usize, usize),
+) -> Result<EvalReport, EvalError> {
+    let start = Instant::now();
+    if frames.is_empty() {
+        return Err(EvalError::NoFrames);
+    }
+    let mut shots = shots_from_frames(avatar, dataset, frames, None)?;
+    if opts.smooth {
+        smooth_shots(&mut shots, &Smoothing::PAPER)?;
+    }
+    let (scorer, lpips_note) = match LpipsScorer::from_dir(opts.lpips_dir.as_deref())? {
+        Ok(s) => (Some(s), None),
+        Err(note) => (None, Some(note)),
+    };
+    if let Some(dir) = &opts.renders_dir {
+        std::fs::create_dir_all(dir).map_err(|source| EvalError::Io {
+            file: dir.clone(),
+            source,
+        })?;
+    }
+    let mut scores = Vec::with_capacity(shots.len());
+    for (k, shot) in shots.iter().enumerate() {
+        scores.push(score_shot(
+            avatar,
+            dataset,
+            shot,
+            opts.renders_dir.as_deref(),
+            scorer.as_ref(),
+        )?);
+        progress(k + 1, shots.len());
+    }
+    Ok(EvalReport::new(
+        dataset,
+        scores,
+        opts.smooth,
+        lpips_note,
+        start.elapsed().as_secs_f64(),
+    ))
+}
+
+/// Renders one shot, writes it if asked, scores it and its crops.
+fn score_shot(
+    avatar: &Avatar,
+    dataset: &Dataset,
+    shot: &Shot,
+    renders_dir: Option<&Path>,
+    scorer: Option<&LpipsScorer>,
+) -> Result<FrameScore, EvalError> {
+    let index = shot
+        .ground_truth
+        .expect("evaluation shots come from dataset frames");
+    let frame = &dataset.frames[index];
+    let rendered = avatar.render(shot.identity, &shot.params, &shot.camera, None)?;
+    let render = rendered.to_image();
+    let truth = dataset.images(index)?.rgb;
+    if truth.dimensions() != render.dimensions() {
+        return Err(EvalError::SizeMismatch {
+            dir: dataset.root.clone(),
+            frame: index,
+            found: truth.dimensions(),
+            expected: render.dimensions(),
+        });
+    }
+    let file = match renders_dir {
+        Some(dir) => {
+            let file = dir.join(format!("frame_{index:05}.png"));
+            write_png(&render, &file)?;
+            Some(file)
+        }
+        None => None,
+    };
+    let score_rect = |r: Rect| -> (f64, Option<f64>, Option<f64>) {
+        (
+            psnr(&truth, &render, r),
+            ssim(&truth, &render, r),
+            scorer.and_then(|s| s.distance(&truth, &render, r).map(|d| d * LPIPS_SCALE)),
+        )
+    };
+    let (psnr_full, ssim_full, lpips_full) = score_rect(Rect::full(&render));
+    let skeleton = &dataset.subjects[frame.subject].skeleton;
+    let mut crops = Vec::new();
+    let mut skipped = Vec::new();
+    for (kind, crop) in frame_crops(skeleton, &frame.params, &frame.camera) {
+        match crop {
+            Ok(rect) => {
+                let (p, s, l) = score_rect(rect);
+                crops.push(CropScore {
+                    kind,
+                    rect,
+                    psnr: p,
+                    ssim: s,
+                    lpips: l,
+                });
+            }
+            Err(reason) => skipped.push(SkippedCrop { kind, reason }),
+        }
+    }
+    Ok(FrameScore {
+        frame: index,
+        subject: dataset.subjects[frame.subject].name.clone(),
+        rendered_as: avatar.subjects[shot.identity].name.clone(),
+        time: frame.time,
+        render: file,
+        psnr: psnr_full,
+        ssim: ssim_full,
+        lpips: lpips_full,
+        crops,
+        skipped_crops: skipped,
+        samples: rendered.samples,
+        seconds: rendered.seconds,
+    })
+}
+
+/// Re-scores a written render against its ground truth (full-frame PSNR): what a reader
+/// of the report can check.
+pub fn rescore_png(dataset: &Dataset, frame: usize, png: &Path) -> Result<f64, EvalError> {
+    let img: RgbImage = image::open(png)
+        .map_err(|e| EvalError::Io {
+            file: png.to_path_buf(),
+            source: std::io::Error::other(e.to_string()),
+        })?
+        .into_rgb8();
+    let truth = dataset.images(frame)?.rgb;
+    if truth.dimensions() != img.dimensions() {
+        return Err(EvalError::SizeMismatch {
+            dir: dataset.root.clone(),
+            frame,
+            found: truth.dimensions(),
+            expected: img.dimensions(),
+        });
+    }
+    Ok(psnr(&truth, &img, Rect::full(&img)))
+}

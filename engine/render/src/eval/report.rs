@@ -1,0 +1,248 @@
+//! The evaluation report: averages, per-frame scores, JSON and a short table.
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+use serde::Serialize;
+
+use super::EvalError;
+use super::crops::CropKind;
+use super::lpips::BACKBONE;
+use super::metrics::{PSNR_CAP_DB, Rect};
+use talkin_data::dataset::Dataset;
+
+/// LPIPS is reported x1000 (the paper's LPIPS*).
+pub const LPIPS_SCALE: f64 = 1000.0;
+
+/// One scored crop.
+#[derive(Clone, Debug, Serialize)]
+pub struct CropScore {
+    pub kind: CropKind,
+    pub rect: Rect,
+    pub psnr: f64,
+    /// `None` below the 11x11 SSIM window.
+    pub ssim: Option<f64>,
+    /// x1000; `None` without weights or below 32x32.
+    pub lpips: Option<f64>,
+}
+
+/// A crop that was not scored, and why.
+#[derive(Clone, Debug, Serialize)]
+pub struct SkippedCrop {
+    pub kind: CropKind,
+    pub reason: String,
+}
+
+/// One evaluated frame.
+#[derive(Clone, Debug, Serialize)]
+pub struct FrameScore {
+    /// Index into the dataset's frames.
+    pub frame: usize,
+    /// The frame's subject (whose image is the ground truth).
+    pub subject: String,
+    /// The avatar identity that rendered it.
+    pub rendered_as: String,
+    pub time: f64,
+    /// The PNG that was scored (when renders were written).
+    pub render: Option<PathBuf>,
+    pub psnr: f64,
+    pub ssim: Option<f64>,
+    pub lpips: Option<f64>,
+    pub crops: Vec<CropScore>,
+    pub skipped_crops: Vec<SkippedCrop>,
+    /// Field samples evaluated for the render.
+    pub samples: usize,
+    /// Render seconds.
+    pub seconds: f64,
+}
+
+/// What `talkin eval` writes.
+#[derive(Clone, Debug, Serialize)]
+pub struct EvalReport {
+    /// The run evaluated (set by the caller; the avatar does not know its directory).
+    pub run: Option<PathBuf>,
+    pub dataset: PathBuf,
+    /// The split every evaluated frame belongs to; `None` if they mix splits.
+    pub split: Option<String>,
+    pub smooth: bool,
+    pub frames_evaluated: usize,
+    /// Means over frames (full frame).
+    pub psnr: f64,
+    /// NaN (`null` in JSON) only if some frame is smaller than SSIM's 11x11 window.
+    pub ssim: f64,
+    /// x1000.
+    pub lpips: Option<f64>,
+    /// Means over the face crops that were scored.
+    pub psnr_face: Option<f64>,
+    pub ssim_face: Option<f64>,
+    pub lpips_face: Option<f64>,
+    /// Means over all hand crops (left and right) that were scored.
+    pub psnr_hands: Option<f64>,
+    pub ssim_hands: Option<f64>,
+    pub lpips_hands: Option<f64>,
+    pub face_crops: usize,
+    pub hand_crops: usize,
+    pub skipped_crops: usize,
+    pub lpips_backbone: &'static str,
+    pub lpips_scale: f64,
+    /// PSNR of identical images (JSON has no infinity).
+    pub psnr_cap_db: f64,
+    /// Why LPIPS is null, when it is (also in `notes`).
+    pub lpips_note: Option<String>,
+    pub notes: Vec<String>,
+    pub seconds: f64,
+    pub frames: Vec<FrameScore>,
+}
+
+fn mean(values: impl Iterator<Item = f64>) -> Option<f64> {
+    let (sum, n) = values.fold((0.0, 0usize), |(s, n), v| (s + v, n + 1));
+    (n > 0).then(|| sum / n as f64)
+}
+
+/// The mean of `f` over values where it is `Some`, but `None` if any is missing: an
+/// average over a subset would not be comparable.
+fn mean_all(values: &[Option<f64>]) -> Option<f64> {
+    if values.iter().any(Option::is_none) {
+        return None;
+    }
+    mean(values.iter().flatten().copied())
+}
+
+impl EvalReport {
+    pub(super) fn new(
+        dataset: &Dataset,
+        frames: Vec<FrameScore>,
+        smooth: bool,
+        lpips_note: Option<String>,
+        seconds: f64,
+    ) -> EvalReport {
+        let mut notes: Vec<String> = lpips_note.iter().cloned().collect();
+        let splits: Vec<_> = frames
+            .iter()
+            .map(|f| dataset.frames[f.frame].split)
+            .collect();
+        let split = splits
+            .iter()
+            .all(|s| *s == splits[0])
+            .then(|| splits[0].name().to_string());
+        let crops = |hand: bool| -> Vec<&CropScore> {
+            frames
+                .iter()
+                .flat_map(|f| &f.crops)
+                .filter(|c| (c.kind != CropKind::Face) == hand)
+                .collect()
+        };
+        let (face, hands) = (crops(false), crops(true));
+        let skipped_crops = frames.iter().map(|f| f.skipped_crops.len()).sum();
+        if skipped_crops > 0 {
+            notes.push(format!(
+                "{skipped_crops} crops skipped (outside the image or behind the camera); \
+                 see frames[].skipped_crops"
+            ));
+        }
+        let crop_means = |cs: &[&CropScore]| {
+            (
+                mean(cs.iter().map(|c| c.psnr)),
+                mean_all(&cs.iter().map(|c| c.ssim).collect::<Vec<_>>()),
+                mean_all(&cs.iter().map(|c| c.lpips).collect::<Vec<_>>()),
+            )
+        };
+        let (psnr_face, ssim_face, lpips_face) = crop_means(&face);
+        let (psnr_hands, ssim_hands, lpips_hands) = crop_means(&hands);
+        EvalReport {
+            run: None,
+            dataset: dataset.root.clone(),
+            split,
+            smooth,
+            frames_evaluated: frames.len(),
+            psnr: mean(frames.iter().map(|f| f.psnr)).unwrap_or(f64::NAN),
+            ssim: mean_all(&frames.iter().map(|f| f.ssim).collect::<Vec<_>>()).unwrap_or(f64::NAN),
+            lpips: mean_all(&frames.iter().map(|f| f.lpips).collect::<Vec<_>>()),
+            psnr_face,
+            ssim_face,
+            lpips_face,
+            psnr_hands,
+            ssim_hands,
+            lpips_hands,
+            face_crops: face.len(),
+            hand_crops: hands.len(),
+            skipped_crops,
+            lpips_backbone: BACKBONE.name(),
+            lpips_scale: LPIPS_SCALE,
+            psnr_cap_db: PSNR_CAP_DB,
+            lpips_note,
+            notes,
+            seconds,
+            frames,
+        }
+    }
+
+    /// The report as pretty JSON.
+    pub fn to_json(&self) -> String {
+        serde_json::to_string_pretty(self).expect("finite numbers and strings serialise")
+    }
+
+    /// Writes the JSON atomically.
+    pub fn write_json(&self, file: &Path) -> Result<(), EvalError> {
+        talkin_data::atomic::write_atomic(file, self.to_json().as_bytes()).map_err(|source| {
+            EvalError::Io {
+                file: file.to_path_buf(),
+                source,
+            }
+        })
+    }
+
+    /// A short human-readable table of the averages.
+    pub fn table(&self) -> String {
+        let num = |v: Option<f64>, digits: usize| match v {
+            Some(x) => format!("{x:.digits$}"),
+            None => "-".to_string(),
+        };
+        let mut s = String::new();
+        let _ = writeln!(
+            s,
+            "{} frames of split {}{}",
+            self.frames_evaluated,
+            self.split.as_deref().unwrap_or("(mixed)"),
+            if self.smooth { ", smoothed" } else { "" }
+        );
+        let _ = writeln!(
+            s,
+            "{:<14}{:>9}{:>8}{:>10}",
+            "region", "PSNR dB", "SSIM", "LPIPS*"
+        );
+        let rows = [
+            (
+                format!("full ({})", self.frames_evaluated),
+                Some(self.psnr),
+                Some(self.ssim).filter(|v| v.is_finite()),
+                self.lpips,
+            ),
+            (
+                format!("face ({})", self.face_crops),
+                self.psnr_face,
+                self.ssim_face,
+                self.lpips_face,
+            ),
+            (
+                format!("hands ({})", self.hand_crops),
+                self.psnr_hands,
+                self.ssim_hands,
+                self.lpips_hands,
+            ),
+        ];
+        for (name, p, q, l) in rows {
+            let _ = writeln!(
+                s,
+                "{name:<14}{:>9}{:>8}{:>10}",
+                num(p, 2),
+                num(q, 4),
+                num(l, 1)
+            );
+        }
+        for note in &self.notes {
+            let _ = writeln!(s, "note: {note}");
+        }
+        s
+    }
+}

@@ -1,0 +1,193 @@
+//! The render server: loads a run's checkpoint once and renders frames for posted poses,
+//! cameras and identities over HTTP (axum on a small tokio runtime).
+//!
+//! Rendering is CPU-bound, so it runs on [`pool::Pool`]'s fixed render threads behind a
+//! bounded queue; the async threads only parse, validate and wait. A full queue answers
+//! 503 with `Retry-After`; bad input answers 400/404/413 with `{"error", "field"}` naming
+//! the JSON path at fault, and the server keeps serving. Shutdown (SIGINT/SIGTERM or
+//! [`Server::shutdown`]) stops accepting, finishes the requests in flight and joins the
+//! render threads.
+//!
+//! Routes: `GET /` (a page with sliders), `GET /health`, `GET /subjects`, `POST /render`,
+//! `POST /render/sequence` (a zip of PNGs). See the README for the request format.
+
+pub mod bench;
+pub mod client;
+mod config;
+mod encode;
+mod error;
+pub mod pool;
+pub mod request;
+mod routes;
+mod subjects;
+
+use std::net::{SocketAddr, TcpListener};
+use std::path::Path;
+use std::sync::Arc;
+use std::thread::JoinHandle;
+
+use tokio::sync::Notify;
+
+pub use config::{ConfigError, ServeConfig};
+pub use error::{RequestError, ServeError};
+pub use subjects::{ServedSubject, default_camera, served_subjects};
+
+use pool::Pool;
+use talkin_render::avatar::Avatar;
+
+/// What every handler shares.
+struct App {
+    avatar: Arc<Avatar>,
+    subjects: Vec<ServedSubject>,
+    config: ServeConfig,
+    pool: Pool,
+}
+
+/// A running server. Dropping it shuts it down gracefully.
+pub struct Server {
+    addr: SocketAddr,
+    stop: Arc<Notify>,
+    thread: Option<JoinHandle<Result<(), ServeError>>>,
+}
+
+impl Server {
+    /// Loads the newest checkpoint of `run` and starts serving it on `addr`.
+    pub fn load_and_start(
+        run: &Path,
+        addr: &str,
+        config: ServeConfig,
+    ) -> Result<Server, ServeError> {
+        config.validate()?;
+        let avatar = Avatar::load(run).map_err(|source| ServeError::Avatar {
+            run: run.to_path_buf(),
+            source,
+        })?;
+        Server::start(Arc::new(avatar), addr, config)
+    }
+
+    /// Serves `avatar` on `addr` (`127.0.0.1:0` picks a free port; see [`Server::addr`]).
+    /// Returns once the socket is bound.
+    pub fn start(
+        avatar: Arc<Avatar>,
+        addr: &str,
+        config: ServeConfig,
+    ) -> Result<Server, ServeError> {
+        config.validate()?;
+        let subjects = served_subjects(&avatar, config.default_width, config.default_height)
+            .map_err(|e| ConfigError {
+                field: "default_width",
+                problem: format!("no default camera of that size: {e}"),
+            })?;
+        if subjects.is_empty() {
+            return Err(ServeError::NoSubjects);
+        }
+        let bind_err = |source| ServeError::Bind {
+            addr: addr.to_string(),
+            source,
+        };
+        let listener = TcpListener::bind(addr).map_err(bind_err)?;
+        listener.set_nonblocking(true).map_err(bind_err)?;
+        let local = listener.local_addr().map_err(bind_err)?;
+        let pool = Pool::new(config.workers, config.queue).map_err(ServeError::Runtime)?;
+        let app = Arc::new(App {
+            avatar,
+            subjects,
+            config,
+            pool,
+        });
+        // Two async threads are plenty: they only move bytes and wait on the pool.
+        let runtime = tokio::runtime::Builder::new_multi_thread()
+            .worker_threads(2)
+            .thread_name("talkin-http")
+            .enable_io()
+            .enable_time()
+            .build()
+            .map_err(ServeError::Runtime)?;
+        let stop = Arc::new(Notify::new());
+        let stopped = stop.clone();
+        let thread = std::thread::Builder::new()
+            .name("talkin-serve".into())
+            .spawn(move || {
+                let served = runtime.block_on(async {
+                    let listener = tokio::net::TcpListener::from_std(listener)?;
+                    axum::serve(listener, routes::router(app.clone()))
+                        .with_graceful_shutdown(async move { stopped.notified().await })
+                        .await
+                });
+                // Every connection is closed: no handler waits on the pool any more.
+                app.pool.shutdown();
+                served.map_err(ServeError::Serve)
+            })
+            .map_err(ServeError::Runtime)?;
+        Ok(Server {
+            addr: local,
+            stop,
+            thread: Some(thread),
+        })
+    }
+
+    /// The bound address.
+    pub fn addr(&self) -> SocketAddr {
+        self.addr
+    }
+
+    /// Stops accepting, finishes the requests in flight and joins every thread.
+    pub fn shutdown(mut self) -> Result<(), ServeError> {
+        self.stop_and_join()
+    }
+
+    /// Serves until SIGINT or SIGTERM, then shuts down gracefully.
+    pub fn run_until_signal(self) -> Result<(), ServeError> {
+        let runtime = tokio::runtime::Builder::new_current_thread()
+            .enable_io()
+            .build()
+            .map_err(ServeError::Runtime)?;
+        runtime.block_on(termination_signal())?;
+        self.shutdown()
+    }
+
+    fn stop_and_join(&mut self) -> Result<(), ServeError> {
+        self.stop.notify_one();
+        match self.thread.take() {
+            Some(t) => t.join().unwrap_or_else(|_| {
+                Err(ServeError::Serve(std::io::Error::other(
+                    "the server thread panicked",
+                )))
+            }),
+            None => Ok(()),
+        }
+    }
+}
+
+impl Drop for Server {
+    fn drop(&mut self) {
+        let _ = self.stop_and_join();
+    }
+}
+
+/// Waits for SIGINT (Ctrl-C) or SIGTERM (what `kill` and container runtimes send).
+async fn termination_signal() -> Result<(), ServeError> {
+    let caught = Arc::new(Notify::new());
+    #[cfg(unix)]
+    {
+        use tokio::signal::unix::{SignalKind, signal};
+        for kind in [SignalKind::interrupt(), SignalKind::terminate()] {
+            let mut stream = signal(kind).map_err(ServeError::Runtime)?;
+            let caught = caught.clone();
+            tokio::spawn(async move {
+                stream.recv().await;
+                caught.notify_one();
+            });
+        }
+    }
+    #[cfg(not(unix))]
+    {
+        let caught = caught.clone();
+        tokio::spawn(async move {
+            let _ = tokio::signal::ctrl_c().await;
+            caught.notify_one();
+        });
+    }
+    caught.notified().await;
+    Ok(())
+}

@@ -1,0 +1,257 @@
+//! The HTTP routes. Handlers only read, validate and hand work to the render pool; every
+//! refusal is a [`RequestError`] with a JSON body.
+
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use axum::Router;
+use axum::body::{Body, Bytes};
+use axum::extract::State;
+use axum::http::{HeaderMap, HeaderValue, StatusCode, header};
+use axum::response::{Html, IntoResponse, Response};
+use axum::routing::{get, post};
+use serde_json::{Value, json};
+use tokio::sync::oneshot;
+
+use super::App;
+use super::encode::{self, Encoded};
+use super::error::RequestError;
+use super::pool::{Job, Refused};
+use super::request::{self, Format};
+
+/// The web page at `/`: sliders for a few parameters, the rendered frame (no external
+/// scripts: a served machine may reach nothing outside).
+const PAGE: &str = include_str!("page.html");
+
+pub(super) fn router(app: Arc<App>) -> Router {
+    Router::new()
+        .route("/", get(page))
+        .route("/health", get(health))
+        .route("/subjects", get(subjects))
+        .route("/render", post(render))
+        .route("/render/sequence", post(sequence))
+        .fallback(not_found)
+        .with_state(app)
+}
+
+/// A JSON response body.
+pub(super) fn json_body(v: &Value) -> Response {
+    (
+        [(header::CONTENT_TYPE, "application/json")],
+        serde_json::to_vec(v).expect("JSON values always serialise"),
+    )
+        .into_response()
+}
+
+async fn page() -> Html<&'static str> {
+    Html(PAGE)
+}
+
+async fn not_found() -> RequestError {
+    RequestError::NotFound {
+        field: None,
+        message: "no such route; try GET /, /health, /subjects or POST /render, \
+                  /render/sequence"
+            .into(),
+    }
+}
+
+async fn health(State(app): State<Arc<App>>) -> Response {
+    json_body(&json!({ "status": "ok", "pool": app.pool.stats() }))
+}
+
+async fn subjects(State(app): State<Arc<App>>) -> Response {
+    let subjects: Vec<Value> = app
+        .subjects
+        .iter()
+        .map(|s| {
+            let c = &s.default_camera;
+            json!({
+                "name": s.name,
+                "index": s.index,
+                "width": c.width,
+                "height": c.height,
+                "camera": {
+                    "width": c.width,
+                    "height": c.height,
+                    "intrinsics": c.intrinsics_rows(),
+                    "extrinsics": c.extrinsics_rows(),
+                },
+            })
+        })
+        .collect();
+    let c = &app.config;
+    json_body(&json!({
+        "subjects": subjects,
+        "limits": {
+            "max_pixels": c.max_pixels,
+            "max_body_bytes": c.max_body_bytes,
+            "max_sequence_frames": c.max_sequence_frames,
+            "render_timeout_s": c.render_timeout.as_secs_f64(),
+        },
+        "formats": ["png", "raw"],
+    }))
+}
+
+async fn render(State(app): State<Arc<App>>, headers: HeaderMap, body: Body) -> Response {
+    let result = async {
+        let bytes = read_body(&app, &headers, body).await?;
+        let req = request::parse_render(&bytes, &app.subjects, &app.config)?;
+        let worker_app = app.clone();
+        let encoded = on_pool(&app, app.config.render_timeout, move |_deadline| {
+            let frame = worker_app
+                .avatar
+                .render(req.subject, &req.params, &req.camera, None)?;
+            Ok(match req.format {
+                Format::Png => encode::png(&frame)?,
+                Format::Raw => encode::raw(&frame),
+            })
+        })
+        .await?;
+        Ok::<_, RequestError>(encoded)
+    }
+    .await;
+    match result {
+        Ok(e) => image_response(e),
+        Err(e) => e.into_response(),
+    }
+}
+
+async fn sequence(State(app): State<Arc<App>>, headers: HeaderMap, body: Body) -> Response {
+    let result = async {
+        let bytes = read_body(&app, &headers, body).await?;
+        let req = request::parse_sequence(&bytes, &app.subjects, &app.config)?;
+        let mut req = req;
+        if req.smooth {
+            // The paper's test-time filter over the posted sequence (one camera).
+            req.frames = talkin_human::smooth::smooth_params(
+                &req.frames,
+                &talkin_human::smooth::Smoothing::PAPER,
+            )
+            .map_err(|e| RequestError::invalid("frames", e.to_string()))?;
+        }
+        let n = req.frames.len();
+        let timeout = app.config.render_timeout * n as u32;
+        let worker_app = app.clone();
+        on_pool(&app, timeout, move |deadline| {
+            let mut pngs = Vec::with_capacity(n);
+            for (i, params) in req.frames.iter().enumerate() {
+                if Instant::now() > deadline {
+                    return Err(RequestError::Timeout {
+                        seconds: timeout.as_secs_f64(),
+                    });
+                }
+                let frame = worker_app
+                    .avatar
+                    .render(req.subject, params, &req.camera, None)
+                    .map_err(|e| match RequestError::from(e) {
+                        RequestError::Invalid { message, .. } => {
+                            RequestError::invalid(format!("frames[{i}]"), message)
+                        }
+                        other => other,
+                    })?;
+                pngs.push(encode::png(&frame)?.bytes);
+            }
+            encode::zip_frames(&pngs)
+        })
+        .await
+    }
+    .await;
+    match result {
+        Ok(zip) => (
+            [
+                (header::CONTENT_TYPE, "application/zip"),
+                (
+                    header::CONTENT_DISPOSITION,
+                    "attachment; filename=\"frames.zip\"",
+                ),
+            ],
+            zip,
+        )
+            .into_response(),
+        Err(e) => e.into_response(),
+    }
+}
+
+fn image_response(e: Encoded) -> Response {
+    let mut response = (StatusCode::OK, e.bytes).into_response();
+    let h = response.headers_mut();
+    h.insert(
+        header::CONTENT_TYPE,
+        HeaderValue::from_static(e.content_type),
+    );
+    h.insert(header::CACHE_CONTROL, HeaderValue::from_static("no-store"));
+    h.insert("x-image-width", HeaderValue::from(e.width));
+    h.insert("x-image-height", HeaderValue::from(e.height));
+    h.insert("x-render-samples", HeaderValue::from(e.samples as u64));
+    if let Ok(v) = HeaderValue::from_str(&format!("{:.4}", e.seconds)) {
+        h.insert("x-render-seconds", v);
+    }
+    response
+}
+
+/// The whole body, refusing more than the limit (by `Content-Length` up front, or while
+/// reading a body sent without one) and clients that send too slowly.
+async fn read_body(app: &App, headers: &HeaderMap, body: Body) -> Result<Bytes, RequestError> {
+    let limit = app.config.max_body_bytes;
+    let too_large = || RequestError::TooLarge {
+        field: None,
+        message: format!("the request body is over the {limit} bytes this server reads"),
+    };
+    let declared = headers
+        .get(header::CONTENT_LENGTH)
+        .and_then(|v| v.to_str().ok())
+        .and_then(|v| v.parse::<u64>().ok());
+    if declared.is_some_and(|n| n > limit as u64) {
+        return Err(too_large());
+    }
+    let seconds = app.config.body_timeout.as_secs();
+    match tokio::time::timeout(app.config.body_timeout, axum::body::to_bytes(body, limit)).await {
+        Err(_) => Err(RequestError::BodyTimeout { seconds }),
+        // http-body-util's limit error; anything else is a client that went away, to whom
+        // no answer matters.
+        Ok(Err(e)) if e.to_string().contains("length limit") => Err(too_large()),
+        Ok(Err(e)) => Err(RequestError::Invalid {
+            field: None,
+            message: format!("reading the request body: {e}"),
+        }),
+        Ok(Ok(bytes)) => Ok(bytes),
+    }
+}
+
+/// Runs `work` on a render thread, refusing at once if the pool is full and answering 504
+/// after `timeout`. `work` gets its deadline; a job whose client has given up by the time
+/// a worker reaches it is skipped.
+async fn on_pool<T: Send + 'static>(
+    app: &App,
+    timeout: Duration,
+    work: impl FnOnce(Instant) -> Result<T, RequestError> + Send + 'static,
+) -> Result<T, RequestError> {
+    let (tx, rx) = oneshot::channel();
+    let deadline = Instant::now() + timeout;
+    let job: Job = Box::new(move || {
+        if tx.is_closed() {
+            return Box::new(|| {});
+        }
+        let result = work(deadline);
+        Box::new(move || {
+            let _ = tx.send(result);
+        })
+    });
+    app.pool.try_submit(job).map_err(|r| match r {
+        Refused::Full { queued } => RequestError::QueueFull {
+            queued,
+            retry_after_s: app.pool.retry_after().as_secs(),
+        },
+        Refused::Closed => RequestError::ShuttingDown,
+    })?;
+    match tokio::time::timeout(timeout, rx).await {
+        Ok(Ok(result)) => result,
+        Ok(Err(_)) => Err(RequestError::Render(
+            "the render thread dropped the job (it panicked; see the server's log)".into(),
+        )),
+        Err(_) => Err(RequestError::Timeout {
+            seconds: timeout.as_secs_f64(),
+        }),
+    }
+}

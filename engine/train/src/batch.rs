@@ -1,0 +1,180 @@
+//! One step's rays: LPIPS patches and part-aware random pixels (the paper's schedule),
+//! with their target colours and segmentation labels, from a cached training frame.
+
+use talkin_grids::{GridError, Ray};
+use talkin_nets::FrameConditions;
+
+use crate::field_inputs::frame_conditions;
+use crate::rng::SplitMix64;
+use crate::scene::{FrameSampler, FrameScene};
+use crate::schedule::PartFractions;
+use crate::subject::SubjectModel;
+use talkin_data::dataset::{Dataset, DatasetError, FrameImages, N_LABELS};
+
+/// Side of an LPIPS patch (pixels).
+pub const PATCH: u32 = 32;
+/// Segmentation labels of arms and hands.
+const LABEL_ARMS: u8 = 2;
+const LABEL_HANDS: u8 = 3;
+
+/// A training frame's decoded images, pixel lists and sampler (built once per frame).
+pub(crate) struct FrameCache {
+    pub images: FrameImages,
+    /// Person bounding box in pixels, inclusive (`None`: empty mask).
+    pub bbox: Option<[u32; 4]>,
+    /// Pixels labelled hands / arms.
+    pub hand_pixels: Vec<(u32, u32)>,
+    pub arm_pixels: Vec<(u32, u32)>,
+    pub conditions: FrameConditions,
+    pub sampler: FrameSampler,
+}
+
+/// Why a frame could not be cached.
+#[derive(Debug)]
+pub(crate) enum CacheError {
+    Dataset(DatasetError),
+    Grid(GridError),
+}
+
+impl FrameCache {
+    /// Frame `i` of `dataset`, its subject being identity `slot` with `model`.
+    pub fn new(
+        dataset: &Dataset,
+        i: usize,
+        slot: usize,
+        model: &SubjectModel,
+    ) -> Result<FrameCache, CacheError> {
+        let frame = &dataset.frames[i];
+        let images = dataset.images(i).map_err(CacheError::Dataset)?;
+        let scene = FrameScene::new(&model.skeleton, &model.canonical, &frame.params);
+        let mut bbox: Option<[u32; 4]> = None;
+        let mut rays = Vec::new();
+        let (mut hand_pixels, mut arm_pixels) = (Vec::new(), Vec::new());
+        for (x, y, m) in images.mask.enumerate_pixels() {
+            if m.0[0] < 128 {
+                continue;
+            }
+            bbox = Some(match bbox {
+                None => [x, y, x, y],
+                Some([x0, y0, x1, y1]) => [x0.min(x), y0.min(y), x1.max(x), y1.max(y)],
+            });
+            match images.segmentation.get_pixel(x, y).0[0] {
+                LABEL_HANDS => hand_pixels.push((x, y)),
+                LABEL_ARMS => arm_pixels.push((x, y)),
+                _ => {}
+            }
+            let (o, d) = frame.camera.pixel_ray(x, y);
+            rays.push(
+                Ray::new(o.as_vec3(), d.as_vec3(), 0.0, f32::INFINITY).map_err(CacheError::Grid)?,
+            );
+        }
+        let conditions = frame_conditions(slot, &frame.params, &scene, &model.shells);
+        let sampler = FrameSampler::new(scene, &model.shells, &rays).map_err(CacheError::Grid)?;
+        Ok(FrameCache {
+            images,
+            bbox,
+            hand_pixels,
+            arm_pixels,
+            conditions,
+            sampler,
+        })
+    }
+}
+
+/// One step's rays and their targets.
+pub(crate) struct Batch {
+    pub rays: Vec<Ray>,
+    /// `[r * 3]` in [0, 1].
+    pub rgb: Vec<f32>,
+    pub labels: Vec<i32>,
+    /// The first `patches * PATCH * PATCH` rays are row-major patches.
+    pub patches: usize,
+}
+
+/// What to draw.
+pub(crate) struct BatchSpec {
+    pub patches: usize,
+    pub random_rays: usize,
+    pub bbox_fraction: f32,
+    pub parts: PartFractions,
+}
+
+/// Draws `spec.patches` 32x32 patches overlapping the person's box, then
+/// `spec.random_rays` pixels: `bbox_fraction` of them in the person's box, of which
+/// `parts.hands` from hand pixels and `parts.arms` from arm pixels (when the frame has
+/// any), the rest anywhere in the image.
+pub(crate) fn draw_batch(
+    dataset: &Dataset,
+    i: usize,
+    fc: &FrameCache,
+    spec: &BatchSpec,
+    rng: &mut SplitMix64,
+) -> Result<Batch, GridError> {
+    let camera = &dataset.frames[i].camera;
+    let (w, h) = (camera.width, camera.height);
+    let mut pixels: Vec<(u32, u32)> = Vec::new();
+    let patches = if w >= PATCH && h >= PATCH {
+        spec.patches
+    } else {
+        0
+    };
+    for _ in 0..patches {
+        let [x0, y0, x1, y1] = fc.bbox.unwrap_or([0, 0, w - 1, h - 1]);
+        // A patch centre in the box; the patch is clamped into the image.
+        let cx = x0 + rng.below(u64::from(x1 - x0 + 1)) as u32;
+        let cy = y0 + rng.below(u64::from(y1 - y0 + 1)) as u32;
+        let px = cx.saturating_sub(PATCH / 2).min(w - PATCH);
+        let py = cy.saturating_sub(PATCH / 2).min(h - PATCH);
+        for y in py..py + PATCH {
+            for x in px..px + PATCH {
+                pixels.push((x, y));
+            }
+        }
+    }
+    let pick =
+        |list: &[(u32, u32)], rng: &mut SplitMix64| list[rng.below(list.len() as u64) as usize];
+    for _ in 0..spec.random_rays {
+        let pixel = match fc.bbox {
+            Some([x0, y0, x1, y1]) if rng.next_f32() < spec.bbox_fraction => {
+                let u = rng.next_f32();
+                if u < spec.parts.hands && !fc.hand_pixels.is_empty() {
+                    pick(&fc.hand_pixels, rng)
+                } else if u < spec.parts.hands + spec.parts.arms && !fc.arm_pixels.is_empty() {
+                    pick(&fc.arm_pixels, rng)
+                } else {
+                    (
+                        x0 + rng.below(u64::from(x1 - x0 + 1)) as u32,
+                        y0 + rng.below(u64::from(y1 - y0 + 1)) as u32,
+                    )
+                }
+            }
+            _ => (
+                rng.below(u64::from(w)) as u32,
+                rng.below(u64::from(h)) as u32,
+            ),
+        };
+        pixels.push(pixel);
+    }
+    let mut batch = Batch {
+        rays: Vec::with_capacity(pixels.len()),
+        rgb: Vec::with_capacity(3 * pixels.len()),
+        labels: Vec::with_capacity(pixels.len()),
+        patches,
+    };
+    for (x, y) in pixels {
+        let (o, d) = camera.pixel_ray(x, y);
+        batch
+            .rays
+            .push(Ray::new(o.as_vec3(), d.as_vec3(), 0.0, f32::INFINITY)?);
+        let c = fc.images.rgb.get_pixel(x, y).0;
+        batch.rgb.extend(c.iter().map(|&v| f32::from(v) / 255.0));
+        let person = fc.images.mask.get_pixel(x, y).0[0] >= 128;
+        let label = fc.images.segmentation.get_pixel(x, y).0[0];
+        // A person pixel labelled background counts as body (labels are validated on
+        // decode, so every label is below N_LABELS).
+        let label = if person { label.max(1) } else { 0 };
+        debug_assert!((label as usize) < N_LABELS);
+        batch.labels.push(i32::from(label));
+    }
+    Ok(batch)
+}

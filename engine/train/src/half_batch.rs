@@ -1,0 +1,317 @@
+//! A step's loss and gradients from two half-batches on two threads.
+//!
+//! burn's Flex backend runs most ops on one core, so a step left the second core idle.
+//! The batch's rays are split in two; each half runs forward and backward on its own
+//! fork of the field (fresh autodiff leaves, the same parameter ids, so the two graphs
+//! never merge), and the halves' gradients are summed. Each half's loss is weighted by
+//! its share of the rays, so the sum is the whole batch's loss and the summed gradient
+//! the whole batch's gradient. The split does not depend on the machine: one core runs
+//! the same two halves in turn.
+
+use burn::optim::{GradientsAccumulator, GradientsParams};
+use burn::prelude::*;
+use talkin_grids::{PackedSamples, Ray};
+use talkin_nets::loss::{PerceptualLoss, mse, seg_cross_entropy};
+use talkin_nets::{FieldInput, FrameConditions, NetsError, TalkinField};
+
+use crate::field_inputs::packed_layout;
+use crate::trainer::{MSE_WEIGHT, SEG_WEIGHT, scalar};
+
+/// One step's batch as the loss sees it.
+pub(crate) struct StepBatch<'a> {
+    pub rays: &'a [Ray],
+    pub samples: PackedSamples,
+    /// `[rays * 3]` in [0, 1].
+    pub rgb: &'a [f32],
+    pub labels: &'a [i32],
+    /// Row-major 32x32 LPIPS patches at the start of the rays (0 without the term).
+    pub patches: usize,
+    pub patch_side: usize,
+    pub frame: &'a FrameConditions,
+    pub step: usize,
+    pub background: [f32; 3],
+    /// Weight of the opacity-against-mask term (0: off).
+    pub mask_weight: f32,
+}
+
+/// The summed loss, its MSE part and the gradients of the whole batch.
+pub(crate) struct StepLoss {
+    pub loss: f32,
+    pub mse: f32,
+    pub grads: GradientsParams,
+}
+
+/// Where the batch is split: halfway, but never inside the LPIPS patches (they stay in
+/// the first half, which scores them). `None`: too few rays to split.
+pub(crate) fn split_point(rays: usize, patch_rays: usize) -> Option<usize> {
+    let k = (rays / 2).max(patch_rays);
+    (k > 0 && k < rays).then_some(k)
+}
+
+/// The batch's loss (seg CE + MSE, or with patches LPIPS + 0.2 MSE + seg CE) and its
+/// gradients w.r.t. `field`'s parameters, from two half-batches in parallel.
+pub(crate) fn loss_and_grads(
+    field: &TalkinField,
+    perceptual: Option<&PerceptualLoss>,
+    batch: StepBatch,
+) -> Result<StepLoss, NetsError> {
+    let n = batch.rays.len();
+    let patch_rays = batch.patches * batch.patch_side * batch.patch_side;
+    let Some(k) = split_point(n, patch_rays) else {
+        return half(field, false, perceptual, &batch, 0..n, &batch.samples);
+    };
+    let (head, tail) = batch.samples.split_at_ray(k);
+    let (a, b) = std::thread::scope(|scope| {
+        let first = scope.spawn(|| half(field, true, perceptual, &batch, 0..k, &head));
+        let second = half(field, true, perceptual, &batch, k..n, &tail);
+        (first.join(), second)
+    });
+    // A panic in the other thread is a bug; pass it on as one.
+    let a = a.unwrap_or_else(|p| std::panic::resume_unwind(p))?;
+    let b = b?;
+    let mut sum = GradientsAccumulator::new();
+    sum.accumulate(field, a.grads);
+    sum.accumulate(field, b.grads);
+    Ok(StepLoss {
+        loss: a.loss + b.loss,
+        mse: a.mse + b.mse,
+        grads: sum.grads(),
+    })
+}
+
+/// Rays `range` of the batch (sampled as `samples`): their loss and MSE weighted by
+/// their share of the rays, and the gradients. `fork`: run on a fork of the field (needed when another thread runs
+/// the other half at the same time).
+fn half(
+    field: &TalkinField,
+    fork: bool,
+    perceptual: Option<&PerceptualLoss>,
+    batch: &StepBatch,
+    range: std::ops::Range<usize>,
+    samples: &PackedSamples,
+) -> Result<StepLoss, NetsError> {
+    let device = field.identity.val().device();
+    let forked;
+    let field = if fork {
+        forked = field.clone().fork(&device);
+        &forked
+    } else {
+        field
+    };
+    let n_rays = range.len();
+    let weight = n_rays as f32 / batch.rays.len() as f32;
+    let rays = &batch.rays[range.clone()];
+    let points: Vec<[f32; 3]> = samples
+        .midpoints_in_world(rays)
+        .into_iter()
+        .map(|p| p.to_array())
+        .collect();
+    let layout = packed_layout(samples);
+    let input = FieldInput {
+        points: &points,
+        bone_masks: &samples.bone_mask,
+        part_masks: &samples.part_mask,
+        frame: batch.frame,
+        step: batch.step,
+    };
+    let rendered = field.forward(&input)?.render(&layout.view())?;
+    let rgb = rendered.rgb_over(batch.background); // [r, 3]
+    let target = Tensor::<2>::from_data(
+        TensorData::new(
+            batch.rgb[3 * range.start..3 * range.end].to_vec(),
+            [n_rays, 3],
+        ),
+        &device,
+    );
+    let labels = Tensor::<1, Int>::from_data(
+        TensorData::new(batch.labels[range.clone()].to_vec(), [n_rays]),
+        &device,
+    );
+    let l_mse = mse(rgb.clone(), target.clone());
+    let l_seg = seg_cross_entropy(rendered.seg_logits, labels.clone());
+    // Patches sit at the start of the first half (see `split_point`); with them, the
+    // MSE is the minor term in both halves.
+    let with_patches = perceptual.is_some() && batch.patches > 0;
+    let mse_weight = if with_patches { MSE_WEIGHT } else { 1.0 };
+    let mut pixel = l_seg.mul_scalar(SEG_WEIGHT) + l_mse.clone().mul_scalar(mse_weight);
+    if batch.mask_weight > 0.0 {
+        // Label 0 is the background; every other label is the person.
+        let person = labels.greater_elem(0).float();
+        pixel = pixel + mse(rendered.opacity, person).mul_scalar(batch.mask_weight);
+    }
+    let pixel = pixel.mul_scalar(weight);
+    let loss = match perceptual {
+        Some(p) if with_patches && range.start == 0 => {
+            let (k, side) = (batch.patches, batch.patch_side);
+            let to_images = |t: Tensor<2>| {
+                t.narrow(0, 0, k * side * side)
+                    .reshape([k, side, side, 3])
+                    .permute([0, 3, 1, 2])
+            };
+            pixel + p.forward(to_images(rgb), to_images(target)).mean()
+        }
+        _ => pixel,
+    };
+    let (loss_value, mse_value) = (scalar(&loss), weight * scalar(&l_mse));
+    // A half whose rays all missed every capsule (e.g. an LPIPS patch beside the person)
+    // has no samples: its loss is a constant, with no gradient to take.
+    let grads = if loss.is_tracked() {
+        GradientsParams::from_grads(loss.backward(), field)
+    } else {
+        GradientsParams::new()
+    };
+    Ok(StepLoss {
+        loss: loss_value,
+        mse: mse_value,
+        grads,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use burn::module::{Module, ModuleVisitor, Param};
+    use glam::Vec3;
+    use talkin_grids::{DenseOpts, sample_dense};
+    use talkin_nets::FieldConfig;
+    use talkin_nets::encoding::{EncodingConfig, HashGridConfig};
+    use talkin_nets::skinning::SkinningConfig;
+
+    use super::*;
+    use crate::field_inputs::frame_conditions;
+    use crate::scene::{CapsuleShells, FrameScene, capsule_bounds};
+    use crate::subject::bone_prior;
+    use talkin_human::body::canonical_params;
+    use talkin_synth::body::default_rest_joints;
+
+    /// Compares every parameter's gradient in two gradient sets.
+    struct SameGrads<'a> {
+        a: &'a GradientsParams,
+        b: &'a GradientsParams,
+        compared: usize,
+    }
+
+    impl ModuleVisitor for SameGrads<'_> {
+        fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
+            let (Some(a), Some(b)) = (self.a.get::<D>(param.id), self.b.get::<D>(param.id)) else {
+                assert!(
+                    self.a.get::<D>(param.id).is_none() && self.b.get::<D>(param.id).is_none(),
+                    "a gradient exists in only one set"
+                );
+                return;
+            };
+            let (a, b) = (
+                a.try_to_vec_as::<f32>().unwrap(),
+                b.try_to_vec_as::<f32>().unwrap(),
+            );
+            let scale = a.iter().fold(1e-6f32, |m, v| m.max(v.abs()));
+            for (x, y) in a.iter().zip(&b) {
+                assert!((x - y).abs() <= 1e-4 * scale, "{x} vs {y} (scale {scale})");
+            }
+            self.compared += 1;
+        }
+    }
+
+    /// The summed halves' loss and gradients are the whole batch's.
+    #[test]
+    fn two_halves_give_the_whole_batch_gradient() {
+        let device = Device::flex().autodiff();
+        let mut config = FieldConfig::fast(1);
+        config.encoding = EncodingConfig::HashGrid(
+            HashGridConfig::new()
+                .with_n_levels(4)
+                .with_log2_hashmap_size(12),
+        );
+        config.skinning = SkinningConfig::new()
+            .with_resolution(8)
+            .with_posed_tau(Some(0.005));
+        // A synthetic subject in its canonical pose, as training builds it.
+        let skeleton = default_rest_joints(0);
+        let prior = bone_prior([&skeleton]);
+        let params = canonical_params();
+        let canonical = skeleton.pose(&params);
+        let scene = FrameScene::new(&skeleton, &canonical, &params);
+        // Cores at half the bare radius, so the posed prior has geometry to read.
+        let n = scene.capsules.len();
+        let shells = CapsuleShells {
+            margin: vec![0.0; n],
+            core: scene.capsules.iter().map(|c| 0.5 * c.radius).collect(),
+            core_shrink: vec![0.0; n],
+            from_depth: true,
+        };
+        let frame = frame_conditions(0, &params, &scene, &shells);
+        let (lo, hi) = capsule_bounds(&scene.capsules, 0.02);
+        let field = config.init(&prior, &device).unwrap();
+        // Rays across the body's box, along -z; rays 0-3 miss the box (no samples) with
+        // `first_half_empty`, so the first half has no gradient: its loss is a constant.
+        let make_rays = |first_half_empty: bool| -> Vec<Ray> {
+            (0..9)
+                .map(|i| {
+                    let u = (i as f32 + 0.5) / 9.0;
+                    let x = if first_half_empty && i < 4 {
+                        hi.x + 3.0
+                    } else {
+                        lo.x + u * (hi.x - lo.x)
+                    };
+                    let origin = Vec3::new(x, lo.y + u * (hi.y - lo.y), hi.z + 2.0);
+                    Ray::new(origin, Vec3::NEG_Z, 0.0, f32::INFINITY).unwrap()
+                })
+                .collect()
+        };
+        for first_half_empty in [false, true] {
+            let rays = make_rays(first_half_empty);
+            let dense = DenseOpts {
+                samples_per_ray: 12,
+                jitter: false,
+                seed: 0,
+            };
+            let samples = sample_dense(&rays, lo, hi, &dense).unwrap();
+            assert_eq!(split_point(9, 0), Some(4));
+            assert_eq!(samples.ray_offsets[4] == 0, first_half_empty);
+            let rgb: Vec<f32> = (0..27).map(|i| (i * 7 % 10) as f32 / 10.0).collect();
+            let labels: Vec<i32> = (0..9).map(|i| i % 5).collect();
+            let batch = || StepBatch {
+                rays: &rays,
+                samples: samples.clone(),
+                rgb: &rgb,
+                labels: &labels,
+                patches: 0,
+                patch_side: 32,
+                frame: &frame,
+                step: 0,
+                background: [1.0; 3],
+                mask_weight: 0.1,
+            };
+            let whole_batch = batch();
+            let whole = half(&field, false, None, &whole_batch, 0..9, &samples).unwrap();
+            let split = loss_and_grads(&field, None, batch()).unwrap();
+            assert!(
+                (whole.loss - split.loss).abs() <= 1e-5 * whole.loss.abs(),
+                "{} vs {}",
+                whole.loss,
+                split.loss
+            );
+            assert!((whole.mse - split.mse).abs() <= 1e-5 * whole.mse.abs());
+            let mut same = SameGrads {
+                a: &whole.grads,
+                b: &split.grads,
+                compared: 0,
+            };
+            field.visit(&mut same);
+            assert!(
+                same.compared >= 5,
+                "only {} parameters had gradients",
+                same.compared
+            );
+        }
+    }
+
+    #[test]
+    fn the_split_keeps_patches_in_the_first_half() {
+        assert_eq!(split_point(512, 0), Some(256));
+        assert_eq!(split_point(513, 0), Some(256));
+        assert_eq!(split_point(1024 + 512, 1024), Some(1024));
+        assert_eq!(split_point(1024, 1024), None);
+        assert_eq!(split_point(1, 0), None);
+        assert_eq!(split_point(0, 0), None);
+    }
+}

@@ -1,0 +1,184 @@
+//! Canonical space for the grids: the subject's initial occupancy grid and the
+//! skeleton-only posed-to-canonical map used before (and besides) the learned one.
+
+use glam::Vec3;
+use rayon::prelude::*;
+use talkin_grids::{Capsule, GridError, OccupancyGrid, Part};
+
+use super::frame::shell_capsules;
+use super::frame::{FrameScene, capsule_bounds};
+use super::margins::CapsuleShells;
+use talkin_human::body::skeleton::body_ancestor;
+use talkin_human::body::{FrameParams, Skeleton, canonical_params, joint};
+
+/// How far (metres) the carved grid reaches past the training surface points of the
+/// body and arms, for what the training frames did not show: cloth that swings further,
+/// skin that slides against its bones in a wider pose. Measured on the default scene's
+/// held-out splits: no reach lost 26 surface points, 1 cm lost 1, 2 cm none. The
+/// sampler's cull adds its own reach (half a posed cell diagonal + a bin) on top.
+pub const SURFACE_REACH_M: f32 = 0.02;
+
+/// A subject's canonical occupancy grid, initialised from its skeleton.
+pub struct CanonicalGrid;
+
+impl CanonicalGrid {
+    /// The grid over the subject's canonical space: the canonical-pose capsules inflated by
+    /// their shells' margins, with, for every given frame, that frame's fingers, jaw and eyes (inverse
+    /// LBS over the 22 body joints does not undo them, so the grid holds their union), plus
+    /// each wrist's reach (a sphere of the hand's length) so novel finger poses are never
+    /// culled. Marks are grown by one cell diagonal against discretisation.
+    /// `resolution` is the cell count along the longest axis. With `surface` (canonical
+    /// surface points of the training frames, see
+    /// [`super::canonical_surface_points`]), the body and arm cells are carved to those
+    /// points grown by [`SURFACE_REACH_M`]; hand and head cells keep their capsules.
+    pub fn initial<'a>(
+        skeleton: &Skeleton,
+        frames: impl IntoIterator<Item = &'a FrameParams>,
+        shells: &CapsuleShells,
+        resolution: u32,
+        surface: Option<&[Vec3]>,
+    ) -> Result<OccupancyGrid, GridError> {
+        let mut capsule_sets = vec![canonical_capsules(skeleton, &canonical_params(), shells)];
+        for params in frames {
+            let mut p = canonical_params();
+            p.jaw_pose = params.jaw_pose;
+            p.leye_pose = params.leye_pose;
+            p.reye_pose = params.reye_pose;
+            p.left_hand_pose = params.left_hand_pose;
+            p.right_hand_pose = params.right_hand_pose;
+            capsule_sets.push(canonical_capsules(skeleton, &p, shells));
+        }
+        let reach = wrist_reach(&capsule_sets[0]);
+        let all: Vec<Capsule> = capsule_sets
+            .iter()
+            .flatten()
+            .chain(&reach)
+            .copied()
+            .collect();
+        let (lo, hi) = capsule_bounds(&all, 0.0);
+        let extent = hi - lo;
+        let cell = extent.max_element() / resolution.max(8) as f32;
+        let (lo, hi) = (lo - Vec3::splat(2.0 * cell), hi + Vec3::splat(2.0 * cell));
+        let res = ((hi - lo) / cell)
+            .ceil()
+            .as_uvec3()
+            .max(glam::UVec3::ONE)
+            .to_array();
+        let mut grid = OccupancyGrid::new(lo, hi, res)?;
+        let grow = cell * 3f32.sqrt();
+        for set in capsule_sets.iter().chain(std::iter::once(&reach)) {
+            grid.mark_capsules(set, grow)?;
+        }
+        if let Some(points) = surface {
+            let mut carved = OccupancyGrid::new(lo, hi, res)?;
+            carved.mark(points);
+            carved.dilate((SURFACE_REACH_M / cell).ceil() as u32);
+            for set in capsule_sets.iter().chain(std::iter::once(&reach)) {
+                let kept: Vec<Capsule> = set
+                    .iter()
+                    .filter(|c| !super::CARVED_PARTS.contains(&c.part))
+                    .copied()
+                    .collect();
+                carved.mark_capsules(&kept, grow)?;
+            }
+            grid.intersect(&carved)?;
+        }
+        // No sample can land outside these capsules: updates need not look there.
+        grid.restrict_to_marked();
+        Ok(grid)
+    }
+}
+
+fn canonical_capsules(
+    skeleton: &Skeleton,
+    params: &FrameParams,
+    shells: &CapsuleShells,
+) -> Vec<Capsule> {
+    shells.inflate(&shell_capsules(skeleton, &skeleton.pose(params)))
+}
+
+/// A sphere per wrist, reaching its farthest finger capsule.
+fn wrist_reach(capsules: &[Capsule]) -> Vec<Capsule> {
+    [joint::LEFT_WRIST, joint::RIGHT_WRIST]
+        .into_iter()
+        .filter_map(|wrist| {
+            let centre = capsules.iter().find(|c| c.bone as usize == wrist)?.a;
+            let reach = capsules
+                .iter()
+                .filter(|c| c.part == Part::Hands && body_ancestor(c.bone as usize) == wrist)
+                .map(|c| (c.a - centre).length().max((c.b - centre).length()) + c.radius)
+                .fold(0.0f32, f32::max);
+            Some(Capsule {
+                a: centre,
+                b: centre,
+                radius: reach,
+                part: Part::Hands,
+                bone: wrist as u16,
+            })
+        })
+        .collect()
+}
+
+/// Skeleton-only inverse LBS: each sample follows the candidate bone whose bare capsule
+/// is nearest (hard weights from the bone-distance prior), mapped by that bone's body
+/// ancestor. The learned blend weights refine this in training; the grid culling uses it
+/// where no network exists yet.
+pub struct PosedToCanonical<'a> {
+    scene: &'a FrameScene,
+    /// Per bone (joint index), the indices of its capsules.
+    capsules_of_bone: Vec<Vec<u16>>,
+}
+
+impl<'a> PosedToCanonical<'a> {
+    pub fn new(scene: &'a FrameScene) -> Self {
+        let mut capsules_of_bone = vec![Vec::new(); 64];
+        for (i, c) in scene.capsules.iter().enumerate() {
+            capsules_of_bone[c.bone as usize].push(i as u16);
+        }
+        PosedToCanonical {
+            scene,
+            capsules_of_bone,
+        }
+    }
+
+    /// Canonical position of every posed sample (NaN input stays NaN, which the grid
+    /// treats as empty).
+    pub fn map(&self, p_posed: &[Vec3], bone_mask: &[u64]) -> Vec<Vec3> {
+        p_posed
+            .par_iter()
+            .zip(bone_mask)
+            .map(|(&p, &mask)| {
+                let bone = self.nearest_bone(p, mask);
+                self.scene.canonical_from_posed[body_ancestor(bone)].transform_point3(p)
+            })
+            .collect()
+    }
+
+    /// The bone among `mask`'s (all bones if the mask names none) whose capsule surface is
+    /// nearest to `p`.
+    pub fn nearest_bone(&self, p: Vec3, mask: u64) -> usize {
+        if mask.count_ones() == 1 {
+            // The common case: inside one bone's capsules only.
+            return mask.trailing_zeros() as usize;
+        }
+        let mut best = (f32::INFINITY, 0usize);
+        for pass_mask in [mask, u64::MAX] {
+            let mut bits = pass_mask;
+            while bits != 0 {
+                let bone = bits.trailing_zeros() as usize;
+                bits &= bits - 1;
+                for &i in &self.capsules_of_bone[bone] {
+                    let c = &self.scene.capsules[i as usize];
+                    let d = talkin_grids::intersect::distance_to_segment(p, c.a, c.b) - c.radius;
+                    if d < best.0 {
+                        best = (d, bone);
+                    }
+                }
+            }
+            if best.0.is_finite() {
+                break;
+            }
+        }
+        best.1
+    }
+}

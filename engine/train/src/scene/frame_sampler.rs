@@ -1,0 +1,184 @@
+//! One frame's samplers, built once and used by training, rendering and the benchmark:
+//! the dense baseline in the posed box and the accelerated pipeline (per ray, the exact
+//! grown-capsule intervals up to the first core, culled per bin by the canonical
+//! occupancy grid through the bones' rigid maps: [`CapsuleSampler`]).
+
+use std::sync::{Arc, Mutex, OnceLock};
+
+use glam::{Affine3A, Vec3};
+use talkin_grids::intersect::validate_capsules;
+use talkin_grids::{
+    AcceleratedOpts, CanonicalCull, Capsule, CapsuleBvh, CapsuleSampler, DenseOpts,
+    DilatedOccupancy, GridError, OccupancyGrid, PackedSamples, Ray, SamplerKind, sample_dense,
+};
+
+use super::frame::{FrameScene, capsule_bounds, median_dense_step};
+use super::margins::CapsuleShells;
+use talkin_human::body::skeleton::body_ancestor;
+
+/// Dense samples per ray (the HumanNeRF baseline).
+pub const DENSE_SAMPLES_PER_RAY: u32 = 128;
+
+/// Canonical slack (metres) the cull's dilation adds to a bin's reach: the bones' rigid
+/// maps only approximate the skinning, and out-of-distribution poses put surface points
+/// up to about a centimetre outside the band carved around the training surfaces. On
+/// the default scene a dilation of the bin's reach alone (one canonical cell) lost 1
+/// test_ood surface point of 2.33 M; with this slack (two cells) none.
+pub const CULL_POSE_SLACK_M: f32 = 0.01;
+
+/// A posed frame's acceleration structures and sampling box.
+pub struct FrameSampler {
+    pub scene: FrameScene,
+    /// BVHs over the grown capsules and over their solid cores, built on first use: the
+    /// exact reference the accelerated sampler is checked against (the benchmark uses
+    /// them to tell which stage lost a surface point). Training and rendering never ask.
+    bvhs: OnceLock<(CapsuleBvh, CapsuleBvh)>,
+    /// The dense sampler's box: the grown capsules plus 2 cm.
+    pub box_min: Vec3,
+    pub box_max: Vec3,
+    /// The accelerated step (metres).
+    pub step: f32,
+    grown: Vec<Capsule>,
+    cores: Vec<Capsule>,
+    /// Per bone (0..64): posed -> canonical by its body ancestor's skinning transform.
+    canonical_from_posed: Vec<Affine3A>,
+    /// The accelerated sampler for the canonical grid with this fingerprint.
+    accelerated: Mutex<Option<(u64, Arc<CapsuleSampler>)>>,
+}
+
+impl FrameSampler {
+    /// Builds the BVHs of `scene`'s capsules grown by `shells`. `step` is the accelerated
+    /// step; `None` takes the dense step on the median of `step_rays` (the frame's
+    /// foreground rays), so both samplers sample the body equally finely.
+    pub fn new(
+        scene: FrameScene,
+        shells: &CapsuleShells,
+        step_rays: &[Ray],
+    ) -> Result<FrameSampler, GridError> {
+        let grown = shells.inflate(&scene.capsules);
+        let cores = shells.cores(&scene.capsules);
+        validate_capsules(&grown)?;
+        validate_capsules(&cores)?;
+        let (box_min, box_max) = capsule_bounds(&grown, 0.02);
+        let step = median_dense_step(step_rays, box_min, box_max, DENSE_SAMPLES_PER_RAY);
+        let canonical_from_posed = (0..64)
+            .map(|b| {
+                let j = body_ancestor(b.min(54));
+                scene.canonical_from_posed[j]
+            })
+            .collect();
+        Ok(FrameSampler {
+            scene,
+            bvhs: OnceLock::new(),
+            box_min,
+            box_max,
+            step,
+            grown,
+            cores,
+            canonical_from_posed,
+            accelerated: Mutex::new(None),
+        })
+    }
+
+    /// The BVH over the grown capsules and the one over their cores (built on first use).
+    pub fn bvhs(&self) -> Result<&(CapsuleBvh, CapsuleBvh), GridError> {
+        if let Some(built) = self.bvhs.get() {
+            return Ok(built);
+        }
+        let built = (
+            CapsuleBvh::build(&self.grown)?,
+            CapsuleBvh::build(&self.cores)?,
+        );
+        Ok(self.bvhs.get_or_init(|| built))
+    }
+
+    /// The accelerated sampler culling with `grid` (the subject's canonical occupancy
+    /// grid), made on first use and again only when the grid's bits change (occupancy
+    /// updates); the dilated grid is shared by the subject's frames.
+    pub fn prepare(&self, grid: &OccupancyGrid) -> Result<Arc<CapsuleSampler>, GridError> {
+        let key = grid.fingerprint();
+        let mut cached = self.accelerated.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some((k, sampler)) = cached.as_ref()
+            && *k == key
+        {
+            return Ok(sampler.clone());
+        }
+        let reach = CapsuleSampler::cull_reach(self.step) + CULL_POSE_SLACK_M;
+        let cull = CanonicalCull {
+            grid: dilated_occupancy(grid, reach)?,
+            canonical_from_posed: self.canonical_from_posed.clone(),
+        };
+        let sampler = Arc::new(CapsuleSampler::new(
+            &self.grown,
+            &self.cores,
+            Some(cull),
+            self.step,
+        )?);
+        *cached = Some((key, sampler.clone()));
+        Ok(sampler)
+    }
+
+    /// Samples `rays` with `kind`, stratified with jitter seeded by `jitter` (training), or
+    /// at the regular bins' places for `None` (rendering: a jittered render is noisier,
+    /// -0.12 dB on the demo's test_same). The accelerated sampler culls with `grid`, the
+    /// subject's canonical occupancy grid.
+    pub fn sample(
+        &self,
+        kind: SamplerKind,
+        rays: &[Ray],
+        grid: &OccupancyGrid,
+        jitter: Option<u64>,
+    ) -> Result<PackedSamples, GridError> {
+        match kind {
+            SamplerKind::Dense => sample_dense(
+                rays,
+                self.box_min,
+                self.box_max,
+                &DenseOpts {
+                    samples_per_ray: DENSE_SAMPLES_PER_RAY,
+                    jitter: jitter.is_some(),
+                    seed: jitter.unwrap_or(0),
+                },
+            ),
+            SamplerKind::Accelerated => self
+                .prepare(grid)?
+                .sample(rays, &self.accelerated_opts(jitter)),
+        }
+    }
+
+    /// The accelerated sampler's options: jittered with the seed, or regular for `None`.
+    pub fn accelerated_opts(&self, jitter: Option<u64>) -> AcceleratedOpts {
+        AcceleratedOpts {
+            step: self.step,
+            jitter: jitter.is_some(),
+            seed: jitter.unwrap_or(0),
+        }
+    }
+}
+
+/// The canonical grid dilated by at least `reach` (in whole cells), shared by every frame
+/// of a subject:
+/// dilating is per grid, not per frame, so the last few results are kept by fingerprint.
+fn dilated_occupancy(grid: &OccupancyGrid, reach: f32) -> Result<Arc<DilatedOccupancy>, GridError> {
+    static CACHE: Mutex<Vec<Arc<DilatedOccupancy>>> = Mutex::new(Vec::new());
+    let key = grid.fingerprint();
+    // A little more than asked, so frames whose steps differ slightly share one; the
+    // dilation is whole cells, so the cache is matched on the cell count: what a frame
+    // gets depends only on the grid and its own step, never on what was cached before
+    // (matching any larger reach made training depend on the order frames were seen).
+    let ask = reach * 1.25;
+    let cells = (ask / grid.cell_size().min_element()).ceil();
+    let mut cache = CACHE.lock().unwrap_or_else(|e| e.into_inner());
+    if let Some(d) = cache.iter().find(|d| {
+        d.source_fingerprint() == key
+            && (d.reach() / grid.cell_size().min_element()).round() == cells
+    }) {
+        return Ok(d.clone());
+    }
+    let d = Arc::new(DilatedOccupancy::new(grid, ask)?);
+    if cache.len() >= 8 {
+        cache.remove(0);
+    }
+    cache.push(d.clone());
+    Ok(d)
+}

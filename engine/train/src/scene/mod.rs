@@ -1,0 +1,16 @@
+//! Wiring the grids crate to the human: per-frame capsules and rays, the margins the
+//! training masks decide, the canonical occupancy grid (carved to the training surfaces
+//! when depth is known) and the posed-to-canonical map that culls samples, (its
+//! report is `talkin bench sampling`, in the benches crate).
+
+mod canonical;
+mod carve;
+mod frame;
+mod frame_sampler;
+mod margins;
+
+pub use canonical::{CanonicalGrid, PosedToCanonical, SURFACE_REACH_M};
+pub use carve::{CARVED_PARTS, canonical_surface_points};
+pub use frame::{FrameScene, capsule_bounds, foreground_rays, median_dense_step, shell_capsules};
+pub use frame_sampler::{DENSE_SAMPLES_PER_RAY, FrameSampler};
+pub use margins::{CapsuleShells, SubjectMargins, fit_subject_margins, grid_error};
