@@ -17,7 +17,7 @@ use crate::speed_vs_error::spread_frames;
 use talkin_data::dataset::{Dataset, Split};
 use talkin_render::avatar::Avatar;
 use talkin_render::eval::{EvalOptions, evaluate};
-use talkin_train::{Ablation, Budget, TrainOptions};
+use talkin_train::{Ablation, Budget, Identities, TrainOptions};
 
 /// What the benchmark is told.
 #[derive(Clone, Debug)]
@@ -65,7 +65,7 @@ pub fn ablations(
     let base = TrainOptions {
         budget: Budget::Seconds(opts.budget_s),
         checkpoint_every_s: f64::INFINITY,
-        identities: None,
+        identities: Identities::All,
         ..opts.train.clone()
     };
     let full = Ablation::default();
@@ -161,7 +161,7 @@ pub fn ablations(
             dataset,
             &run,
             &TrainOptions {
-                identities: Some(vec![subject.name.clone()]),
+                identities: Identities::Named(vec![subject.name.clone()]),
                 ..base.clone()
             },
         )?;

@@ -2,7 +2,7 @@
 //! "Learning a novel identity") on a dataset. One multi-identity model is trained without
 //! one subject; that subject is then learned from the first 1, 3, 10 or 30 seconds of its
 //! video ([`Trainer::adapt`]: a new identity code, every parameter fine-tuned at
-//! [`adapt_lr_ratio`] of the training rate), each adaptation with the same budget, and
+//! [`talkin_train::Preset::adapt_lr_ratio`] of the training rate), each adaptation with the same budget, and
 //! every adapted model is scored on the same held-out frames of that subject: its
 //! `test_same` frames after the longest clip (poses no clip shows) and its `test_ood`
 //! frames (unseen arm, head and face ranges). Beside each adaptation, the paper's
@@ -17,25 +17,9 @@ use crate::shared::{Scores, finish, thin, train_to_end, write_report};
 use talkin_data::dataset::{Dataset, Split};
 use talkin_render::avatar::Avatar;
 use talkin_render::eval::{EvalOptions, evaluate};
-use talkin_train::{Budget, TrainOptions, Trainer};
+use talkin_train::{Budget, Identities, TrainOptions, Trainer};
 
 pub use crate::error::BenchError as NovelIdentityError;
-
-/// The paper adapts at 1e-5, 1/50 of its training rate 5e-4: its identity lives in a
-/// 32-d code fed to shared MLPs, which only need nudging.
-pub const PAPER_ADAPT_LR_RATIO: f64 = 1.0 / 50.0;
-
-/// The adaptation's learning rate over the training rate for `preset`: the paper's ratio
-/// for `paper`; 1 for `fast`, whose identity also lives in per-identity hash features
-/// that a novel subject must learn almost from nothing (at 1/50 of the rate, 1000 steps
-/// left it a fog: 14.8 dB against 22.8 at the full rate, 30-s clip; see the README).
-pub fn adapt_lr_ratio(preset: &str) -> f64 {
-    if preset == "paper" {
-        PAPER_ADAPT_LR_RATIO
-    } else {
-        1.0
-    }
-}
 
 /// What the benchmark is told.
 #[derive(Clone, Debug)]
@@ -50,7 +34,7 @@ pub struct NovelIdentityOptions {
     /// A trained run to adapt instead of training the base model (it must not have
     /// trained the held-out subject).
     pub base_run: Option<PathBuf>,
-    /// The adaptations' learning rate over the recipe's (default [`adapt_lr_ratio`]).
+    /// The adaptations' learning rate over the recipe's (default [`talkin_train::Preset::adapt_lr_ratio`]).
     pub adapt_lr_ratio: f64,
     /// Each adaptation's budget.
     pub adapt: Budget,
@@ -176,7 +160,7 @@ pub fn novel_identity(
                 &TrainOptions {
                     budget: opts.base,
                     checkpoint_every_s: f64::INFINITY,
-                    identities: Some(others),
+                    identities: Identities::Named(others),
                     ..opts.train.clone()
                 },
             )?;
@@ -199,7 +183,7 @@ pub fn novel_identity(
     let scratch_opts = TrainOptions {
         budget: opts.adapt,
         checkpoint_every_s: f64::INFINITY,
-        identities: Some(vec![name.clone()]),
+        identities: Identities::Named(vec![name.clone()]),
         ..opts.train.clone()
     };
     let mut rows = Vec::new();
@@ -212,8 +196,11 @@ pub fn novel_identity(
         for &model in models {
             let (trainer, doing) = if model == "adapted" {
                 let run = out.join("runs").join(format!("adapt-{clip}s"));
-                let trainer =
-                    Trainer::adapt(dataset, &base_run, &name, Some(clip), &run, &adapt_opts)?;
+                let clip_opts = TrainOptions {
+                    clip_seconds: Some(clip),
+                    ..adapt_opts.clone()
+                };
+                let trainer = Trainer::adapt(dataset, &base_run, &name, &run, &clip_opts)?;
                 (trainer, "adapting the multi-identity model to")
             } else {
                 let run = out.join("runs").join(format!("scratch-{clip}s"));

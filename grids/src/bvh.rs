@@ -5,7 +5,7 @@ use std::time::Duration;
 use glam::{Vec3, Vec3A};
 use obvhs::{Boundable, BvhBuildParams, aabb::Aabb, bvh2::Bvh2, bvh2::builder::build_bvh2};
 
-use crate::intersect::{CapsuleHit, ray_capsule, validate_capsules};
+use crate::intersect::{CapsuleHit, ray_capsule, sort_hits, validate_capsules};
 use crate::intervals::{RayIntervals, merge_hits};
 use crate::packing::par_pack;
 use crate::ray::validate_rays;
@@ -146,11 +146,6 @@ impl CapsuleBvh {
             intervals,
         })
     }
-}
-
-/// Sorts hits by entry, then capsule index, so results do not depend on BVH layout.
-pub fn sort_hits(hits: &mut [CapsuleHit]) {
-    hits.sort_unstable_by(|x, y| x.t_in.total_cmp(&y.t_in).then(x.capsule.cmp(&y.capsule)));
 }
 
 /// Ray-box slab test that treats zero direction components exactly.

@@ -20,6 +20,11 @@ pub struct CapsuleHit {
     pub capsule: u32,
 }
 
+/// Sorts hits by entry, then capsule index, so results do not depend on BVH layout.
+pub fn sort_hits(hits: &mut [CapsuleHit]) {
+    hits.sort_unstable_by(|x, y| x.t_in.total_cmp(&y.t_in).then(x.capsule.cmp(&y.capsule)));
+}
+
 /// Checks that a capsule is finite, has a non-negative radius and a bone below 64.
 pub fn validate_capsule(capsule: &Capsule, index: usize) -> Result<(), GridError> {
     for (field, ok) in [

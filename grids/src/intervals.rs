@@ -46,7 +46,7 @@ impl RayIntervals {
 /// Sorts `hits` by entry and appends their union to `out` as disjoint intervals;
 /// overlapping or touching hits merge. `capsules` gives each hit's part and bone.
 pub fn merge_hits(hits: &mut [CapsuleHit], capsules: &[Capsule], out: &mut Vec<Interval>) {
-    crate::bvh::sort_hits(hits);
+    crate::intersect::sort_hits(hits);
     let mut current: Option<Interval> = None;
     for h in hits.iter() {
         let c = &capsules[h.capsule as usize];

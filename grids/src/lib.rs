@@ -24,9 +24,9 @@
 //!    [`PartMargins`] (how far clothes and hair stick out, per part).
 //! 2. Per frame: [`CapsuleBvh::build`] over `margins.inflate(&posed_capsules)`.
 //! 3. Per batch of rays: [`sample_dense`] (the baseline) or the accelerated sampler,
-//!    picked by [`SamplerKind`]: [`CapsuleSampler`] (exact capsule intervals up to the
+//!    picked by [`SamplerKind`]: [`AcceleratedSampler`] (exact capsule intervals up to the
 //!    first core, culled per bin by the canonical [`OccupancyGrid`] through
-//!    [`CanonicalCull`]; nothing built per frame). [`sample_accelerated`] and
+//!    [`CanonicalCull`]; nothing built per frame). [`sample_reference`] and
 //!    [`sample_in_front_of_cores`] over the [`CapsuleBvh`] are the plain reference it is
 //!    tested against.
 //! 4. During training: [`OccupancyGrid::update_every_n_steps`] with the field's density.
@@ -53,7 +53,7 @@
 //! grid.mark_capsules(&[torso], 0.05)?; // rest pose == posed pose in this example
 //! let rays = [pixel.ray];
 //! let identity = |p_posed: &[Vec3], _bones: &[u64]| p_posed.to_vec();
-//! let samples = sample_accelerated(&bvh, &rays, &grid, identity, &opts)?;
+//! let samples = sample_reference(&bvh, &rays, &grid, identity, &opts)?;
 //! let dense = sample_dense(&rays, bbox_min, bbox_max, &DenseOpts::default())?;
 //! assert!(samples.num_samples() > 0 && samples.num_samples() < dense.num_samples());
 //! # Ok::<(), GridError>(())
@@ -65,7 +65,6 @@
 
 pub mod bvh;
 pub mod capsule;
-pub mod capsule_sampler;
 mod chunk_view;
 pub mod cull;
 pub mod error;
@@ -79,12 +78,12 @@ mod rng;
 pub mod sampler;
 pub mod sampler_accelerated;
 pub mod sampler_dense;
+pub mod sampler_reference;
 pub mod samples;
 pub mod truncate;
 
 pub use bvh::CapsuleBvh;
 pub use capsule::{Capsule, Part};
-pub use capsule_sampler::CapsuleSampler;
 pub use cull::{CanonicalCull, DilatedOccupancy};
 pub use error::GridError;
 pub use intersect::{CapsuleHit, brute_force_hits, ray_capsule};
@@ -95,10 +94,11 @@ pub use margins::{
 pub use occupancy::{OccUpdateOpts, OccUpdateReport, OccupancyGrid};
 pub use ray::Ray;
 pub use sampler::SamplerKind;
-pub use sampler_accelerated::{
-    AcceleratedOpts, cull_with_grid, sample_accelerated, sample_in_capsules,
-    sample_in_capsules_before,
-};
+pub use sampler_accelerated::AcceleratedSampler;
 pub use sampler_dense::{DenseOpts, sample_dense};
+pub use sampler_reference::{
+    AcceleratedOpts, cull_with_grid, sample_in_capsules, sample_in_capsules_before,
+    sample_reference,
+};
 pub use samples::{ALL_BONES, ALL_PARTS, PackedSamples};
 pub use truncate::{first_core_entry, sample_in_front_of_cores, truncate_behind_cores};

@@ -12,7 +12,7 @@ use crate::GridError;
 pub enum SamplerKind {
     /// [`crate::sample_dense`].
     Dense,
-    /// [`crate::CapsuleSampler`] (what the engine runs); [`crate::sample_accelerated`] is
+    /// [`crate::AcceleratedSampler`] (what the engine runs); [`crate::sample_reference`] is
     /// the same pipeline over the BVH with a callback map, the plain reference.
     Accelerated,
 }

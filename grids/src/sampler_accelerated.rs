@@ -1,174 +1,653 @@
-//! Samples only where the posed capsules are, culled by the canonical occupancy grid.
+//! The accelerated sampler's hot path, one pass per ray: the exact intervals inside the
+//! grown capsules, cut into bins up to one step past the first core entry, each bin kept
+//! if a bone of a capsule it overlaps maps its midpoint near an occupied canonical cell.
+//! The same samples as [`crate::sample_in_front_of_cores`] followed by a conservative
+//! [`crate::cull_with_grid`], with nothing built per frame.
+//!
+//! What makes it fast: a frame's pixel rays share one origin (the camera centre) and
+//! neighbouring rays look the same way, so per chunk of rays a `ChunkView` keeps the
+//! few capsules they may meet, prepared for that origin (chunks whose rays do not share
+//! an origin test every capsule). Along a ray, the bins of a merged interval are visited
+//! in order, so which capsules hold a bin's midpoint is kept up to date as the sweep
+//! passes capsule ends (`Sweep`) instead of asked of every capsule per bin.
 
 use glam::Vec3;
 use rayon::prelude::*;
-use serde::{Deserialize, Serialize};
 
-use crate::intervals::{candidates_at, merge_hits};
-use crate::packing::par_pack_samples;
+use crate::chunk_view::{ChunkView, CoreNesting};
+use crate::cull::{CanonicalCull, check_cull};
+use crate::intersect::{DirectionF64, ray_capsule, validate_capsules};
+use crate::packing::{CHUNK, SampleColumns, par_pack_samples};
 use crate::ray::validate_rays;
 use crate::rng::SplitMix;
-use crate::samples::{PackedSamples, Sample, stratified_bins};
-use crate::{CapsuleBvh, GridError, OccupancyGrid, Ray};
+use crate::samples::{Sample, stratified_bins};
+use crate::{AcceleratedOpts, Capsule, GridError, PackedSamples, Ray};
 
-/// Options of [`sample_accelerated`].
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-pub struct AcceleratedOpts {
-    /// Sample length, metres along the ray. Each merged capsule interval is cut into
-    /// `ceil(length / step)` bins of equal length (at most `step`); jitter then moves
-    /// their inner boundaries by up to 0.45 of a bin, so one jittered sample is at most
-    /// 1.9 `step` long, as with HumanNeRF's stratified sampling.
-    pub step: f32,
-    /// Stratified jitter (training); off gives regular bins (evaluation).
-    pub jitter: bool,
-    /// Jitter seed, e.g. the training step; mixed with the ray index.
-    pub seed: u64,
+/// A capsule a ray crosses, with what the bins need of it.
+#[derive(Clone, Copy)]
+struct Hit {
+    t_in: f32,
+    t_out: f32,
+    /// Index of the part's bit ([`crate::Part::bit`]) and the bone.
+    part: u8,
+    bone: u8,
+    /// Its slot in the chunk's view.
+    slot: u32,
+    /// The ray through the bone's rigid map, in the dilated grid's cell units:
+    /// `q(t) = q0 + t dq` ([`crate::DilatedOccupancy::cell_ray`]).
+    q0: Vec3,
+    dq: Vec3,
 }
 
-impl AcceleratedOpts {
-    /// The step that matches the dense sampler's resolution: the posed box's diagonal
-    /// over `samples_per_ray` (128 in HumanNeRF). The dense sampler spreads its samples
-    /// over the ray's chord through the box, never longer than the diagonal, so this
-    /// step is at most as fine as dense on the longest chord and about as fine on the
-    /// typical one: same quadrature inside the body, no samples in empty space.
-    pub fn matching_dense(bbox_min: Vec3, bbox_max: Vec3, samples_per_ray: u32) -> Self {
-        AcceleratedOpts {
-            step: (bbox_max - bbox_min).length() / samples_per_ray.max(1) as f32,
-            jitter: true,
-            seed: 0,
+/// A worker's buffers, reused from ray to ray.
+#[derive(Default)]
+struct Scratch {
+    hits: Vec<Hit>,
+    /// A merged interval's hits by exit: `(t_out, index in the interval)`.
+    exits: Vec<(f32, u32)>,
+}
+
+/// See the module docs. Built per frame from the grown capsules, their cores and the
+/// subject's canonical cull; it holds no per-frame grid, so building it costs nothing.
+pub struct AcceleratedSampler {
+    capsules: Vec<Capsule>,
+    cores: Vec<Capsule>,
+    nesting: CoreNesting,
+    cull: Option<CanonicalCull>,
+    max_step: f32,
+}
+
+impl AcceleratedSampler {
+    /// The canonical dilation (metres) a cull needs for steps up to `max_step`: a bin
+    /// reaches at most 0.95 `max_step` from its midpoint (jittered bins are at most 1.9
+    /// steps long) and rigid maps keep distances.
+    pub fn cull_reach(max_step: f32) -> f32 {
+        0.95 * max_step
+    }
+
+    /// A sampler over the grown `capsules` and their `cores`, for steps up to `max_step`;
+    /// without `cull`, no bin is culled by occupancy. The cull's dilation must cover
+    /// [`AcceleratedSampler::cull_reach`] and its maps every bone of the capsules.
+    pub fn new(
+        capsules: &[Capsule],
+        cores: &[Capsule],
+        cull: Option<CanonicalCull>,
+        max_step: f32,
+    ) -> Result<AcceleratedSampler, GridError> {
+        validate_capsules(capsules)?;
+        validate_capsules(cores)?;
+        if !(max_step.is_finite() && max_step > 0.0) {
+            return Err(GridError::BadOption {
+                field: "max_step",
+                value: max_step,
+                expected: "finite and > 0",
+            });
+        }
+        if let Some(cull) = &cull {
+            check_cull(cull, capsules, Self::cull_reach(max_step))?;
+        }
+        Ok(AcceleratedSampler {
+            capsules: capsules.to_vec(),
+            cores: cores.to_vec(),
+            nesting: CoreNesting::new(capsules, cores),
+            cull,
+            max_step,
+        })
+    }
+
+    /// Samples every ray: its merged grown-capsule intervals up to `opts.step` past its
+    /// first core entry, cut into bins of at most `opts.step` (stratified jitter as
+    /// [`crate::sample_in_capsules`]), each with the parts and bones of the capsules
+    /// holding its midpoint. `opts.step` must not exceed the sampler's `max_step`.
+    pub fn sample(&self, rays: &[Ray], opts: &AcceleratedOpts) -> Result<PackedSamples, GridError> {
+        validate_rays(rays)?;
+        if !(opts.step.is_finite() && opts.step > 0.0 && opts.step <= self.max_step) {
+            return Err(GridError::BadOption {
+                field: "step",
+                value: opts.step,
+                expected: "finite, > 0 and <= the sampler's max_step",
+            });
+        }
+        let views: Vec<Option<ChunkView>> = rays
+            .par_chunks(CHUNK)
+            .map(|c| ChunkView::new(c, &self.capsules, &self.cores, &self.nesting))
+            .collect();
+        Ok(par_pack_samples(
+            rays.len(),
+            Scratch::default,
+            |scratch, i, out| {
+                self.sample_ray(&rays[i], i, views[i / CHUNK].as_ref(), opts, scratch, out)
+            },
+        ))
+    }
+
+    /// Collects in `hits`, by entry, every capsule `ray` crosses that it enters before
+    /// `stop`: `step` past its first core entry (through the chunk's `view`, or testing
+    /// every capsule). Returns `stop`.
+    fn crossings(
+        &self,
+        ray: &Ray,
+        view: Option<&ChunkView>,
+        step: f32,
+        hits: &mut Vec<Hit>,
+    ) -> f32 {
+        hits.clear();
+        let mut push = |slot: u32, k: u32, t_in: f32, t_out: f32| {
+            let c = &self.capsules[k as usize];
+            hits.push(Hit {
+                t_in,
+                t_out,
+                part: c.part.bit().trailing_zeros() as u8,
+                bone: c.bone as u8,
+                slot,
+                q0: Vec3::ZERO,
+                dq: Vec3::ZERO,
+            });
+        };
+        let dir = DirectionF64::new(ray.direction);
+        // Unit within the rays' tolerance; the view's bounding-sphere rejects need it
+        // exactly.
+        let unit = ray.direction.normalize();
+        match view {
+            Some(view) => view.crossings(ray, &dir, unit, push),
+            None => {
+                for (k, c) in self.capsules.iter().enumerate() {
+                    if let Some((t_in, t_out)) = ray_capsule(ray, c) {
+                        push(0, k as u32, t_in, t_out);
+                    }
+                }
+            }
+        }
+        // By entry: the cores are searched in this order, the bins sweep in it.
+        hits.sort_unstable_by(|x, y| x.t_in.total_cmp(&y.t_in));
+        let t_core = match view {
+            Some(view) => view.core_entry(ray, &dir, unit, hits.iter().map(|h| (h.slot, h.t_in))),
+            None => self
+                .cores
+                .iter()
+                .filter_map(|c| ray_capsule(ray, c))
+                .fold(f32::INFINITY, |t, (t_in, _)| t.min(t_in)),
+        };
+        let stop = t_core + step;
+        let kept = hits.partition_point(|h| h.t_in < stop);
+        hits.truncate(kept);
+        if let Some(cull) = &self.cull {
+            for h in hits.iter_mut() {
+                let m = &cull.canonical_from_posed[h.bone as usize];
+                (h.q0, h.dq) = cull.grid.cell_ray(
+                    m.transform_point3(ray.origin),
+                    m.transform_vector3(ray.direction),
+                );
+            }
+        }
+        stop
+    }
+
+    fn sample_ray(
+        &self,
+        ray: &Ray,
+        index: usize,
+        view: Option<&ChunkView>,
+        opts: &AcceleratedOpts,
+        scratch: &mut Scratch,
+        out: &mut SampleColumns,
+    ) {
+        let Scratch { hits, exits } = scratch;
+        let stop = self.crossings(ray, view, opts.step, hits);
+        if hits.is_empty() {
+            return;
+        }
+        let mut rng = SplitMix::new(opts.seed, index as u64);
+        let mut first = 0;
+        while first < hits.len() {
+            // One merged interval: hits[first..last] overlap or touch.
+            let mut t_out = hits[first].t_out;
+            let mut last = first + 1;
+            while last < hits.len() && hits[last].t_in <= t_out {
+                t_out = t_out.max(hits[last].t_out);
+                last += 1;
+            }
+            let group = &hits[first..last];
+            let t_in = group[0].t_in;
+            first = last;
+            let t_end = t_out.min(stop);
+            let length = t_end - t_in;
+            if !(length > 0.0) {
+                continue;
+            }
+            let n = (length / opts.step * (1.0 - 1e-5)).ceil().max(1.0) as u32;
+            let rng = opts.jitter.then_some(&mut rng);
+            let mut sweep = Sweep::new(group, exits);
+            stratified_bins(t_in, t_end, n, rng, |a, b| {
+                if let Some(s) = sweep.bin(self.cull.as_ref(), a, b) {
+                    out.push(s);
+                }
+            });
         }
     }
 }
 
-/// Samples inside the BVH's merged capsule intervals at `opts.step`, each sample with
-/// the parts and bones of the capsules containing its midpoint (the capsules carry
-/// their data-fitted margins, see [`crate::margins`]). Zero-length intervals (tangent
-/// rays) get no samples. No occupancy culling: see [`sample_accelerated`].
-pub fn sample_in_capsules(
-    bvh: &CapsuleBvh,
-    rays: &[Ray],
-    opts: &AcceleratedOpts,
-) -> Result<PackedSamples, GridError> {
-    sample_in_capsules_before(bvh, rays, None, opts)
+/// The bins of one merged interval, visited in order: which of its capsules hold the
+/// current midpoint, kept up to date as the midpoint passes their entries and exits.
+/// A capsule holds `mid` iff `t_in <= mid <= t_out` (what [`crate::sample_in_capsules`]
+/// asks of every capsule per bin).
+struct Sweep<'a> {
+    /// The interval's hits by entry.
+    group: &'a [Hit],
+    /// `(t_out, index in group)` by exit.
+    exits: &'a [(f32, u32)],
+    entered: usize,
+    exited: usize,
+    /// How many held capsules have each part and each bone, and those as masks.
+    part_count: [u32; 8],
+    bone_count: [u32; 64],
+    parts: u8,
+    bones: u64,
+    /// The hit whose bone found the last kept bin occupied: tried first for the next.
+    last_occupied: usize,
 }
 
-/// [`sample_in_capsules`], but ray `i` is only sampled up to `t_stop[i]` (intervals are
-/// clipped there before they are cut into bins): the same as sampling everything and
-/// dropping what lies behind, without generating it first. `t_stop` may be infinite.
-pub fn sample_in_capsules_before(
-    bvh: &CapsuleBvh,
-    rays: &[Ray],
-    t_stop: Option<&[f32]>,
-    opts: &AcceleratedOpts,
-) -> Result<PackedSamples, GridError> {
-    validate_rays(rays)?;
-    if let Some(stop) = t_stop
-        && stop.len() != rays.len()
-    {
-        return Err(GridError::LengthMismatch {
-            what: "t_stop for the rays",
-            expected: rays.len(),
-            got: stop.len(),
-        });
+impl<'a> Sweep<'a> {
+    fn new(group: &'a [Hit], exits: &'a mut Vec<(f32, u32)>) -> Sweep<'a> {
+        exits.clear();
+        exits.extend(group.iter().enumerate().map(|(k, h)| (h.t_out, k as u32)));
+        exits.sort_unstable_by(|x, y| x.0.total_cmp(&y.0));
+        Sweep {
+            group,
+            exits,
+            entered: 0,
+            exited: 0,
+            part_count: [0; 8],
+            bone_count: [0; 64],
+            parts: 0,
+            bones: 0,
+            last_occupied: 0,
+        }
     }
-    if !(opts.step.is_finite() && opts.step > 0.0) {
-        return Err(GridError::BadOption {
-            field: "step",
-            value: opts.step,
-            expected: "finite and > 0",
-        });
-    }
-    let capsules = bvh.capsules();
-    let samples = par_pack_samples(
-        rays.len(),
-        || (Vec::new(), Vec::new()),
-        |(hits, intervals), i, out| {
-            hits.clear();
-            intervals.clear();
-            bvh.for_each_hit(&rays[i], |h| hits.push(h));
-            merge_hits(hits, capsules, intervals);
-            let mut rng = SplitMix::new(opts.seed, i as u64);
-            let stop = t_stop.map_or(f32::INFINITY, |s| s[i]);
-            for v in intervals.iter() {
-                if !(v.t_in < stop) {
-                    break;
-                }
-                let t_out = v.t_out.min(stop);
-                let length = t_out - v.t_in;
-                if !(length > 0.0) {
-                    continue;
-                }
-                // The slack keeps 0.15 / 0.01 (= 15.000001 in f32) at 15 bins.
-                let n = (length / opts.step * (1.0 - 1e-5)).ceil().max(1.0) as u32;
-                let rng = opts.jitter.then_some(&mut rng);
-                stratified_bins(v.t_in, t_out, n, rng, |a, b| {
-                    let (mut parts, mut bones) = candidates_at(0.5 * (a + b), hits, capsules);
-                    if parts == 0 {
-                        // Float rounding at a capsule boundary: the interval's union is
-                        // still a correct (looser) candidate set.
-                        (parts, bones) = (v.part_mask, v.bone_mask);
-                    }
-                    out.push(Sample {
-                        t_start: a,
-                        t_end: b,
-                        part_mask: parts,
-                        bone_mask: bones,
-                    });
-                });
+
+    /// Moves the midpoint to `mid` (never backwards).
+    #[inline]
+    fn advance(&mut self, mid: f32) {
+        while let Some(h) = self.group.get(self.entered)
+            && h.t_in <= mid
+        {
+            self.part_count[h.part as usize] += 1;
+            self.bone_count[h.bone as usize] += 1;
+            self.parts |= 1 << h.part;
+            self.bones |= 1 << h.bone;
+            self.entered += 1;
+        }
+        while let Some(&(t_out, k)) = self.exits.get(self.exited)
+            && t_out < mid
+        {
+            let h = &self.group[k as usize];
+            self.part_count[h.part as usize] -= 1;
+            self.bone_count[h.bone as usize] -= 1;
+            if self.part_count[h.part as usize] == 0 {
+                self.parts &= !(1 << h.part);
             }
-        },
-    );
-    Ok(samples)
+            if self.bone_count[h.bone as usize] == 0 {
+                self.bones &= !(1 << h.bone);
+            }
+            self.exited += 1;
+        }
+    }
+
+    /// The sample `[a, b]`, or `None` if the cull drops it: no bone of a capsule
+    /// overlapping it maps its midpoint into the dilated canonical grid.
+    #[inline]
+    fn bin(&mut self, cull: Option<&CanonicalCull>, a: f32, b: f32) -> Option<Sample> {
+        let mid = 0.5 * (a + b);
+        self.advance(mid);
+        if let Some(cull) = cull
+            && !self.occupied(cull, a, b, mid)
+        {
+            return None;
+        }
+        let (mut parts, mut bones) = (self.parts, self.bones);
+        if parts == 0 {
+            // Float rounding at a capsule boundary: the interval's union is a correct
+            // (looser) candidate set.
+            for h in self.group {
+                parts |= 1 << h.part;
+                bones |= 1 << h.bone;
+            }
+        }
+        Some(Sample {
+            t_start: a,
+            t_end: b,
+            part_mask: parts,
+            bone_mask: bones,
+        })
+    }
+
+    /// Whether some bone of a capsule overlapping `[a, b]` maps `mid` into an occupied
+    /// cell: the bone that found the last bin occupied first, then every other.
+    #[inline]
+    fn occupied(&mut self, cull: &CanonicalCull, a: f32, b: f32, mid: f32) -> bool {
+        let overlaps = |h: &Hit| h.t_in <= b && a <= h.t_out;
+        let h = &self.group[self.last_occupied];
+        let mut tried = 0u64;
+        if overlaps(h) {
+            if cull.grid.is_occupied_cell(h.q0 + mid * h.dq) {
+                return true;
+            }
+            tried = 1 << h.bone;
+        }
+        for (k, h) in self.group.iter().enumerate() {
+            if overlaps(h) && tried & (1 << h.bone) == 0 {
+                tried |= 1 << h.bone;
+                if cull.grid.is_occupied_cell(h.q0 + mid * h.dq) {
+                    self.last_occupied = k;
+                    return true;
+                }
+            }
+        }
+        false
+    }
 }
 
-/// Drops the samples whose midpoint maps (through `posed_to_canonical`) into an
-/// unoccupied cell of `grid` or outside its box. `posed_to_canonical` receives every
-/// sample midpoint in posed space with its candidate-bone mask, in one batch, and
-/// returns canonical positions (same length); a non-finite position counts as empty.
-pub fn cull_with_grid<F>(
-    mut samples: PackedSamples,
-    rays: &[Ray],
-    grid: &OccupancyGrid,
-    posed_to_canonical: F,
-) -> Result<PackedSamples, GridError>
-where
-    F: Fn(&[Vec3], &[u64]) -> Vec<Vec3>,
-{
-    if rays.len() != samples.num_rays() {
-        return Err(GridError::LengthMismatch {
-            what: "rays for the samples",
-            expected: samples.num_rays(),
-            got: rays.len(),
-        });
-    }
-    let p_posed = samples.midpoints_in_world(rays);
-    let p_canonical = posed_to_canonical(&p_posed, &samples.bone_mask);
-    if p_canonical.len() != p_posed.len() {
-        return Err(GridError::LengthMismatch {
-            what: "posed_to_canonical output",
-            expected: p_posed.len(),
-            got: p_canonical.len(),
-        });
-    }
-    let keep: Vec<bool> = p_canonical
-        .par_iter()
-        .map(|&p| grid.is_occupied(p))
-        .collect();
-    samples.retain(&keep);
-    Ok(samples)
-}
+#[cfg(test)]
+mod tests {
+    use std::sync::Arc;
 
-/// The accelerated sampler: [`sample_in_capsules`] then [`cull_with_grid`].
-pub fn sample_accelerated<F>(
-    bvh: &CapsuleBvh,
-    rays: &[Ray],
-    grid: &OccupancyGrid,
-    posed_to_canonical: F,
-    opts: &AcceleratedOpts,
-) -> Result<PackedSamples, GridError>
-where
-    F: Fn(&[Vec3], &[u64]) -> Vec<Vec3>,
-{
-    let samples = sample_in_capsules(bvh, rays, opts)?;
-    cull_with_grid(samples, rays, grid, posed_to_canonical)
+    use glam::{Affine3A, Quat, vec3};
+
+    use super::*;
+    use crate::intersect::signed_distance;
+    use crate::rng::SplitMix;
+    use crate::{CapsuleBvh, DilatedOccupancy, OccupancyGrid, Part, sample_in_front_of_cores};
+
+    /// Three limbs of different bones (one a sphere), their cores, and per bone a rigid
+    /// map.
+    fn scene() -> (Vec<Capsule>, Vec<Capsule>, Vec<Affine3A>) {
+        // (a, b, radius, part, bone); the head is a sphere.
+        #[rustfmt::skip]
+        let limbs = [
+            (vec3(0.0, 0.0, 0.0), vec3(0.0, 0.5, 0.0), 0.15, Part::Body, 3),
+            (vec3(0.0, 0.5, 0.0), vec3(0.3, 0.6, 0.0), 0.06, Part::Arms, 16),
+            (vec3(0.3, 0.6, 0.0), vec3(0.4, 0.6, 0.02), 0.02, Part::Hands, 20),
+            (vec3(0.0, 0.7, 0.0), vec3(0.0, 0.7, 0.0), 0.1, Part::Head, 15),
+        ];
+        let capsules: Vec<Capsule> = limbs
+            .into_iter()
+            .map(|(a, b, radius, part, bone)| Capsule {
+                a,
+                b,
+                radius,
+                part,
+                bone,
+            })
+            .collect();
+        let cores = capsules
+            .iter()
+            .map(|c| Capsule {
+                radius: 0.6 * c.radius,
+                ..*c
+            })
+            .collect();
+        let maps = (0..64)
+            .map(|b| {
+                let angle = 0.1 * b as f32;
+                Affine3A::from_rotation_translation(
+                    Quat::from_axis_angle(vec3(0.3, 1.0, 0.2).normalize(), angle),
+                    vec3(0.01 * b as f32, -0.02, 0.05),
+                )
+            })
+            .collect();
+        (capsules, cores, maps)
+    }
+
+    fn points(n: usize, lo: Vec3, hi: Vec3, seed: u64) -> Vec<Vec3> {
+        let mut rng = SplitMix::new(seed, 0);
+        (0..n)
+            .map(|_| lo + (hi - lo) * vec3(rng.next_f32(), rng.next_f32(), rng.next_f32()))
+            .collect()
+    }
+
+    /// Pixel rays from a camera at `origin` in small square tiles of 128 (8 x 16 rays over
+    /// 4 x 4 cm at the scene's plane z = 0), a tile every 10 cm over the scene: each tile
+    /// is one chunk with a narrow, round cone of directions, as a frame's neighbouring
+    /// foreground rays, so capsules at a cone's edge are the hard case.
+    fn tiled_rays(origin: Vec3) -> Vec<Ray> {
+        let mut rays = Vec::new();
+        for ty in 0..12 {
+            for tx in 0..9 {
+                let corner = vec3(-0.3 + 0.1 * tx as f32, -0.25 + 0.1 * ty as f32, 0.0);
+                for y in 0..16 {
+                    for x in 0..8 {
+                        let f = vec3((x as f32 + 0.5) / 8.0, (y as f32 + 0.5) / 16.0, 0.0);
+                        let target = corner + 0.04 * f;
+                        rays.push(Ray::new(origin, target - origin, 0.0, f32::INFINITY).unwrap());
+                    }
+                }
+            }
+        }
+        assert_eq!(CHUNK, 128, "one tile a chunk");
+        rays
+    }
+
+    /// Rays from one camera at `origin` towards random points of the scene, in random
+    /// order (every chunk's cone spans the scene).
+    fn camera_rays(origin: Vec3, n: usize, seed: u64) -> Vec<Ray> {
+        points(n, vec3(-0.25, -0.2, -0.2), vec3(0.55, 0.85, 0.2), seed)
+            .into_iter()
+            .map(|p| Ray::new(origin, p - origin, 0.0, f32::INFINITY).unwrap())
+            .collect()
+    }
+
+    fn opts(step: f32, seed: u64) -> AcceleratedOpts {
+        AcceleratedOpts {
+            step,
+            jitter: true,
+            seed,
+        }
+    }
+
+    /// Samples `rays` with an unculled sampler and with the exact BVH pipeline, asserts
+    /// they agree sample for sample (t within 1e-5, same parts and bones), and returns
+    /// the sampler's.
+    fn assert_matches_exact(rays: &[Ray], step: f32, seed: u64) -> PackedSamples {
+        let (capsules, cores, _) = scene();
+        assert_matches_exact_with(&capsules, &cores, rays, step, seed)
+    }
+
+    fn assert_matches_exact_with(
+        capsules: &[Capsule],
+        cores: &[Capsule],
+        rays: &[Ray],
+        step: f32,
+        seed: u64,
+    ) -> PackedSamples {
+        let sampler = AcceleratedSampler::new(capsules, cores, None, step).unwrap();
+        let bvh = CapsuleBvh::build(capsules).unwrap();
+        let core_bvh = CapsuleBvh::build(cores).unwrap();
+        let got = sampler.sample(rays, &opts(step, seed)).unwrap();
+        let want =
+            sample_in_front_of_cores(&bvh, &core_bvh, rays, step, &opts(step, seed)).unwrap();
+        got.check_layout().unwrap();
+        assert_eq!(got.num_rays(), want.num_rays());
+        for i in 0..rays.len() {
+            let (g, w) = (got.range(i), want.range(i));
+            assert_eq!(g.len(), w.len(), "ray {i}: {:?}", rays[i]);
+            for (s, t) in g.zip(w) {
+                assert!((got.t_start[s] - want.t_start[t]).abs() < 1e-5, "ray {i}");
+                assert!((got.t_end[s] - want.t_end[t]).abs() < 1e-5, "ray {i}");
+                assert_eq!(got.part_mask[s], want.part_mask[t], "ray {i}");
+                assert_eq!(got.bone_mask[s], want.bone_mask[t], "ray {i}");
+            }
+        }
+        got
+    }
+
+    /// Without a cull it is the exact BVH pipeline, sample for sample: shared-origin
+    /// chunks (prepared capsules, cone culling: narrow cones of pixel tiles and wide ones
+    /// of random rays) and mixed-origin chunks alike.
+    #[test]
+    fn matches_the_exact_pipeline() {
+        let mut rays = tiled_rays(vec3(0.1, 0.4, -2.5));
+        rays.extend(camera_rays(vec3(0.1, 0.4, -2.5), 700, 1));
+        // A camera inside the scene's box looking every way (cones wider than 90
+        // degrees), one inside the body capsule, and a chunk of mixed origins.
+        let mut rng = SplitMix::new(2, 0);
+        for origin in [vec3(0.1, 0.3, 0.3), vec3(0.05, 0.2, 0.0)] {
+            for _ in 0..256 {
+                let d = vec3(rng.next_f32(), rng.next_f32(), rng.next_f32()) - 0.5;
+                rays.push(Ray::new(origin, d, 0.0, f32::INFINITY).unwrap());
+            }
+        }
+        for (k, r) in camera_rays(vec3(-1.0, 0.5, -2.0), 300, 3)
+            .into_iter()
+            .enumerate()
+        {
+            rays.push(Ray {
+                origin: r.origin + 0.01 * (k % 3) as f32 * Vec3::X,
+                ..r
+            });
+        }
+        let got = assert_matches_exact(&rays, 0.006, 4);
+        assert!(got.num_samples() > 5_000, "{}", got.num_samples());
+    }
+
+    /// The cull keeps every bin holding a point that lies in a grown capsule, in front
+    /// of the first core entry, and that some bone of a capsule holding it maps into an
+    /// occupied canonical cell (the exact map's candidates); and it does cull.
+    #[test]
+    fn cull_never_drops_a_point_the_exact_map_keeps() {
+        let (capsules, cores, maps) = scene();
+        let mut canonical =
+            OccupancyGrid::new(vec3(-0.6, -0.4, -0.6), vec3(0.8, 1.0, 0.6), [100; 3]).unwrap();
+        canonical.mark(&points(
+            20_000,
+            vec3(-0.6, -0.4, -0.6),
+            vec3(0.8, 1.0, 0.6),
+            5,
+        ));
+        let step = 0.006;
+        let cull = CanonicalCull {
+            grid: Arc::new(
+                DilatedOccupancy::new(&canonical, AcceleratedSampler::cull_reach(step)).unwrap(),
+            ),
+            canonical_from_posed: maps.clone(),
+        };
+        let sampler = AcceleratedSampler::new(&capsules, &cores, Some(cull), step).unwrap();
+        let unculled = AcceleratedSampler::new(&capsules, &cores, None, step).unwrap();
+        let rays = camera_rays(vec3(0.1, 0.4, -2.5), 2000, 6);
+        let samples = sampler.sample(&rays, &opts(step, 7)).unwrap();
+        let all = unculled.sample(&rays, &opts(step, 7)).unwrap();
+        assert!(samples.num_samples() < all.num_samples() * 9 / 10);
+        assert!(samples.num_samples() > all.num_samples() / 10);
+        let mut checked = 0;
+        for (i, ray) in rays.iter().enumerate() {
+            let t_core = cores
+                .iter()
+                .filter_map(|c| ray_capsule(ray, c))
+                .map(|(t, _)| t)
+                .fold(f32::INFINITY, f32::min);
+            for k in 0..3000 {
+                let t = 1.5 + k as f32 / 3000.0 * 2.0;
+                let p = ray.at(t);
+                let kept = t < t_core
+                    && capsules.iter().any(|c| {
+                        signed_distance(p, c) < -1e-5
+                            && canonical.is_occupied(maps[c.bone as usize].transform_point3(p))
+                    });
+                if kept {
+                    checked += 1;
+                    assert!(
+                        samples
+                            .range(i)
+                            .any(|s| samples.t_start[s] <= t && t <= samples.t_end[s]),
+                        "ray {i}: t {t} is kept by the exact map but in no sample"
+                    );
+                }
+            }
+        }
+        assert!(checked > 1_000, "{checked}");
+    }
+
+    /// Cores no capsule holds (one sticking out of its limb, one where no limb is) are
+    /// tested on their own, and a core inside a big capsule and a small one rides on the
+    /// small one: still the exact pipeline, sample for sample.
+    #[test]
+    fn loose_and_shared_cores_match_the_exact_pipeline() {
+        let (capsules, mut cores, _) = scene();
+        // The arm's core grows past its shell; a core floats in front of the body.
+        cores[1].radius = 1.5 * capsules[1].radius;
+        cores.push(Capsule {
+            a: vec3(0.0, 0.25, -0.4),
+            b: vec3(0.05, 0.3, -0.4),
+            radius: 0.03,
+            ..cores[0]
+        });
+        // A small capsule inside the body shell holding the body's core as well.
+        let mut capsules = capsules;
+        capsules.push(Capsule {
+            radius: 0.13,
+            ..capsules[0]
+        });
+        let nesting = CoreNesting::new(&capsules, &cores);
+        assert_eq!(nesting.loose(), &[1, 4]);
+        let mut rays = tiled_rays(vec3(0.1, 0.4, -2.5));
+        rays.extend(camera_rays(vec3(0.1, 0.4, -2.5), 700, 8));
+        let got = assert_matches_exact_with(&capsules, &cores, &rays, 0.006, 9);
+        assert!(got.num_samples() > 5_000, "{}", got.num_samples());
+    }
+
+    /// Hard rays: parallel to a limb's axis, grazing a capsule, starting inside a
+    /// capsule or a core, starting behind the camera (`t_min < 0`), and directions a
+    /// little off unit length (within the rays' tolerance).
+    #[test]
+    fn hard_rays_match_the_exact_pipeline() {
+        let ray = |o: Vec3, d: Vec3, t_min: f32| Ray::new(o, d, t_min, f32::INFINITY).unwrap();
+        let mut rays = vec![
+            // Along the body's axis, from below, through both caps.
+            ray(vec3(0.0, -1.0, 0.0), Vec3::Y, 0.0),
+            // Along it, 0.149 off the axis (inside the 0.15 radius, outside the core).
+            ray(vec3(0.149, -1.0, 0.0), Vec3::Y, 0.0),
+            // Tangent to the head sphere, and a hair inside it.
+            ray(vec3(0.1, 0.7, -2.0), Vec3::Z, 0.0),
+            ray(vec3(0.0999, 0.7, -2.0), Vec3::Z, 0.0),
+            // From inside the body shell and inside its core.
+            ray(vec3(0.12, 0.25, 0.0), vec3(0.3, 0.2, 1.0), 0.0),
+            ray(vec3(0.0, 0.25, 0.0), vec3(0.3, 0.2, 1.0), 0.0),
+            // Starting 2 m behind the origin: the scene lies partly behind it.
+            ray(vec3(0.0, 0.3, 0.5), -Vec3::Z, -2.0),
+        ];
+        let mut off_unit = ray(vec3(0.0, 0.3, -2.0), vec3(0.05, 0.1, 1.0), 0.0);
+        off_unit.direction *= 1.0008;
+        rays.push(off_unit);
+        let got = assert_matches_exact(&rays, 0.005, 1);
+        assert!(got.range(0).len() > 10 && got.range(6).len() > 10);
+    }
+
+    #[test]
+    fn bad_input_is_an_error() {
+        let (capsules, cores, maps) = scene();
+        let sampler = AcceleratedSampler::new(&capsules, &cores, None, 0.005).unwrap();
+        let good = camera_rays(vec3(0.0, 0.4, -2.0), 3, 1);
+        let nan = Ray {
+            origin: Vec3::NAN,
+            ..good[0]
+        };
+        assert!(sampler.sample(&[good[0], nan], &opts(0.005, 0)).is_err());
+        assert!(sampler.sample(&good, &opts(0.01, 0)).is_err());
+        assert!(sampler.sample(&good, &opts(f32::NAN, 0)).is_err());
+        assert!(AcceleratedSampler::new(&capsules, &cores, None, 0.0).is_err());
+        let bad = Capsule {
+            radius: f32::NAN,
+            ..capsules[0]
+        };
+        assert!(AcceleratedSampler::new(&[bad], &cores, None, 0.005).is_err());
+        // A cull that does not dilate far enough for the step.
+        let grid = OccupancyGrid::new(vec3(-1.0, -1.0, -1.0), vec3(1.0, 1.0, 1.0), [8; 3]).unwrap();
+        let cull = || CanonicalCull {
+            grid: Arc::new(DilatedOccupancy::new(&grid, 0.0).unwrap()),
+            canonical_from_posed: maps.clone(),
+        };
+        assert!(AcceleratedSampler::new(&capsules, &cores, Some(cull()), 0.005).is_err());
+        // Empty input is fine.
+        let empty = sampler.sample(&[], &opts(0.005, 0)).unwrap();
+        assert_eq!(empty.num_rays(), 0);
+    }
 }

@@ -64,7 +64,7 @@ pub fn sample_in_front_of_cores(
         .into_iter()
         .map(|t| t + tail)
         .collect();
-    crate::sampler_accelerated::sample_in_capsules_before(bvh, rays, Some(&stop), opts)
+    crate::sampler_reference::sample_in_capsules_before(bvh, rays, Some(&stop), opts)
 }
 
 #[cfg(test)]
@@ -72,7 +72,7 @@ mod tests {
     use glam::{Vec3, vec3};
 
     use super::*;
-    use crate::sampler_accelerated::{AcceleratedOpts, sample_in_capsules};
+    use crate::sampler_reference::{AcceleratedOpts, sample_in_capsules};
     use crate::{Capsule, Part};
 
     #[test]

@@ -8,8 +8,8 @@ use glam::{Vec3, vec3};
 use talkin_grids::intersect::{distance_to_segment, ray_capsule};
 use talkin_grids::{
     ALL_BONES, ALL_PARTS, AcceleratedOpts, Capsule, CapsuleBvh, DenseOpts, GridError,
-    OccupancyGrid, PackedSamples, Ray, cull_with_grid, sample_accelerated, sample_dense,
-    sample_in_capsules,
+    OccupancyGrid, PackedSamples, Ray, cull_with_grid, sample_dense, sample_in_capsules,
+    sample_reference,
 };
 
 fn scene() -> (Vec<Capsule>, Vec<Ray>) {
@@ -243,7 +243,7 @@ fn culling_keeps_exactly_the_samples_in_occupied_cells() {
         assert!(bones.iter().all(|&b| b != 0));
         p.iter().map(|p| *p + Vec3::X).collect::<Vec<_>>()
     };
-    let kept = sample_accelerated(&bvh, &rays, &grid, to_canonical, &opts).unwrap();
+    let kept = sample_reference(&bvh, &rays, &grid, to_canonical, &opts).unwrap();
     assert_eq!(calls.get(), 1, "one batch per call");
     kept.check_layout().unwrap();
     let expect_kept = |s: &PackedSamples, i: usize, k: usize| rays[i].at(s.t_mid(k)).x + 1.0 < 1.0;

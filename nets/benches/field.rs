@@ -110,7 +110,11 @@ fn frame() -> FrameConditions {
 
 fn run(device: &Device, device_name: &str, preset: &str, b: &Batch, iters: usize) {
     let n = b.points.len();
-    let cfg = FieldConfig::preset(preset, 1).expect("preset");
+    let cfg = match preset {
+        "paper" => FieldConfig::paper(1),
+        "fast" => FieldConfig::fast(1),
+        other => panic!("PRESETS: unknown preset `{other}` (fast or paper)"),
+    };
     // Same initialisation (hence the same routing) in every run.
     device.seed(17);
     let f = frame();

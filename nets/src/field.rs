@@ -169,15 +169,6 @@ impl FieldConfig {
         .with_unit_map(Some(UnitMap::Isotropic))
     }
 
-    /// A preset by name (`"paper"` or `"fast"`).
-    pub fn preset(name: &str, n_identities: usize) -> Option<Self> {
-        match name {
-            "paper" => Some(Self::paper(n_identities)),
-            "fast" => Some(Self::fast(n_identities)),
-            _ => None,
-        }
-    }
-
     fn expression_dim(&self) -> usize {
         EXPRESSION_DIM + if self.face_uses_jaw { JAW_DIM } else { 0 }
     }

@@ -8,6 +8,7 @@ use talkin_data::params_json::ParamsJson;
 use talkin_human::body::FrameParams;
 use talkin_render::avatar::Avatar;
 use talkin_serve::{Server, bench};
+use talkin_train::TrainOptions;
 
 use super::serve::LimitArgs;
 use crate::progress::Progress;
@@ -55,7 +56,7 @@ pub struct AblationArgs {
     #[arg(long, default_value_t = 6)]
     pub eval_frames: usize,
     #[command(flatten)]
-    pub recipe: super::train::RecipeArgs,
+    pub recipe: TrainOptions,
 }
 
 #[derive(clap::Args, Debug)]
@@ -102,7 +103,7 @@ pub struct NovelIdentityArgs {
     #[arg(long, default_value_t = 6)]
     pub eval_frames: usize,
     #[command(flatten)]
-    pub recipe: super::train::RecipeArgs,
+    pub recipe: TrainOptions,
 }
 
 #[derive(clap::Args, Debug)]
@@ -120,7 +121,7 @@ pub struct SpeedVsErrorArgs {
     #[arg(long, default_value_t = 6)]
     pub eval_frames: usize,
     #[command(flatten)]
-    pub recipe: super::train::RecipeArgs,
+    pub recipe: TrainOptions,
 }
 
 #[derive(clap::Args, Debug)]
@@ -280,8 +281,8 @@ fn trained_grids(
 fn speed_vs_error_bench(args: SpeedVsErrorArgs) -> anyhow::Result<()> {
     use talkin_benches::speed_vs_error::{SpeedVsErrorOptions, format_summary, speed_vs_error};
     let dataset = Dataset::load(&args.data)?;
-    let train = args.recipe.options()?;
-    let lpips_dir = Some(args.recipe.lpips_dir.clone());
+    let train = args.recipe.clone();
+    let lpips_dir = args.recipe.perceptual.clone();
     let opts = SpeedVsErrorOptions {
         budgets: args.budgets.clone(),
         eval_frames: args.eval_frames,
@@ -304,8 +305,8 @@ fn ablations_bench(args: AblationArgs) -> anyhow::Result<()> {
     let opts = AblationOptions {
         budget_s: args.minutes_each * 60.0,
         eval_frames: args.eval_frames,
-        train: args.recipe.options()?,
-        lpips_dir: Some(args.recipe.lpips_dir.clone()),
+        train: args.recipe.clone(),
+        lpips_dir: args.recipe.perceptual.clone(),
     };
     let rows = ablations(&dataset, &args.out, &opts, &mut |msg| eprintln!("{msg}"))
         .with_context(|| format!("ablations on {}", args.data.display()))?;
@@ -333,12 +334,12 @@ fn novel_identity_bench(args: NovelIdentityArgs) -> anyhow::Result<()> {
         base_run: args.base_run.clone(),
         adapt_lr_ratio: args
             .adapt_lr_ratio
-            .unwrap_or_else(|| talkin_benches::novel_identity::adapt_lr_ratio(&args.recipe.preset)),
+            .unwrap_or_else(|| args.recipe.preset.adapt_lr_ratio()),
         adapt,
         scratch: !args.no_scratch,
         eval_frames: args.eval_frames,
-        train: args.recipe.options()?,
-        lpips_dir: Some(args.recipe.lpips_dir.clone()),
+        train: args.recipe.clone(),
+        lpips_dir: args.recipe.perceptual.clone(),
     };
     let rows = novel_identity(&dataset, &args.out, &opts, &mut |msg| eprintln!("{msg}"))
         .with_context(|| format!("novel-identity benchmark on {}", args.data.display()))?;

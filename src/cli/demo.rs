@@ -6,7 +6,9 @@ use clap::Parser;
 use super::eval::{self, EvalArgs};
 use super::inspect::{self, InspectArgs};
 use super::synth::{self, SynthArgs};
-use super::train::{self, DEFAULT_LPIPS_DIR, RecipeArgs, TrainArgs};
+use talkin_train::TrainOptions;
+
+use super::train::{self, DEFAULT_LPIPS_DIR, TrainArgs};
 
 #[derive(clap::Args, Debug)]
 pub struct DemoArgs {
@@ -35,7 +37,7 @@ const SHORT_RUN_RECIPE: [&str; 4] = ["--patches", "0", "--batch", "512"];
 #[derive(Parser)]
 struct Recipe {
     #[command(flatten)]
-    recipe: RecipeArgs,
+    recipe: TrainOptions,
 }
 
 pub fn run(args: DemoArgs) -> anyhow::Result<()> {
@@ -84,7 +86,6 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
         data: data.clone(),
         out: run_dir.clone(),
         resume: false,
-        seconds_of_video: None,
         recipe,
     })?;
     println!("== 4/4 evaluate every held-out split (renders, metrics, a contact sheet)");

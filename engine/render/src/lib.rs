@@ -6,5 +6,7 @@
 //! checkpoints through `train`'s checkpoint module and never writes one.
 
 pub mod avatar;
+pub mod crops;
 pub mod eval;
+pub mod metrics;
 pub mod sequence;

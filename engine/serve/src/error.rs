@@ -114,7 +114,7 @@ impl RequestError {
 impl IntoResponse for RequestError {
     fn into_response(self) -> Response {
         let body = serde_json::json!({ "error": self.to_string(), "field": self.field() });
-        let mut response = (self.status(), super::routes::json_body(&body)).into_response();
+        let mut response = (self.status(), crate::json::json_body(&body)).into_response();
         if let Self::QueueFull { retry_after_s, .. } = self {
             response
                 .headers_mut()

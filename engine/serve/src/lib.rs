@@ -16,6 +16,7 @@ pub mod client;
 mod config;
 mod encode;
 mod error;
+mod json;
 pub mod pool;
 pub mod request;
 mod routes;

@@ -18,6 +18,7 @@ use super::encode::{self, Encoded};
 use super::error::RequestError;
 use super::pool::{Job, Refused};
 use super::request::{self, Format};
+use crate::json::json_body;
 
 /// The web page at `/`: sliders for a few parameters, the rendered frame (no external
 /// scripts: a served machine may reach nothing outside).
@@ -32,15 +33,6 @@ pub(super) fn router(app: Arc<App>) -> Router {
         .route("/render/sequence", post(sequence))
         .fallback(not_found)
         .with_state(app)
-}
-
-/// A JSON response body.
-pub(super) fn json_body(v: &Value) -> Response {
-    (
-        [(header::CONTENT_TYPE, "application/json")],
-        serde_json::to_vec(v).expect("JSON values always serialise"),
-    )
-        .into_response()
 }
 
 async fn page() -> Html<&'static str> {

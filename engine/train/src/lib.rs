@@ -1,24 +1,36 @@
-//! train: one training step and the loop around it. Owns the wiring of `grids` to a
-//! frame (capsule shells, cameras' rays, the canonical map: [`scene`]), each subject's
-//! model ([`subject`]), the field's per-frame inputs ([`field_inputs`]), the step itself
-//! (rays -> samples -> field -> loss -> optimizer -> grid update: [`trainer`]) and the
-//! checkpoints a run writes ([`checkpoint`]).
+//! train: one training step and the run around it. The modules read in the order a step
+//! runs: a frame's [`scene`] (the posed capsules and the canonical map that `grids`
+//! samples with), its [`rays`], the [`field_inputs`] and the [`loss`], the [`adam`]
+//! optimizer, the [`grid_update`]; [`step`] strings them together and [`trainer`] runs
+//! steps until the budget is spent, writing the [`log`] and [`checkpoint`]s. A run is
+//! told its [`recipe`], whose [`preset`] names the architecture and optimiser settings.
 //!
 //! Must not know about rendering whole frames, evaluation, the server or the
-//! experiments: those read its checkpoints.
+//! experiments: they read what it writes (checkpoints) or drive a [`Trainer`].
 
+pub mod adam;
 pub mod checkpoint;
+pub mod error;
 pub mod field_inputs;
+pub mod grid_update;
+pub mod log;
+pub mod loss;
+pub mod preset;
+pub mod rays;
+pub mod recipe;
+pub mod rng;
 pub mod scene;
+pub mod schedule;
+pub mod setup;
+pub mod step;
 pub mod subject;
 pub mod trainer;
 
-mod batch;
-mod fused_adam;
-mod grid_update;
-mod half_batch;
-mod options;
-mod rng;
-pub mod schedule;
-
-pub use trainer::*;
+pub use error::TrainError;
+pub use log::{LOG_FILE, StepLog};
+pub use preset::Preset;
+pub use recipe::{Ablation, Budget, DEFAULT_LPIPS_DIR, Identities, TrainOptions};
+pub use rng::SplitMix64;
+pub use setup::RECIPE_FILE;
+pub use talkin_grids::SamplerKind;
+pub use trainer::{TrainReport, Trainer, train};

@@ -24,6 +24,14 @@ pub struct SubjectModel {
     pub grid: OccupancyGrid,
 }
 
+/// One subject slot of a run: every dataset subject has an identity code; only subjects
+/// with training frames have a model (shells, grid).
+#[derive(Clone, Debug)]
+pub struct SubjectSlot {
+    pub name: String,
+    pub model: Option<SubjectModel>,
+}
+
 /// Why a subject model could not be built.
 #[derive(Debug, thiserror::Error)]
 pub enum SubjectModelError {

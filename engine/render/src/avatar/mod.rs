@@ -14,8 +14,9 @@ use talkin_nets::{FieldConfig, TalkinField};
 pub use render::{MAX_RENDER_PIXELS, RENDER_CHUNK_RAYS, RenderedFrame};
 
 use talkin_train::Trainer;
-use talkin_train::checkpoint::{Checkpoint, CheckpointError, SubjectSlot};
+use talkin_train::checkpoint::{Checkpoint, CheckpointError};
 use talkin_train::subject::SubjectModel;
+use talkin_train::subject::SubjectSlot;
 
 /// Why an avatar could not be loaded or could not render.
 #[derive(Debug, thiserror::Error)]

@@ -6,8 +6,8 @@ use burn::tensor::{Device, Tensor, TensorData};
 use image::RgbImage;
 use talkin_nets::loss::{Backbone, LossError, Lpips};
 
-use super::crops::MIN_CROP;
-use super::metrics::Rect;
+use crate::crops::MIN_CROP;
+use crate::metrics::Rect;
 
 /// The backbone evaluation reports (the paper's LPIPS and the `lpips` package default).
 pub const BACKBONE: Backbone = Backbone::Alex;

@@ -6,9 +6,7 @@
 //! frame's camera ([`crops`]); a crop that misses the image is skipped and reported,
 //! never faked, and without LPIPS weights every LPIPS value is `null` with a note.
 
-pub mod crops;
 pub mod lpips;
-pub mod metrics;
 mod report;
 
 use std::path::{Path, PathBuf};
@@ -16,9 +14,9 @@ use std::time::Instant;
 
 use image::RgbImage;
 
-pub use crops::{CropKind, MIN_CROP, frame_crops};
+pub use crate::crops::{CropKind, MIN_CROP, frame_crops};
+pub use crate::metrics::{PSNR_CAP_DB, Rect, psnr, ssim};
 pub use lpips::LpipsScorer;
-pub use metrics::{PSNR_CAP_DB, Rect, psnr, ssim};
 pub use report::{CropScore, EvalReport, FrameScore, LPIPS_SCALE, SkippedCrop};
 
 use crate::avatar::{Avatar, AvatarError};

@@ -6,9 +6,9 @@ use std::path::{Path, PathBuf};
 use serde::Serialize;
 
 use super::EvalError;
-use super::crops::CropKind;
 use super::lpips::BACKBONE;
-use super::metrics::{PSNR_CAP_DB, Rect};
+use crate::crops::CropKind;
+use crate::metrics::{PSNR_CAP_DB, Rect};
 use talkin_data::dataset::Dataset;
 
 /// LPIPS is reported x1000 (the paper's LPIPS*).

@@ -8,7 +8,7 @@ use image::RgbImage;
 use super::sheet::{SheetRow, comparison_sheet};
 use super::{SequenceError, Shot};
 use crate::avatar::Avatar;
-use crate::eval::{CropKind, frame_crops};
+use crate::crops::{CropKind, frame_crops};
 use talkin_data::dataset::Dataset;
 use talkin_data::draw::LABEL_COLOURS;
 

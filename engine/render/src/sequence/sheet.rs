@@ -2,7 +2,7 @@
 
 use image::RgbImage;
 
-use crate::eval::Rect;
+use crate::metrics::Rect;
 use talkin_data::draw;
 
 /// Absolute error (mean over channels, in [0, 1]) that the heat map shows as white.

@@ -28,7 +28,7 @@ use talkin_nets::{FieldConfig, TalkinField};
 pub use grid_file::{grid_from_bytes, grid_to_bytes};
 pub use subjects_file::SubjectsFile;
 
-use crate::subject::{SubjectModel, bone_prior};
+use crate::subject::{SubjectSlot, bone_prior};
 
 /// The checkpoint directory inside a run directory.
 pub const CHECKPOINT_DIR: &str = "checkpoint";
@@ -79,14 +79,6 @@ impl CheckpointError {
             problem: problem.to_string(),
         }
     }
-}
-
-/// One subject slot of a run: every dataset subject has an identity code; only subjects
-/// with training frames have a model (shells, grid).
-#[derive(Clone, Debug)]
-pub struct SubjectSlot {
-    pub name: String,
-    pub model: Option<SubjectModel>,
 }
 
 /// A checkpoint as read back (the weights stay bytes until a field is built on a device).

@@ -6,9 +6,10 @@ use std::path::Path;
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
 
-use super::{CheckpointError, SubjectSlot, grid_from_bytes, read};
+use super::{CheckpointError, grid_from_bytes, read};
 use crate::scene::{CapsuleShells, shell_capsules};
 use crate::subject::SubjectModel;
+use crate::subject::SubjectSlot;
 use talkin_human::body::{N_JOINTS, Skeleton};
 
 #[derive(Serialize, Deserialize)]

@@ -1,14 +1,14 @@
 //! One frame's samplers, built once and used by training, rendering and the benchmark:
 //! the dense baseline in the posed box and the accelerated pipeline (per ray, the exact
 //! grown-capsule intervals up to the first core, culled per bin by the canonical
-//! occupancy grid through the bones' rigid maps: [`CapsuleSampler`]).
+//! occupancy grid through the bones' rigid maps: [`AcceleratedSampler`]).
 
 use std::sync::{Arc, Mutex, OnceLock};
 
 use glam::{Affine3A, Vec3};
 use talkin_grids::intersect::validate_capsules;
 use talkin_grids::{
-    AcceleratedOpts, CanonicalCull, Capsule, CapsuleBvh, CapsuleSampler, DenseOpts,
+    AcceleratedOpts, AcceleratedSampler, CanonicalCull, Capsule, CapsuleBvh, DenseOpts,
     DilatedOccupancy, GridError, OccupancyGrid, PackedSamples, Ray, SamplerKind, sample_dense,
 };
 
@@ -43,7 +43,7 @@ pub struct FrameSampler {
     /// Per bone (0..64): posed -> canonical by its body ancestor's skinning transform.
     canonical_from_posed: Vec<Affine3A>,
     /// The accelerated sampler for the canonical grid with this fingerprint.
-    accelerated: Mutex<Option<(u64, Arc<CapsuleSampler>)>>,
+    accelerated: Mutex<Option<(u64, Arc<AcceleratedSampler>)>>,
 }
 
 impl FrameSampler {
@@ -95,7 +95,7 @@ impl FrameSampler {
     /// The accelerated sampler culling with `grid` (the subject's canonical occupancy
     /// grid), made on first use and again only when the grid's bits change (occupancy
     /// updates); the dilated grid is shared by the subject's frames.
-    pub fn prepare(&self, grid: &OccupancyGrid) -> Result<Arc<CapsuleSampler>, GridError> {
+    pub fn prepare(&self, grid: &OccupancyGrid) -> Result<Arc<AcceleratedSampler>, GridError> {
         let key = grid.fingerprint();
         let mut cached = self.accelerated.lock().unwrap_or_else(|e| e.into_inner());
         if let Some((k, sampler)) = cached.as_ref()
@@ -103,12 +103,12 @@ impl FrameSampler {
         {
             return Ok(sampler.clone());
         }
-        let reach = CapsuleSampler::cull_reach(self.step) + CULL_POSE_SLACK_M;
+        let reach = AcceleratedSampler::cull_reach(self.step) + CULL_POSE_SLACK_M;
         let cull = CanonicalCull {
             grid: dilated_occupancy(grid, reach)?,
             canonical_from_posed: self.canonical_from_posed.clone(),
         };
-        let sampler = Arc::new(CapsuleSampler::new(
+        let sampler = Arc::new(AcceleratedSampler::new(
             &self.grown,
             &self.cores,
             Some(cull),

@@ -12,7 +12,7 @@ use glam::DVec3;
 use serde::Serialize;
 use talkin_grids::Part;
 
-use super::metrics::Rect;
+use crate::metrics::Rect;
 use talkin_human::body::joint::*;
 use talkin_human::body::{FrameParams, Skeleton, limb_capsules};
 use talkin_human::camera::Camera;

@@ -1,0 +1,58 @@
+//! Why a run could not start, step or save. Each names the file, frame, subject or flag.
+
+use std::path::PathBuf;
+
+use talkin_data::dataset::DatasetError;
+use talkin_grids::GridError;
+use talkin_nets::NetsError;
+use talkin_nets::loss::LossError;
+
+use crate::checkpoint::CheckpointError;
+use crate::subject::SubjectModelError;
+
+#[derive(Debug, thiserror::Error)]
+pub enum TrainError {
+    #[error(transparent)]
+    Dataset(#[from] DatasetError),
+    #[error(transparent)]
+    Checkpoint(#[from] CheckpointError),
+    #[error(transparent)]
+    Subject(#[from] SubjectModelError),
+    #[error("{}: {source}", file.display())]
+    Io {
+        file: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("option `{flag}`: {problem}")]
+    BadOption { flag: &'static str, problem: String },
+    #[error("{}: no frame of split `train` for the chosen identities", file.display())]
+    NoTrainFrames { file: PathBuf },
+    #[error("{}: frames[{frame}]: sampling: {source}", file.display())]
+    Grid {
+        file: PathBuf,
+        frame: usize,
+        #[source]
+        source: GridError,
+    },
+    #[error("subject `{subject}`: occupancy grid: {source}")]
+    Occupancy {
+        subject: String,
+        #[source]
+        source: GridError,
+    },
+    #[error("field: {source}")]
+    Field {
+        #[source]
+        source: NetsError,
+    },
+    #[error("perceptual loss: {source}")]
+    Perceptual {
+        #[source]
+        source: LossError,
+    },
+    #[error("step {step}: the loss is not finite ({loss}); lower --lr?")]
+    NonFinite { step: usize, loss: f32 },
+    #[error("{}: {problem}", file.display())]
+    Resume { file: PathBuf, problem: String },
+}

@@ -1,0 +1,421 @@
+//! What a run is told: one struct that is the command line's options (`talkin train`,
+//! `adapt` and the training benches flatten it) and the record in every checkpoint's
+//! `state.json` and in `RUN/recipe.json`. Field docs are the `--help` text.
+
+use std::path::PathBuf;
+use std::str::FromStr;
+
+use clap::{Arg, ArgMatches, Args, FromArgMatches};
+use serde::{Deserialize, Serialize};
+use talkin_grids::SamplerKind;
+
+use crate::error::TrainError;
+use crate::preset::Preset;
+
+/// Where `scripts/lpips_weights.py` puts the converted LPIPS weights.
+pub const DEFAULT_LPIPS_DIR: &str = "assets/lpips";
+
+/// Everything a run is told.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, Args)]
+pub struct TrainOptions {
+    /// Field preset: `fast` (hash grid, small MLPs) or `paper` (8x256 MLPs).
+    #[arg(long, value_enum, default_value_t = Preset::Fast)]
+    pub preset: Preset,
+    /// Sampler: `accelerated` (capsule BVH + occupancy grid) or `dense` (128 per ray).
+    #[arg(long, default_value_t = SamplerKind::Accelerated)]
+    pub sampler: SamplerKind,
+    #[command(flatten)]
+    pub budget: Budget,
+    /// Seed of the initialisation, the frame and ray choice and the sample jitter.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Subjects to train on: `all` (every subject with training frames) or a
+    /// comma-separated list of names.
+    #[arg(long, default_value_t = Identities::All)]
+    pub identities: Identities,
+    /// Random pixel rays per step (besides the LPIPS patches).
+    #[arg(long = "batch", value_name = "N", default_value_t = TrainOptions::default().batch_rays)]
+    pub batch_rays: usize,
+    /// 32x32 LPIPS patches per step (the paper: 6; 0 turns the perceptual term off).
+    #[arg(long, default_value_t = TrainOptions::default().patches)]
+    pub patches: usize,
+    /// Initial Adam learning rate (default: the preset's); decays x0.1 per 500k of the
+    /// paper's iterations, onto which every run is mapped.
+    #[arg(long)]
+    pub lr: Option<f64>,
+    /// Fraction of random rays drawn inside the person's bounding box (the paper: 80%).
+    #[arg(long, default_value_t = TrainOptions::default().bbox_fraction)]
+    pub bbox_fraction: f32,
+    /// Weight of the silhouette term (rendered opacity against the mask, mean squared
+    /// error); 0: off, the paper's loss.
+    #[arg(long, default_value_t = TrainOptions::default().mask_weight)]
+    // Runs recorded before the term existed read as 0.
+    #[serde(default)]
+    pub mask_weight: f32,
+    /// Occupancy-grid update period in steps (0: never; accelerated sampler only).
+    #[arg(long, default_value_t = TrainOptions::default().occ_every)]
+    pub occ_every: u32,
+    /// Occupancy-grid cells along the canonical box's longest axis.
+    #[arg(long, default_value_t = TrainOptions::default().grid_resolution)]
+    pub grid_resolution: u32,
+    /// Directory of the converted LPIPS weights (`python3 scripts/lpips_weights.py`);
+    /// without them the perceptual term is 1 - SSIM, and the run says so.
+    #[arg(long = "lpips-dir", value_name = "DIR", default_value = DEFAULT_LPIPS_DIR)]
+    pub perceptual: Option<PathBuf>,
+    /// Checkpoint every this many seconds of training (and always at the end).
+    #[arg(long = "checkpoint-every", value_name = "SECONDS", default_value_t = TrainOptions::default().checkpoint_every_s)]
+    pub checkpoint_every_s: f64,
+    /// The paper's ablation switches (all on: the full method); set by the ablation bench.
+    #[arg(skip)]
+    // Runs recorded before the switches existed read as the full method.
+    #[serde(default)]
+    pub ablation: Ablation,
+    /// Train on each subject's first S seconds of training frames only (a short clip:
+    /// the novel-identity experiment's clips).
+    #[arg(long = "seconds-of-video", value_name = "S")]
+    // Runs recorded before the option existed read as all of the video.
+    #[serde(default)]
+    pub clip_seconds: Option<f64>,
+}
+
+/// How long to train: `--steps N` or `--minutes M` on the command line.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Budget {
+    /// Optimizer steps (reproducible to the bit).
+    Steps(usize),
+    /// Wall-clock seconds of training (the schedule follows elapsed time; evaluation
+    /// pauses in the benchmarks do not count).
+    Seconds(f64),
+}
+
+impl Default for Budget {
+    fn default() -> Self {
+        Budget::Steps(1000)
+    }
+}
+
+impl FromArgMatches for Budget {
+    fn from_arg_matches(m: &ArgMatches) -> Result<Self, clap::Error> {
+        Ok(
+            match (m.get_one::<usize>("steps"), m.get_one::<f64>("minutes")) {
+                (_, Some(&minutes)) => Budget::Seconds(minutes * 60.0),
+                (Some(&steps), None) => Budget::Steps(steps),
+                (None, None) => Budget::default(),
+            },
+        )
+    }
+
+    fn update_from_arg_matches(&mut self, m: &ArgMatches) -> Result<(), clap::Error> {
+        *self = Budget::from_arg_matches(m)?;
+        Ok(())
+    }
+}
+
+impl Args for Budget {
+    fn augment_args(cmd: clap::Command) -> clap::Command {
+        cmd.arg(
+            Arg::new("steps")
+                .long("steps")
+                .value_name("N")
+                .value_parser(clap::value_parser!(usize))
+                .conflicts_with("minutes")
+                .help("Optimizer steps (default 1000 unless --minutes is given)"),
+        )
+        .arg(
+            Arg::new("minutes")
+                .long("minutes")
+                .value_name("M")
+                .value_parser(clap::value_parser!(f64))
+                .help("Train for this many minutes of wall-clock time instead of a step count"),
+        )
+    }
+
+    fn augment_args_for_update(cmd: clap::Command) -> clap::Command {
+        Budget::augment_args(cmd)
+    }
+}
+
+/// Which subjects a run trains on; recorded as `null` (all) or a list of names.
+#[derive(Clone, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(from = "Option<Vec<String>>", into = "Option<Vec<String>>")]
+pub enum Identities {
+    /// Every subject with training frames.
+    #[default]
+    All,
+    /// These subjects, by name.
+    Named(Vec<String>),
+}
+
+impl Identities {
+    /// The names, or `None` for all.
+    pub fn names(&self) -> Option<&[String]> {
+        match self {
+            Identities::All => None,
+            Identities::Named(names) => Some(names),
+        }
+    }
+}
+
+impl From<Option<Vec<String>>> for Identities {
+    fn from(names: Option<Vec<String>>) -> Self {
+        names.map_or(Identities::All, Identities::Named)
+    }
+}
+
+impl From<Identities> for Option<Vec<String>> {
+    fn from(ids: Identities) -> Self {
+        match ids {
+            Identities::All => None,
+            Identities::Named(names) => Some(names),
+        }
+    }
+}
+
+impl FromStr for Identities {
+    type Err = String;
+
+    /// `all`, or names separated by commas.
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        if s.trim() == "all" {
+            return Ok(Identities::All);
+        }
+        let names: Vec<String> = s
+            .split(',')
+            .map(|n| n.trim().to_string())
+            .filter(|n| !n.is_empty())
+            .collect();
+        if names.is_empty() {
+            return Err("expected `all` or a comma-separated list of subject names".into());
+        }
+        Ok(Identities::Named(names))
+    }
+}
+
+impl std::fmt::Display for Identities {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Identities::All => f.write_str("all"),
+            Identities::Named(names) => f.write_str(&names.join(",")),
+        }
+    }
+}
+
+/// The paper's ablations (Tables 1 and 3), as switches on the field.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Ablation {
+    /// D_hands deforms hand samples (off: "w/o D_hands").
+    pub use_d_hands: bool,
+    /// The body's rendered colour is the hands' background (off: "w/o background").
+    pub hand_background: bool,
+    /// F_face is conditioned on [psi; jaw] (off: psi only).
+    pub face_uses_jaw: bool,
+}
+
+impl Default for Ablation {
+    fn default() -> Self {
+        Ablation {
+            use_d_hands: true,
+            hand_background: true,
+            face_uses_jaw: true,
+        }
+    }
+}
+
+impl Default for TrainOptions {
+    fn default() -> Self {
+        TrainOptions {
+            preset: Preset::Fast,
+            sampler: SamplerKind::Accelerated,
+            budget: Budget::default(),
+            seed: 0,
+            identities: Identities::All,
+            batch_rays: 1024,
+            patches: 1,
+            lr: None,
+            bbox_fraction: 0.8,
+            mask_weight: 0.0,
+            occ_every: 64,
+            grid_resolution: 128,
+            perceptual: None,
+            checkpoint_every_s: 120.0,
+            ablation: Ablation::default(),
+            clip_seconds: None,
+        }
+    }
+}
+
+impl TrainOptions {
+    /// The initial learning rate: the option, else the preset's.
+    pub fn initial_lr(&self) -> f64 {
+        self.lr.unwrap_or(self.preset.learning_rate())
+    }
+
+    /// The perceptual term's weights directory, if the recipe has the term at all.
+    pub fn perceptual_dir(&self) -> Option<&PathBuf> {
+        self.perceptual.as_ref().filter(|_| self.patches > 0)
+    }
+
+    /// Checks every option; errors name the flag as the user types it.
+    pub fn check(&self) -> Result<(), TrainError> {
+        let bad = |flag, problem: &str| {
+            Err(TrainError::BadOption {
+                flag,
+                problem: problem.to_string(),
+            })
+        };
+        match self.budget {
+            Budget::Steps(0) => return bad("--steps", "must be at least 1"),
+            Budget::Seconds(s) if !(s.is_finite() && s > 0.0) => {
+                return bad("--minutes", "must be a positive number");
+            }
+            _ => {}
+        }
+        if self.batch_rays == 0 && self.patches == 0 {
+            return bad(
+                "--batch",
+                "a step needs rays: --batch or --patches must be > 0",
+            );
+        }
+        if !(self.initial_lr().is_finite() && self.initial_lr() > 0.0) {
+            return bad("--lr", "must be a positive number");
+        }
+        if !(self.mask_weight.is_finite() && self.mask_weight >= 0.0) {
+            return bad("--mask-weight", "must be a finite number >= 0");
+        }
+        if !(0.0..=1.0).contains(&self.bbox_fraction) {
+            return bad("--bbox-fraction", "must lie in [0, 1]");
+        }
+        if self.grid_resolution < 8 || self.grid_resolution > 512 {
+            return bad("--grid-resolution", "must be in 8..=512");
+        }
+        if self.checkpoint_every_s.is_nan() || self.checkpoint_every_s <= 0.0 {
+            return bad("--checkpoint-every", "must be positive");
+        }
+        if let Some(c) = self.clip_seconds
+            && !(c.is_finite() && c > 0.0)
+        {
+            return bad("--seconds-of-video", "must be a positive number of seconds");
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use clap::Parser;
+
+    use super::*;
+
+    #[derive(Parser)]
+    struct Cli {
+        #[command(flatten)]
+        recipe: TrainOptions,
+    }
+
+    fn parse(args: &[&str]) -> Result<TrainOptions, clap::Error> {
+        Cli::try_parse_from(std::iter::once("talkin").chain(args.iter().copied())).map(|c| c.recipe)
+    }
+
+    #[test]
+    fn bad_options_name_their_flag() {
+        let flag_of = |opts: TrainOptions| match opts.check() {
+            Err(TrainError::BadOption { flag, .. }) => flag,
+            other => panic!("{other:?}"),
+        };
+        for w in [-0.1, f32::NAN, f32::INFINITY] {
+            let opts = TrainOptions {
+                mask_weight: w,
+                ..TrainOptions::default()
+            };
+            assert_eq!(flag_of(opts), "--mask-weight");
+        }
+        let opts = TrainOptions {
+            lr: Some(0.0),
+            ..TrainOptions::default()
+        };
+        assert_eq!(flag_of(opts), "--lr");
+        for c in [0.0, -1.0, f64::NAN, f64::INFINITY] {
+            let opts = TrainOptions {
+                clip_seconds: Some(c),
+                ..TrainOptions::default()
+            };
+            assert_eq!(flag_of(opts), "--seconds-of-video");
+        }
+        assert!(TrainOptions::default().check().is_ok());
+    }
+
+    /// `state.json` of a run from before the silhouette term resumes with it off.
+    #[test]
+    fn options_without_mask_weight_read_as_off() {
+        let mut json = serde_json::to_value(TrainOptions::default()).unwrap();
+        json.as_object_mut().unwrap().remove("mask_weight");
+        let opts: TrainOptions = serde_json::from_value(json).unwrap();
+        assert_eq!(opts.mask_weight, 0.0);
+    }
+
+    /// The command line's defaults are the struct's, but for the LPIPS directory.
+    #[test]
+    fn command_line_defaults_are_the_defaults() {
+        let parsed = parse(&[]).unwrap();
+        assert_eq!(
+            parsed,
+            TrainOptions {
+                perceptual: Some(PathBuf::from(DEFAULT_LPIPS_DIR)),
+                ..TrainOptions::default()
+            }
+        );
+    }
+
+    #[test]
+    fn flags_fill_the_recipe() {
+        let o = parse(&[
+            "--preset",
+            "paper",
+            "--sampler",
+            "dense",
+            "--minutes",
+            "1.5",
+            "--identities",
+            "ada, bo",
+            "--batch",
+            "64",
+            "--seconds-of-video",
+            "3",
+        ])
+        .unwrap();
+        assert_eq!(o.preset, Preset::Paper);
+        assert_eq!(o.sampler, SamplerKind::Dense);
+        assert_eq!(o.budget, Budget::Seconds(90.0));
+        assert_eq!(
+            o.identities,
+            Identities::Named(vec!["ada".into(), "bo".into()])
+        );
+        assert_eq!(o.batch_rays, 64);
+        assert_eq!(o.clip_seconds, Some(3.0));
+        assert_eq!(parse(&["--steps", "7"]).unwrap().budget, Budget::Steps(7));
+        assert!(parse(&["--steps", "7", "--minutes", "1"]).is_err());
+        assert!(parse(&["--preset", "slow"]).is_err());
+        assert!(parse(&["--identities", ","]).is_err());
+    }
+
+    /// The recorded form is the one runs have always written: old `state.json` files
+    /// resume.
+    #[test]
+    fn the_record_keeps_its_shape() {
+        let json = serde_json::to_value(TrainOptions {
+            identities: Identities::Named(vec!["ada".into()]),
+            ..TrainOptions::default()
+        })
+        .unwrap();
+        assert_eq!(json["preset"], "fast");
+        assert_eq!(json["sampler"], "accelerated");
+        assert_eq!(json["budget"], serde_json::json!({"steps": 1000}));
+        assert_eq!(json["identities"], serde_json::json!(["ada"]));
+        assert_eq!(json["batch_rays"], 1024);
+        let all = serde_json::to_value(TrainOptions::default()).unwrap();
+        assert!(all["identities"].is_null());
+        let back: TrainOptions = serde_json::from_value(json).unwrap();
+        assert_eq!(back.identities.names(), Some(&["ada".to_string()][..]));
+    }
+}

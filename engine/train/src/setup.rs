@@ -1,0 +1,167 @@
+//! What a new run is built from: its training frames (all, or a clip of each subject),
+//! each trained subject's model, the field's canonical box and the recipe file.
+
+use std::path::Path;
+
+use glam::Vec3;
+use talkin_data::dataset::{Dataset, Split};
+use talkin_nets::FieldConfig;
+
+use crate::error::TrainError;
+use crate::recipe::TrainOptions;
+use crate::subject::{SubjectModel, SubjectSlot};
+use crate::{loss, rays, schedule};
+
+/// The recipe (options and the derived schedule) inside the run directory.
+pub const RECIPE_FILE: &str = "recipe.json";
+
+/// The training frames of the chosen identities (all with training frames when `None`),
+/// each cut to its first `clip_seconds` of video when given.
+pub(crate) fn training_frames(
+    dataset: &Dataset,
+    identities: Option<&[String]>,
+    clip_seconds: Option<f64>,
+) -> Result<Vec<usize>, TrainError> {
+    let index_file = dataset.root.join(talkin_data::dataset::INDEX_FILE);
+    let chosen: Vec<usize> = match identities {
+        None => (0..dataset.subjects.len()).collect(),
+        Some(names) => names
+            .iter()
+            .map(|n| {
+                dataset
+                    .subject_index(n)
+                    .ok_or_else(|| unknown_subject(dataset, "--identities", n))
+            })
+            .collect::<Result<_, _>>()?,
+    };
+    // In dataset order, each frame once (a name may be listed twice).
+    let mut frames: Vec<usize> = chosen
+        .iter()
+        .flat_map(|&s| clip_of(dataset, s, clip_seconds))
+        .collect();
+    frames.sort_unstable();
+    frames.dedup();
+    if frames.is_empty() {
+        return Err(TrainError::NoTrainFrames { file: index_file });
+    }
+    Ok(frames)
+}
+
+/// Subject `s`'s training frames in time order, cut to those less than `clip_seconds`
+/// after its first one (all of them for `None`): the short clip a novel identity is
+/// learned from, by adaptation or from scratch.
+pub(crate) fn clip_of(dataset: &Dataset, s: usize, clip_seconds: Option<f64>) -> Vec<usize> {
+    let mut frames = dataset.subject_frames(s, Split::Train);
+    if let Some(limit) = clip_seconds
+        && let Some(&first) = frames.first()
+    {
+        let t0 = dataset.frames[first].time;
+        frames.retain(|&i| dataset.frames[i].time - t0 < limit);
+    }
+    frames
+}
+
+/// `field` names a subject `name` the dataset does not have; the error lists those it has.
+pub(crate) fn unknown_subject(dataset: &Dataset, flag: &'static str, name: &str) -> TrainError {
+    let has: Vec<&str> = dataset.subjects.iter().map(|s| s.name.as_str()).collect();
+    TrainError::BadOption {
+        flag,
+        problem: format!(
+            "{} has no subject `{name}` (has: {})",
+            dataset
+                .root
+                .join(talkin_data::dataset::INDEX_FILE)
+                .display(),
+            has.join(", ")
+        ),
+    }
+}
+
+/// A slot per dataset subject; a model (shells, grid) for those with training frames.
+pub(crate) fn fit_subjects(
+    dataset: &Dataset,
+    frames: &[usize],
+    grid_resolution: u32,
+) -> Result<Vec<SubjectSlot>, TrainError> {
+    (0..dataset.subjects.len())
+        .map(|s| {
+            let own: Vec<usize> = frames
+                .iter()
+                .copied()
+                .filter(|&i| dataset.frames[i].subject == s)
+                .collect();
+            let model = if own.is_empty() {
+                None
+            } else {
+                Some(SubjectModel::fit(dataset, s, &own, grid_resolution)?)
+            };
+            Ok(SubjectSlot {
+                name: dataset.subjects[s].name.clone(),
+                model,
+            })
+        })
+        .collect()
+}
+
+/// The field's canonical box: the union of the grids (every sample the grid keeps maps
+/// inside it), padded by 5 cm.
+pub(crate) fn fit_field_box(config: &mut FieldConfig, subjects: &[SubjectSlot]) {
+    let mut lo = Vec3::splat(f32::INFINITY);
+    let mut hi = Vec3::splat(f32::NEG_INFINITY);
+    for m in subjects.iter().filter_map(|s| s.model.as_ref()) {
+        let (g_lo, g_hi) = m.grid.aabb();
+        lo = lo.min(g_lo);
+        hi = hi.max(g_hi);
+    }
+    if lo.is_finite() && hi.is_finite() {
+        let pad = Vec3::splat(0.05);
+        config.aabb_min = (lo - pad).to_array();
+        config.aabb_max = (hi + pad).to_array();
+    }
+}
+
+/// `RUN/recipe.json`: the options, the field config and the schedule they imply.
+pub(crate) fn write_recipe(
+    out: &Path,
+    opts: &TrainOptions,
+    config: &FieldConfig,
+) -> Result<(), TrainError> {
+    let recipe = serde_json::json!({
+        "options": opts,
+        "initial_lr": opts.initial_lr(),
+        "loss": format!(
+            "{}{}",
+            if opts.perceptual_dir().is_some() {
+                format!(
+                    "perceptual (LPIPS alex, else 1 - SSIM) on {} patch(es) of {p}x{p} + {} MSE + {} CE",
+                    opts.patches,
+                    loss::MSE_WEIGHT,
+                    loss::SEG_WEIGHT,
+                    p = rays::PATCH
+                )
+            } else {
+                format!("MSE + {} CE (no perceptual term)", loss::SEG_WEIGHT)
+            },
+            if opts.mask_weight > 0.0 {
+                format!(" + {} MSE(opacity, mask)", opts.mask_weight)
+            } else {
+                String::new()
+            }
+        ),
+        "schedule": {
+            "virtual_iterations": schedule::PAPER_ITERATIONS,
+            "lr_decay": format!("x0.1 per {} virtual iterations", schedule::LR_DECAY_ITERATIONS),
+            "part_aware_rays": "virtual 0-20k: 20% hands; 20-40k: 20% hands + 60% arms; 40-60k: 40/40; 60-80k: 80/20; then 20% hands (of the in-box rays)",
+            "non_rigid_start_step": config.non_rigid_start_step,
+        },
+        "field": config,
+    });
+    let path = out.join(RECIPE_FILE);
+    talkin_data::atomic::write_atomic(
+        &path,
+        serde_json::to_string_pretty(&recipe)
+            .expect("JSON serialises")
+            .as_bytes(),
+    )
+    .map_err(|source| TrainError::Io { file: path, source })
+}

@@ -1,0 +1,223 @@
+//! One training step, in the order it runs: rays -> samples -> field and loss ->
+//! optimizer -> grid update. Each stage is a method below [`Trainer::step`], which reads
+//! as the list of them.
+
+use std::time::Instant;
+
+use burn::module::Module;
+use burn::optim::GradientsParams;
+use talkin_grids::{GridError, PackedSamples, SamplerKind};
+
+use crate::error::TrainError;
+use crate::log::StepLog;
+use crate::loss::{StepBatch, StepLoss, loss_and_grads};
+use crate::rays::{Batch, BatchSpec, CacheError, FrameCache, PATCH, draw_batch};
+use crate::schedule;
+use crate::trainer::Trainer;
+
+impl Trainer<'_> {
+    /// One optimizer step (and, when due, an occupancy-grid update).
+    pub fn step(&mut self) -> Result<StepLog, TrainError> {
+        let t0 = Instant::now();
+        let vstep = self.field_step();
+        let lr = schedule::learning_rate(self.opts.initial_lr(), vstep);
+
+        // Rays: a seeded training frame, its LPIPS patches and part-aware pixels.
+        let frame = self.pick_frame()?;
+        let batch = self.draw_rays(frame, vstep)?;
+
+        // Samples along each ray, by the run's sampler (timed for the log).
+        let sampling_start = Instant::now();
+        let samples = self.draw_samples(frame, &batch)?;
+        let sampling_s = sampling_start.elapsed().as_secs_f64();
+        let (n_rays, n_samples) = (batch.rays.len(), samples.num_samples());
+
+        // Field and loss: forward, render, loss and backward.
+        let StepLoss { loss, mse, grads } = self.field_loss(frame, &batch, samples, vstep)?;
+        if !loss.is_finite() {
+            return Err(TrainError::NonFinite {
+                step: self.step + 1,
+                loss,
+            });
+        }
+
+        // Optimizer.
+        self.optimize(lr, grads);
+        self.step += 1;
+
+        // Grid update, when due.
+        self.update_grids_if_due()?;
+
+        let secs = t0.elapsed().as_secs_f64().max(1e-9);
+        self.elapsed += secs;
+        self.since_checkpoint += secs;
+        let entry = StepLog {
+            step: self.step,
+            seconds: self.elapsed,
+            loss,
+            mse,
+            psnr: -10.0 * mse.max(1e-10).log10(),
+            rays: n_rays,
+            samples: n_samples,
+            rays_per_s: n_rays as f64 / secs,
+            samples_per_s: n_samples as f64 / secs,
+            lr,
+            progress: self.progress(),
+            grid_occupied: self.grid_occupied,
+            sampling_s,
+        };
+        self.log.write(&entry)?;
+        Ok(entry)
+    }
+
+    /// A seeded training frame, cached with its decoded images and sampler on first use.
+    fn pick_frame(&mut self) -> Result<usize, TrainError> {
+        let i = self.frames[self.rng.below(self.frames.len() as u64) as usize];
+        if let std::collections::hash_map::Entry::Vacant(entry) = self.cache.entry(i) {
+            let subject = self.dataset.frames[i].subject;
+            let slot = self.slot_of[subject].expect("training frames belong to trained subjects");
+            let model = self.subjects[slot]
+                .model
+                .as_ref()
+                .expect("a trained subject has a model");
+            let cached = FrameCache::new(self.dataset, i, slot, model).map_err(|e| match e {
+                CacheError::Dataset(e) => TrainError::Dataset(e),
+                CacheError::Grid(source) => grid_error(self.dataset, i, source),
+            })?;
+            entry.insert(cached);
+        }
+        Ok(i)
+    }
+
+    /// The step's rays: LPIPS patches (when the perceptual term is on) and part-aware
+    /// random pixels at the schedule's fractions for virtual step `vstep`.
+    fn draw_rays(&mut self, frame: usize, vstep: usize) -> Result<Batch, TrainError> {
+        let spec = BatchSpec {
+            patches: if self.perceptual.is_some() {
+                self.opts.patches
+            } else {
+                0
+            },
+            random_rays: self.opts.batch_rays,
+            bbox_fraction: self.opts.bbox_fraction,
+            parts: schedule::part_fractions(vstep),
+        };
+        draw_batch(
+            self.dataset,
+            frame,
+            &self.cache[&frame],
+            &spec,
+            &mut self.rng,
+        )
+        .map_err(|source| grid_error(self.dataset, frame, source))
+    }
+
+    /// The samples along `batch`'s rays, with this step's seeded jitter.
+    fn draw_samples(&self, frame: usize, batch: &Batch) -> Result<PackedSamples, TrainError> {
+        let jitter_seed = self
+            .opts
+            .seed
+            .wrapping_mul(0x9E37_79B9)
+            .wrapping_add(self.step as u64);
+        let model = self.model_of(frame);
+        self.cache[&frame]
+            .sampler
+            .sample(
+                self.opts.sampler,
+                &batch.rays,
+                &model.grid,
+                Some(jitter_seed),
+            )
+            .map_err(|source| grid_error(self.dataset, frame, source))
+    }
+
+    /// The field at the samples, rendered, scored against the batch's targets and
+    /// differentiated ([`loss_and_grads`]).
+    fn field_loss(
+        &self,
+        frame: usize,
+        batch: &Batch,
+        samples: PackedSamples,
+        vstep: usize,
+    ) -> Result<StepLoss, TrainError> {
+        loss_and_grads(
+            self.field(),
+            self.perceptual.as_ref(),
+            StepBatch {
+                rays: &batch.rays,
+                samples,
+                rgb: &batch.rgb,
+                labels: &batch.labels,
+                patches: batch.patches,
+                patch_side: PATCH as usize,
+                frame: &self.cache[&frame].conditions,
+                step: vstep,
+                background: self.dataset.background,
+                mask_weight: self.opts.mask_weight,
+            },
+        )
+        .map_err(|source| TrainError::Field { source })
+    }
+
+    /// Adam at learning rate `lr`. The field is moved through the optimizer so that no
+    /// other handle shares its buffers and Adam updates them in place.
+    fn optimize(&mut self, lr: f64, grads: GradientsParams) {
+        let field = self
+            .field
+            .take()
+            .expect("the field is back after every step");
+        self.field = Some(self.optim.step(lr, field, grads));
+    }
+
+    /// Every `occ_every` steps (accelerated sampler only), one trained subject's
+    /// occupancy grid, in turn, from the field's density.
+    fn update_grids_if_due(&mut self) -> Result<(), TrainError> {
+        let due = self.opts.sampler == SamplerKind::Accelerated
+            && self.opts.occ_every > 0
+            && self.step.is_multiple_of(self.opts.occ_every as usize);
+        if !due {
+            return Ok(());
+        }
+        let face_dim = talkin_nets::field::EXPRESSION_DIM
+            + if self.config.face_uses_jaw {
+                talkin_nets::field::JAW_DIM
+            } else {
+                0
+            };
+        let virtual_per_step = self.field_step() as f64 / self.step as f64;
+        if let Some(occupied) = crate::grid_update::update_grids(
+            &self.field().valid(),
+            &mut self.subjects,
+            self.step as u32,
+            virtual_per_step,
+            &self.occ_opts,
+            face_dim,
+        )? {
+            self.grid_occupied = occupied;
+        }
+        Ok(())
+    }
+
+    /// The model of the subject dataset frame `frame` shows.
+    fn model_of(&self, frame: usize) -> &crate::subject::SubjectModel {
+        let slot = self.slot_of[self.dataset.frames[frame].subject]
+            .expect("training frames belong to trained subjects");
+        self.subjects[slot]
+            .model
+            .as_ref()
+            .expect("a trained subject has a model")
+    }
+}
+
+/// A sampling error at dataset frame `frame`, naming the index file.
+fn grid_error(
+    dataset: &talkin_data::dataset::Dataset,
+    frame: usize,
+    source: GridError,
+) -> TrainError {
+    TrainError::Grid {
+        file: dataset.root.join(talkin_data::dataset::INDEX_FILE),
+        frame,
+        source,
+    }
+}
