@@ -25,18 +25,20 @@
 //! `time = index / 25`, the camera aimed at the clip's mean translation.
 
 pub mod body;
+mod framing;
+mod plan;
 pub mod render;
 pub mod sdf;
 pub mod talk;
+mod write;
 
 use std::path::{Path, PathBuf};
 
-use glam::{DVec3, Vec3};
+use glam::Vec3;
 
-use talkin_data::dataset::{DEPTH_UNIT_M, Dataset, DatasetError, Frame, Split, Subject};
-use talkin_human::body::skeleton::joint;
-use talkin_human::body::{FrameParams, PosedSkeleton, Skeleton};
-use talkin_human::camera::{Camera, CameraError};
+use talkin_data::dataset::{Dataset, DatasetError, Frame};
+use talkin_human::body::FrameParams;
+use talkin_human::camera::CameraError;
 
 pub use body::{default_rest_joints, look, proportions};
 pub use talk::{FPS, Style, talking_clip};
@@ -102,183 +104,8 @@ pub enum SynthError {
     Dataset(#[from] DatasetError),
 }
 
-/// Names of the authored identities.
-const NAMES: [&str; 3] = ["ada", "ben", "cleo"];
-
-fn subject_name(i: usize) -> String {
-    NAMES
-        .get(i)
-        .map_or_else(|| format!("synth{i}"), |n| n.to_string())
-}
-
-/// One frame to render, before rendering.
-struct Job {
-    subject: usize,
-    split: Split,
-    time: f64,
-    params: FrameParams,
-}
-
-fn mix(seed: u64, stream: u64) -> u64 {
-    talk::SplitMix::new(seed ^ stream.wrapping_mul(0xa076_1d64_78bd_642f)).next_u64()
-}
-
-/// The motion style of identity `i`'s built-in clip.
-fn style_of(i: usize) -> Style {
-    Style {
-        tempo: [1.0, 0.8, 1.25][i % 3],
-        wide: false,
-    }
-}
-
-/// Frames of one split per identity for `test_cross` and `test_ood`.
-fn eval_count(frames: usize) -> usize {
-    (frames / 5).clamp(2, 10)
-}
-
-/// The built-in frames of identity `i`.
-fn builtin_jobs(cfg: &SynthConfig, i: usize) -> Vec<Job> {
-    let mut jobs = Vec::new();
-    // Steps until `frames` of them are training steps (every 5th is held out).
-    let n = (cfg.frames..)
-        .find(|&n| n - (n + 1) / 5 >= cfg.frames)
-        .expect("unbounded");
-    for (s, params) in talking_clip(mix(cfg.seed, i as u64), n, style_of(i))
-        .into_iter()
-        .enumerate()
-    {
-        let split = if s % 5 == 4 {
-            Split::TestSame
-        } else {
-            Split::Train
-        };
-        jobs.push(Job {
-            subject: i,
-            split,
-            time: s as f64 / FPS,
-            params,
-        });
-    }
-    let k = eval_count(cfg.frames);
-    // Another identity's motion (or, alone, another clip).
-    let other = if cfg.identities > 1 {
-        (i + 1) % cfg.identities
-    } else {
-        1
-    };
-    let other_clip = talking_clip(mix(cfg.seed, other as u64), n, style_of(other));
-    for c in 0..k {
-        let s = (c * n) / k + (n / k) / 2;
-        jobs.push(Job {
-            subject: i,
-            split: Split::TestCross,
-            time: s as f64 / FPS,
-            params: other_clip[s].clone(),
-        });
-    }
-    let ood_stride = 6;
-    let ood = talking_clip(
-        mix(cfg.seed, 1000 + i as u64),
-        k * ood_stride,
-        Style {
-            tempo: 1.0,
-            wide: true,
-        },
-    );
-    for c in 0..k {
-        let s = c * ood_stride + ood_stride / 2;
-        jobs.push(Job {
-            subject: i,
-            split: Split::TestOod,
-            time: s as f64 / FPS,
-            params: ood[s].clone(),
-        });
-    }
-    jobs
-}
-
-/// Points that must stay inside the image: the head with its hair, the hands.
-fn keypoints(head_scale: f64, posed: &PosedSkeleton) -> Vec<DVec3> {
-    let mut pts = Vec::new();
-    let head = &posed.world_from_joint[joint::HEAD];
-    for off in [
-        DVec3::new(0.0, 0.23, 0.0),
-        DVec3::new(0.1, 0.1, 0.0),
-        DVec3::new(-0.1, 0.1, 0.0),
-        DVec3::new(0.0, 0.17, -0.16),
-        DVec3::new(0.0, -0.04, -0.19),
-        DVec3::new(0.0, 0.0, 0.12),
-    ] {
-        pts.push(head.transform_point3(off * head_scale));
-    }
-    for j in [joint::LEFT_WRIST, joint::RIGHT_WRIST]
-        .into_iter()
-        .chain(joint::LEFT_HAND_FIRST..talkin_human::body::N_JOINTS)
-    {
-        pts.push(posed.joint(j));
-    }
-    // Finger tips: one more segment past the last joint.
-    for first in [joint::LEFT_HAND_FIRST, joint::RIGHT_HAND_FIRST] {
-        for f in 0..5 {
-            let (a, b) = (
-                posed.joint(first + 3 * f + 1),
-                posed.joint(first + 3 * f + 2),
-            );
-            pts.push(b + (b - a) * 1.1);
-        }
-    }
-    pts
-}
-
-/// A frontal camera for one identity, framed from mid-thigh up and widened so every
-/// keypoint of every frame lies at least `margin` pixels inside.
-fn frame_camera(
-    skeleton: &Skeleton,
-    head_scale: f64,
-    width: u32,
-    height: u32,
-    posed: &[PosedSkeleton],
-    aim: DVec3,
-) -> Result<Camera, CameraError> {
-    let r = &skeleton.rest_joints;
-    let bottom = (r[joint::LEFT_HIP].y + r[joint::LEFT_KNEE].y) * 0.5;
-    let top = r[joint::HEAD].y + 0.24 * head_scale;
-    let centre = DVec3::new(0.0, (top + bottom) * 0.5, 0.0) + aim;
-    let distance = 3.2;
-    let eye = centre + DVec3::new(0.0, 0.05, distance);
-    let f0 = height as f64 * distance / (top - bottom);
-    let probe = Camera::look_at(width, height, f0, eye, centre, DVec3::Y)?;
-    let margin = 2.0 + height as f64 * 0.02;
-    let (half_w, half_h) = (width as f64 / 2.0 - margin, height as f64 / 2.0 - margin);
-    let mut focal = f0;
-    for p in posed {
-        for k in keypoints(head_scale, p) {
-            let c = probe.camera_from_world.transform_point3(k);
-            if c.z > 0.1 {
-                focal = focal
-                    .min(half_w * c.z / c.x.abs().max(1e-9))
-                    .min(half_h * c.z / c.y.abs().max(1e-9));
-            }
-        }
-    }
-    Camera::look_at(width, height, focal, eye, centre, DVec3::Y)
-}
-
-fn png_err(file: &Path) -> impl Fn(image::ImageError) -> SynthError + '_ {
-    move |e| SynthError::Png {
-        file: file.to_path_buf(),
-        message: e.to_string(),
-    }
-}
-
-/// Generates the dataset into `out` (created if missing) and writes `out/dataset.json`.
-/// `progress(done, total)` is called once before the first frame and after every frame.
-/// The output is byte-identical for the same config.
-pub fn generate(
-    cfg: &SynthConfig,
-    out: &Path,
-    progress: &mut dyn FnMut(usize, usize),
-) -> Result<Dataset, SynthError> {
+/// Why `cfg` cannot be generated, before anything is written.
+fn check(cfg: &SynthConfig) -> Result<(), SynthError> {
     if cfg.identities == 0 {
         return Err(SynthError::Config("identities must be at least 1".into()));
     }
@@ -304,57 +131,32 @@ pub fn generate(
         }
         None => {}
     }
+    Ok(())
+}
+
+/// Generates the dataset into `out` (created if missing) and writes `out/dataset.json`.
+/// `progress(done, total)` is called once before the first frame and after every frame.
+/// The output is byte-identical for the same config.
+pub fn generate(
+    cfg: &SynthConfig,
+    out: &Path,
+    progress: &mut dyn FnMut(usize, usize),
+) -> Result<Dataset, SynthError> {
+    check(cfg)?;
     let (width, height) = cfg.image_size();
-    for dir in ["images", "masks", "segmentation", "depth"] {
+    for dir in write::DIRS {
         let d = out.join(dir);
         std::fs::create_dir_all(&d).map_err(|source| SynthError::Io {
             file: d.clone(),
             source,
         })?;
     }
-
-    let mut subjects = Vec::new();
-    let mut plan: Vec<(Job, Camera)> = Vec::new();
-    for i in 0..cfg.identities {
-        let skeleton = default_rest_joints(i);
-        let prop = proportions(i);
-        let jobs = match &cfg.motion {
-            None => builtin_jobs(cfg, i),
-            Some(m) => m
-                .iter()
-                .enumerate()
-                .map(|(k, p)| Job {
-                    subject: i,
-                    split: Split::Train,
-                    time: k as f64 / FPS,
-                    params: p.clone(),
-                })
-                .collect(),
-        };
-        let aim = match &cfg.motion {
-            None => DVec3::ZERO,
-            Some(m) => m.iter().map(|p| p.transl).sum::<DVec3>() / m.len() as f64,
-        };
-        let posed: Vec<PosedSkeleton> = jobs.iter().map(|j| skeleton.pose(&j.params)).collect();
-        let camera =
-            frame_camera(&skeleton, prop.head, width, height, &posed, aim).map_err(|source| {
-                SynthError::Camera {
-                    identity: i,
-                    source,
-                }
-            })?;
-        plan.extend(jobs.into_iter().map(|j| (j, camera)));
-        subjects.push(Subject {
-            name: subject_name(i),
-            skeleton,
-        });
-    }
-
-    let total = plan.len();
+    let plan::Plan { subjects, jobs } = plan::plan(cfg)?;
+    let total = jobs.len();
     progress(0, total);
     let background = Vec3::from(BACKGROUND);
     let mut frames = Vec::with_capacity(total);
-    for (index, (job, camera)) in plan.into_iter().enumerate() {
+    for (index, (job, camera)) in jobs.into_iter().enumerate() {
         let skeleton = &subjects[job.subject].skeleton;
         let fig = body::figure(
             skeleton,
@@ -363,58 +165,16 @@ pub fn generate(
             &job.params,
         );
         let posed = skeleton.pose(&job.params);
-        let scene = render::Scene::new(&fig, &posed, background);
-        let img = scene.render(&camera);
-        let name = format!("{index:05}.png");
-        let rel = |dir: &str| PathBuf::from(dir).join(&name);
-        let (w, h) = (width, height);
-        let file = out.join(rel("images"));
-        image::RgbImage::from_raw(w, h, img.rgb.iter().flatten().copied().collect())
-            .expect("buffer matches the camera")
-            .save_with_format(&file, image::ImageFormat::Png)
-            .map_err(png_err(&file))?;
-        let file = out.join(rel("masks"));
-        image::GrayImage::from_raw(
-            w,
-            h,
-            img.label
-                .iter()
-                .map(|&l| if l > 0 { 255 } else { 0 })
-                .collect(),
-        )
-        .expect("buffer matches the camera")
-        .save_with_format(&file, image::ImageFormat::Png)
-        .map_err(png_err(&file))?;
-        let file = out.join(rel("segmentation"));
-        image::GrayImage::from_raw(w, h, img.label.clone())
-            .expect("buffer matches the camera")
-            .save_with_format(&file, image::ImageFormat::Png)
-            .map_err(png_err(&file))?;
-        let file = out.join(rel("depth"));
-        let depth: Vec<u16> = img
-            .depth
-            .iter()
-            .zip(&img.label)
-            .map(|(&z, &l)| {
-                if l == 0 {
-                    0
-                } else {
-                    (z as f64 / DEPTH_UNIT_M).round().clamp(1.0, 65535.0) as u16
-                }
-            })
-            .collect();
-        image::ImageBuffer::<image::Luma<u16>, Vec<u16>>::from_raw(w, h, depth)
-            .expect("buffer matches the camera")
-            .save_with_format(&file, image::ImageFormat::Png)
-            .map_err(png_err(&file))?;
+        let img = render::Scene::new(&fig, &posed, background).render(&camera);
+        let paths = write::write_frame(out, index, &img, width, height)?;
         frames.push(Frame {
             subject: job.subject,
             split: job.split,
             time: job.time,
-            image: rel("images"),
-            mask: rel("masks"),
-            segmentation: rel("segmentation"),
-            depth: Some(rel("depth")),
+            image: paths.image,
+            mask: paths.mask,
+            segmentation: paths.segmentation,
+            depth: Some(paths.depth),
             camera,
             params: job.params,
         });

@@ -5,7 +5,7 @@
 use glam::{DMat3, DVec3};
 
 use talkin_human::body::skeleton::joint::*;
-use talkin_human::body::{FrameParams, N_EXPRESSION, axis_angle_from_rotation};
+use talkin_human::body::{FrameParams, N_EXPRESSION, N_HAND_JOINTS, axis_angle_from_rotation};
 
 /// Frames per second of every generated clip.
 pub const FPS: f64 = 25.0;
@@ -191,141 +191,204 @@ fn hand_key(rng: &mut SplitMix, wide: bool) -> [f64; 6] {
     c
 }
 
+/// Speech on the jaw: phrases separated by pauses, syllables within them.
+struct Speech {
+    syllable_hz: f64,
+    syllable_phase: f64,
+    jaw_max: f64,
+    /// (start, end) in seconds.
+    phrases: Vec<(f64, f64)>,
+    /// Loudness of each syllable.
+    syllable_gain: Vec<f64>,
+}
+
+impl Speech {
+    fn new(rng: &mut SplitMix, duration: f64, wide: bool) -> Self {
+        let syllable_hz = rng.range(4.0, 5.0);
+        let syllable_phase = rng.range(0.0, 1.0);
+        let jaw_max = if wide { 0.5 } else { 0.3 };
+        let mut phrases = Vec::new();
+        let mut t = rng.range(-0.5, 0.2);
+        while t < duration + 1.0 {
+            let len = rng.range(1.2, 3.0);
+            phrases.push((t, t + len));
+            t += len + rng.range(0.35, 0.8);
+        }
+        let syllable_gain: Vec<f64> = (0..((duration + 2.0) * 6.0) as usize + 8)
+            .map(|_| rng.range(0.35, 1.0))
+            .collect();
+        Self {
+            syllable_hz,
+            syllable_phase,
+            jaw_max,
+            phrases,
+            syllable_gain,
+        }
+    }
+
+    /// Jaw opening (rad about x) at time `t`; slightly open at rest.
+    fn jaw(&self, t: f64) -> f64 {
+        let talking = self.phrases.iter().any(|&(a, b)| t >= a && t <= b);
+        let phase = t * self.syllable_hz + self.syllable_phase;
+        let syl = (std::f64::consts::PI * phase.fract()).sin().powf(1.5);
+        let gain = self.syllable_gain[(phase as usize).min(self.syllable_gain.len() - 1)];
+        // Phrases fade in and out over 0.15 s instead of snapping the jaw.
+        let edge = self
+            .phrases
+            .iter()
+            .map(|&(a, b)| ((t - a).min(b - t) / 0.15).clamp(0.0, 1.0))
+            .fold(0.0, f64::max);
+        0.02 + if talking {
+            self.jaw_max * syl * gain * edge
+        } else {
+            0.0
+        }
+    }
+}
+
+/// The random signals of one clip, drawn once from the seed (the order of the draws is
+/// part of the output); a frame samples them at its time.
+struct Performance {
+    arms: [Keys<6>; 2],
+    hands: [Keys<6>; 2],
+    expressions: Vec<Wave>,
+    smile_bias: f64,
+    head_turn: Wave,
+    head_nod: Wave,
+    head_tilt: Wave,
+    sway: [Wave; 3],
+    eyes: Keys<2>,
+    speech: Speech,
+}
+
+impl Performance {
+    fn new(rng: &mut SplitMix, duration: f64, style: Style) -> Self {
+        let wide = style.wide;
+        let arms = [0, 1].map(|_| Keys::new(rng, duration, style.tempo, |r| arm_key(r, wide)));
+        let hands =
+            [0, 1].map(|_| Keys::new(rng, duration, style.tempo * 1.3, |r| hand_key(r, wide)));
+        let expr_gain = if wide { 2.4 } else { 1.0 };
+        let expressions: Vec<Wave> = (0..N_EXPRESSION)
+            .map(|k| Wave::new(rng, if k == 0 { 0.9 } else { 0.7 } * expr_gain, 0.08, 0.5))
+            .collect();
+        let smile_bias = rng.range(0.0, 0.5);
+        let turn_amp = if wide { 0.6 } else { 0.18 };
+        let head_turn = Wave::new(rng, turn_amp, 0.05, 0.3);
+        let head_nod = Wave::new(rng, if wide { 0.3 } else { 0.09 }, 0.4, 1.6);
+        let head_tilt = Wave::new(rng, 0.06, 0.1, 0.5);
+        let sway = [0, 1, 2].map(|_| Wave::new(rng, 0.045, 0.08, 0.4));
+        let eyes = Keys::new(rng, duration, 2.0, |r| {
+            [r.range(-0.25, 0.25), r.range(-0.12, 0.12)]
+        });
+        let speech = Speech::new(rng, duration, wide);
+        Self {
+            arms,
+            hands,
+            expressions,
+            smile_bias,
+            head_turn,
+            head_nod,
+            head_tilt,
+            sway,
+            eyes,
+            speech,
+        }
+    }
+
+    fn frame(&self, t: f64) -> FrameParams {
+        let mut p = self.torso_and_head(t);
+        for side in 0..2 {
+            self.arm(&mut p, side, t);
+        }
+        p.jaw_pose = DVec3::new(self.speech.jaw(t), 0.0, 0.0);
+        // Expressions, gently smiling on average.
+        for (k, w) in self.expressions.iter().enumerate() {
+            p.expression[k] = w.at(t) + if k == 0 { self.smile_bias } else { 0.0 };
+        }
+        let [yaw, pitch] = self.eyes.at(t);
+        p.leye_pose = DVec3::new(pitch, yaw, 0.0);
+        p.reye_pose = DVec3::new(pitch, yaw, 0.0);
+        p
+    }
+
+    /// Torso sway with a slight body turn; head nods, turns and tilts.
+    fn torso_and_head(&self, t: f64) -> FrameParams {
+        let sway = &self.sway;
+        let mut p = FrameParams {
+            global_orient: DVec3::new(0.0, sway[0].at(t) * 1.5, 0.0),
+            ..Default::default()
+        };
+        p.body_pose[SPINE1 - 1] = DVec3::new(sway[1].at(t) * 0.5, 0.0, sway[2].at(t));
+        p.body_pose[SPINE2 - 1] = DVec3::new(
+            sway[1].at(t) * 0.5,
+            sway[0].at(t) * 0.5,
+            sway[2].at(t) * 0.5,
+        );
+        p.body_pose[SPINE3 - 1] = DVec3::new(0.0, sway[0].at(t) * 0.5, 0.0);
+        p.body_pose[NECK - 1] = DVec3::new(
+            0.05 + self.head_nod.at(t) * 0.5,
+            self.head_turn.at(t) * 0.4,
+            self.head_tilt.at(t) * 0.5,
+        );
+        p.body_pose[HEAD - 1] = DVec3::new(
+            self.head_nod.at(t) * 0.5,
+            self.head_turn.at(t) * 0.6,
+            self.head_tilt.at(t) * 0.5,
+        );
+        p
+    }
+
+    /// One side's shoulder, elbow, wrist and collar, then its hand.
+    fn arm(&self, p: &mut FrameParams, side: usize, t: f64) {
+        let sign = if side == 0 { 1.0 } else { -1.0 };
+        let [down, fwd, flex, roll, wflex, wdev] = self.arms[side].at(t);
+        let shoulder = ry(-sign * fwd) * rz(-sign * down);
+        p.body_pose[LEFT_SHOULDER + side - 1] = aa(shoulder);
+        p.body_pose[LEFT_ELBOW + side - 1] = aa(ry(-sign * flex) * rx(roll));
+        p.body_pose[LEFT_WRIST + side - 1] = aa(rz(-sign * wflex) * ry(sign * wdev));
+        // Collar follows large raises a little.
+        p.body_pose[LEFT_COLLAR + side - 1] =
+            DVec3::new(0.0, 0.0, sign * (0.6 - down).max(0.0) * 0.15);
+        let pose = if side == 0 {
+            &mut p.left_hand_pose
+        } else {
+            &mut p.right_hand_pose
+        };
+        hand_pose(pose, sign, self.hands[side].at(t));
+    }
+}
+
+/// Finger curls and spread (`hand_key` order) as the 15 local rotations of a hand on
+/// side `sign`.
+fn hand_pose(pose: &mut [DVec3; N_HAND_JOINTS], sign: f64, curls: [f64; 6]) {
+    for f in 0..4 {
+        // Flexion axis: finger direction x palm normal (-y) = -z (left), +z (right).
+        let spread = curls[5] * (f as f64 - 1.2) * 0.25;
+        for k in 0..3 {
+            let bend = curls[f] * [0.9, 1.1, 0.8][k];
+            let r = rz(-sign * bend)
+                * if k == 0 {
+                    ry(-sign * spread)
+                } else {
+                    DMat3::IDENTITY
+                };
+            pose[3 * f + k] = aa(r);
+        }
+    }
+    // Thumb: folds across the palm about an axis along the palm's width.
+    let dir = DVec3::new(0.72 * sign, -0.2, 0.66).normalize();
+    let axis = dir.cross(DVec3::NEG_Y).normalize();
+    for k in 0..3 {
+        pose[12 + k] = axis * curls[4] * [0.5, 0.6, 0.7][k];
+    }
+}
+
 /// A talking clip of `n` frames at [`FPS`].
 pub fn talking_clip(seed: u64, n: usize, style: Style) -> Vec<FrameParams> {
     let mut rng = SplitMix::new(seed);
     let duration = n as f64 / FPS;
-    let wide = style.wide;
-    let arms = [0, 1].map(|_| Keys::new(&mut rng, duration, style.tempo, |r| arm_key(r, wide)));
-    let hands =
-        [0, 1].map(|_| Keys::new(&mut rng, duration, style.tempo * 1.3, |r| hand_key(r, wide)));
-    let expr_gain = if wide { 2.4 } else { 1.0 };
-    let expressions: Vec<Wave> = (0..N_EXPRESSION)
-        .map(|k| {
-            Wave::new(
-                &mut rng,
-                if k == 0 { 0.9 } else { 0.7 } * expr_gain,
-                0.08,
-                0.5,
-            )
-        })
-        .collect();
-    let smile_bias = rng.range(0.0, 0.5);
-    let turn_amp = if wide { 0.6 } else { 0.18 };
-    let head_turn = Wave::new(&mut rng, turn_amp, 0.05, 0.3);
-    let head_nod = Wave::new(&mut rng, if wide { 0.3 } else { 0.09 }, 0.4, 1.6);
-    let head_tilt = Wave::new(&mut rng, 0.06, 0.1, 0.5);
-    let sway = [0, 1, 2].map(|_| Wave::new(&mut rng, 0.045, 0.08, 0.4));
-    let eyes = Keys::new(&mut rng, duration, 2.0, |r| {
-        [r.range(-0.25, 0.25), r.range(-0.12, 0.12)]
-    });
-    let syllable_hz = rng.range(4.0, 5.0);
-    let syllable_phase = rng.range(0.0, 1.0);
-    let jaw_max = if wide { 0.5 } else { 0.3 };
-    // Phrases of speech separated by pauses: (start, end) in seconds.
-    let mut phrases = Vec::new();
-    let mut t = rng.range(-0.5, 0.2);
-    while t < duration + 1.0 {
-        let len = rng.range(1.2, 3.0);
-        phrases.push((t, t + len));
-        t += len + rng.range(0.35, 0.8);
-    }
-    let syllable_gain: Vec<f64> = (0..((duration + 2.0) * 6.0) as usize + 8)
-        .map(|_| rng.range(0.35, 1.0))
-        .collect();
-
-    (0..n)
-        .map(|i| {
-            let t = i as f64 / FPS;
-            // Torso sway and a slight body turn.
-            let mut p = FrameParams {
-                global_orient: DVec3::new(0.0, sway[0].at(t) * 1.5, 0.0),
-                ..Default::default()
-            };
-            p.body_pose[SPINE1 - 1] = DVec3::new(sway[1].at(t) * 0.5, 0.0, sway[2].at(t));
-            p.body_pose[SPINE2 - 1] = DVec3::new(
-                sway[1].at(t) * 0.5,
-                sway[0].at(t) * 0.5,
-                sway[2].at(t) * 0.5,
-            );
-            p.body_pose[SPINE3 - 1] = DVec3::new(0.0, sway[0].at(t) * 0.5, 0.0);
-            // Head: nods follow speech a little.
-            p.body_pose[NECK - 1] = DVec3::new(
-                0.05 + head_nod.at(t) * 0.5,
-                head_turn.at(t) * 0.4,
-                head_tilt.at(t) * 0.5,
-            );
-            p.body_pose[HEAD - 1] = DVec3::new(
-                head_nod.at(t) * 0.5,
-                head_turn.at(t) * 0.6,
-                head_tilt.at(t) * 0.5,
-            );
-            // Arms.
-            for side in 0..2 {
-                let sign = if side == 0 { 1.0 } else { -1.0 };
-                let [down, fwd, flex, roll, wflex, wdev] = arms[side].at(t);
-                let shoulder = ry(-sign * fwd) * rz(-sign * down);
-                p.body_pose[LEFT_SHOULDER + side - 1] = aa(shoulder);
-                p.body_pose[LEFT_ELBOW + side - 1] = aa(ry(-sign * flex) * rx(roll));
-                p.body_pose[LEFT_WRIST + side - 1] = aa(rz(-sign * wflex) * ry(sign * wdev));
-                // Collar follows large raises a little.
-                p.body_pose[LEFT_COLLAR + side - 1] =
-                    DVec3::new(0.0, 0.0, sign * (0.6 - down).max(0.0) * 0.15);
-                let curls = hands[side].at(t);
-                let pose = if side == 0 {
-                    &mut p.left_hand_pose
-                } else {
-                    &mut p.right_hand_pose
-                };
-                for f in 0..4 {
-                    // Flexion axis: finger direction x palm normal (-y) = -z (left), +z (right).
-                    let spread = curls[5] * (f as f64 - 1.2) * 0.25;
-                    for k in 0..3 {
-                        let bend = curls[f] * [0.9, 1.1, 0.8][k];
-                        let r = rz(-sign * bend)
-                            * if k == 0 {
-                                ry(-sign * spread)
-                            } else {
-                                DMat3::IDENTITY
-                            };
-                        pose[3 * f + k] = aa(r);
-                    }
-                }
-                // Thumb: folds across the palm about an axis along the palm's width.
-                let dir = DVec3::new(0.72 * sign, -0.2, 0.66).normalize();
-                let axis = dir.cross(DVec3::NEG_Y).normalize();
-                for k in 0..3 {
-                    pose[12 + k] = axis * curls[4] * [0.5, 0.6, 0.7][k];
-                }
-            }
-            // Jaw: syllables within phrases.
-            let talking = phrases.iter().any(|&(a, b)| t >= a && t <= b);
-            let phase = t * syllable_hz + syllable_phase;
-            let syl = (std::f64::consts::PI * phase.fract()).sin().powf(1.5);
-            let gain = syllable_gain[(phase as usize).min(syllable_gain.len() - 1)];
-            let edge = phrases
-                .iter()
-                .map(|&(a, b)| ((t - a).min(b - t) / 0.15).clamp(0.0, 1.0))
-                .fold(0.0, f64::max);
-            p.jaw_pose = DVec3::new(
-                0.02 + if talking {
-                    jaw_max * syl * gain * edge
-                } else {
-                    0.0
-                },
-                0.0,
-                0.0,
-            );
-            // Expressions, gently smiling on average.
-            for (k, w) in expressions.iter().enumerate() {
-                p.expression[k] = w.at(t) + if k == 0 { smile_bias } else { 0.0 };
-            }
-            let [yaw, pitch] = eyes.at(t);
-            p.leye_pose = DVec3::new(pitch, yaw, 0.0);
-            p.reye_pose = DVec3::new(pitch, yaw, 0.0);
-            p
-        })
-        .collect()
+    let performance = Performance::new(&mut rng, duration, style);
+    (0..n).map(|i| performance.frame(i as f64 / FPS)).collect()
 }
 
 #[cfg(test)]
