@@ -68,6 +68,28 @@ pub fn ablations(
         identities: Identities::All,
         ..opts.train.clone()
     };
+    let eval_opts = EvalOptions {
+        renders_dir: None,
+        lpips_dir: opts.lpips_dir.clone(),
+        smooth: false,
+    };
+    let mut rows = variant_rows(dataset, out, opts, &base, &eval_opts, progress)?;
+    rows.extend(single_identity_rows(
+        dataset, out, opts, &base, &eval_opts, progress,
+    )?);
+    write_outputs(out, &rows)?;
+    Ok(rows)
+}
+
+/// The full method and each switch off, trained from `base` and scored on every split.
+fn variant_rows(
+    dataset: &Dataset,
+    out: &Path,
+    opts: &AblationOptions,
+    base: &TrainOptions,
+    eval_opts: &EvalOptions,
+    progress: &mut dyn FnMut(&str),
+) -> Result<Vec<AblationRow>, AblationError> {
     let full = Ablation::default();
     let variants = [
         ("full", full),
@@ -93,11 +115,6 @@ pub fn ablations(
             },
         ),
     ];
-    let eval_opts = EvalOptions {
-        renders_dir: None,
-        lpips_dir: opts.lpips_dir.clone(),
-        smooth: false,
-    };
     let mut rows = Vec::new();
     for (name, ablation) in variants {
         progress(&format!("training `{name}` for {:.0} s", opts.budget_s));
@@ -120,7 +137,7 @@ pub fn ablations(
                 "evaluating `{name}` on {} {split} frames",
                 frames.len()
             ));
-            let report = evaluate(&avatar, dataset, &frames, &eval_opts)?;
+            let report = evaluate(&avatar, dataset, &frames, eval_opts)?;
             rows.push(row(
                 name,
                 split,
@@ -130,7 +147,19 @@ pub fn ablations(
             ));
         }
     }
-    // One model per subject, each scored on its own subject's frames.
+    Ok(rows)
+}
+
+/// One model per subject, each scored on its own subject's frames, merged per split.
+fn single_identity_rows(
+    dataset: &Dataset,
+    out: &Path,
+    opts: &AblationOptions,
+    base: &TrainOptions,
+    eval_opts: &EvalOptions,
+    progress: &mut dyn FnMut(&str),
+) -> Result<Vec<AblationRow>, AblationError> {
+    let mut rows = Vec::new();
     let mut per_split: Vec<Vec<(usize, Scores)>> = vec![Vec::new(); SPLITS.len()];
     let mut steps = 0;
     for (s, subject) in dataset.subjects.iter().enumerate() {
@@ -170,7 +199,7 @@ pub fn ablations(
         for (k, split) in SPLITS.into_iter().enumerate() {
             let frames = own(split);
             if !frames.is_empty() {
-                let report = evaluate(&avatar, dataset, &frames, &eval_opts)?;
+                let report = evaluate(&avatar, dataset, &frames, eval_opts)?;
                 per_split[k].push((frames.len(), Scores::of(&report)));
             }
         }
@@ -181,7 +210,6 @@ pub fn ablations(
             rows.push(row("single-identity", split, n, &merged, steps));
         }
     }
-    write_outputs(out, &rows)?;
     Ok(rows)
 }
 

@@ -76,76 +76,12 @@ pub fn novel_identity(
     opts: &NovelIdentityOptions,
     progress: &mut dyn FnMut(&str),
 ) -> Result<Vec<NovelIdentityRow>, NovelIdentityError> {
-    let bad = |field, problem: String| NovelIdentityError::BadOption { field, problem };
-    if !(opts.adapt_lr_ratio.is_finite() && opts.adapt_lr_ratio > 0.0) {
-        return Err(bad(
-            "adapt_lr_ratio",
-            format!("expected a positive number, found {}", opts.adapt_lr_ratio),
-        ));
-    }
-    if opts.clips_s.is_empty() || !opts.clips_s.iter().all(|c| c.is_finite() && *c > 0.0) {
-        return Err(bad("clips", "expected one or more positive seconds".into()));
-    }
-    let s = match &opts.subject {
-        None => dataset.subjects.len().checked_sub(1),
-        Some(name) => dataset.subject_index(name),
-    }
-    .ok_or_else(|| {
-        bad(
-            "subject",
-            format!(
-                "`{}` is not a subject of {} (it has {})",
-                opts.subject.as_deref().unwrap_or("(last)"),
-                dataset.root.display(),
-                names(dataset)
-            ),
-        )
-    })?;
-    let name = dataset.subjects[s].name.clone();
-    let others: Vec<String> = dataset
-        .subjects
-        .iter()
-        .enumerate()
-        .filter(|&(i, _)| i != s && !dataset.subject_frames(i, Split::Train).is_empty())
-        .map(|(_, x)| x.name.clone())
-        .collect();
-    if others.is_empty() {
-        return Err(bad(
-            "subject",
-            format!("no other subject of {} has training frames", names(dataset)),
-        ));
-    }
-    let video = dataset.subject_frames(s, Split::Train);
-    let Some(&first) = video.first() else {
-        return Err(bad("subject", format!("`{name}` has no training frames")));
-    };
-    let t0 = dataset.frames[first].time;
-    let longest = opts.clips_s.iter().copied().fold(0.0, f64::max);
-    // The same held-out frames for every clip: none inside the longest one.
-    let eval_sets: Vec<(Split, Vec<usize>)> = [Split::TestSame, Split::TestOod]
-        .into_iter()
-        .map(|split| {
-            let after: Vec<usize> = dataset
-                .subject_frames(s, split)
-                .into_iter()
-                .filter(|&i| split != Split::TestSame || dataset.frames[i].time - t0 >= longest)
-                .collect();
-            (split, thin(&after, opts.eval_frames))
-        })
-        .filter(|(_, f)| !f.is_empty())
-        .collect();
-    if !eval_sets.iter().any(|(split, _)| *split == Split::TestSame) {
-        let last = dataset.frames[*video.last().unwrap_or(&first)].time - t0;
-        return Err(bad(
-            "clips",
-            format!(
-                "`{name}` has {last:.2} s of video and no test_same frame after the \
-                 longest clip ({longest} s); generate a longer video (e.g. `talkin synth \
-                 --frames 800`: 40 s a subject) or ask for shorter clips"
-            ),
-        ));
-    }
-
+    let Plan {
+        name,
+        others,
+        t0,
+        eval_sets,
+    } = plan(dataset, opts)?;
     let base_run = match &opts.base_run {
         Some(run) => run.clone(),
         None => {
@@ -248,6 +184,95 @@ pub fn novel_identity(
         &format_table(&rows),
     )?;
     Ok(rows)
+}
+
+/// Who is held out, who the base model learns from, and the held-out frames every
+/// model is scored on.
+struct Plan {
+    name: String,
+    others: Vec<String>,
+    /// The held-out subject's first training frame's time.
+    t0: f64,
+    eval_sets: Vec<(Split, Vec<usize>)>,
+}
+
+/// Checks the options against the dataset and plans the experiment.
+fn plan(dataset: &Dataset, opts: &NovelIdentityOptions) -> Result<Plan, NovelIdentityError> {
+    let bad = |field, problem: String| NovelIdentityError::BadOption { field, problem };
+    if !(opts.adapt_lr_ratio.is_finite() && opts.adapt_lr_ratio > 0.0) {
+        return Err(bad(
+            "adapt_lr_ratio",
+            format!("expected a positive number, found {}", opts.adapt_lr_ratio),
+        ));
+    }
+    if opts.clips_s.is_empty() || !opts.clips_s.iter().all(|c| c.is_finite() && *c > 0.0) {
+        return Err(bad("clips", "expected one or more positive seconds".into()));
+    }
+    let s = match &opts.subject {
+        None => dataset.subjects.len().checked_sub(1),
+        Some(name) => dataset.subject_index(name),
+    }
+    .ok_or_else(|| {
+        bad(
+            "subject",
+            format!(
+                "`{}` is not a subject of {} (it has {})",
+                opts.subject.as_deref().unwrap_or("(last)"),
+                dataset.root.display(),
+                names(dataset)
+            ),
+        )
+    })?;
+    let name = dataset.subjects[s].name.clone();
+    let others: Vec<String> = dataset
+        .subjects
+        .iter()
+        .enumerate()
+        .filter(|&(i, _)| i != s && !dataset.subject_frames(i, Split::Train).is_empty())
+        .map(|(_, x)| x.name.clone())
+        .collect();
+    if others.is_empty() {
+        return Err(bad(
+            "subject",
+            format!("no other subject of {} has training frames", names(dataset)),
+        ));
+    }
+    let video = dataset.subject_frames(s, Split::Train);
+    let Some(&first) = video.first() else {
+        return Err(bad("subject", format!("`{name}` has no training frames")));
+    };
+    let t0 = dataset.frames[first].time;
+    let longest = opts.clips_s.iter().copied().fold(0.0, f64::max);
+    // The same held-out frames for every clip: none inside the longest one.
+    let eval_sets: Vec<(Split, Vec<usize>)> = [Split::TestSame, Split::TestOod]
+        .into_iter()
+        .map(|split| {
+            let after: Vec<usize> = dataset
+                .subject_frames(s, split)
+                .into_iter()
+                .filter(|&i| split != Split::TestSame || dataset.frames[i].time - t0 >= longest)
+                .collect();
+            (split, thin(&after, opts.eval_frames))
+        })
+        .filter(|(_, f)| !f.is_empty())
+        .collect();
+    if !eval_sets.iter().any(|(split, _)| *split == Split::TestSame) {
+        let last = dataset.frames[*video.last().unwrap_or(&first)].time - t0;
+        return Err(bad(
+            "clips",
+            format!(
+                "`{name}` has {last:.2} s of video and no test_same frame after the \
+                 longest clip ({longest} s); generate a longer video (e.g. `talkin synth \
+                 --frames 800`: 40 s a subject) or ask for shorter clips"
+            ),
+        ));
+    }
+    Ok(Plan {
+        name,
+        others,
+        t0,
+        eval_sets,
+    })
 }
 
 fn names(dataset: &Dataset) -> String {

@@ -13,8 +13,8 @@ use talkin_grids::{
 use talkin_data::dataset::{Dataset, DatasetError, Split};
 use talkin_human::body::canonical_params;
 use talkin_train::scene::{
-    CanonicalGrid, FrameSampler, FrameScene, SubjectMargins, canonical_surface_points,
-    fit_subject_margins, foreground_rays, grid_error,
+    CanonicalGrid, CapsuleShells, FrameSampler, FrameScene, SubjectMargins,
+    canonical_surface_points, fit_subject_margins, foreground_rays, grid_error,
 };
 
 /// Canonical grid cells along its longest axis.
@@ -88,18 +88,44 @@ pub fn bench_sampling(
     trained: Option<&[OccupancyGrid]>,
     progress: &mut dyn FnMut(usize, usize),
 ) -> Result<SamplingReport, DatasetError> {
+    let (margins, grids) = subject_grids(dataset, trained)?;
+    let mut tally = Tally::new();
+    for i in 0..dataset.frames.len() {
+        let frame = &dataset.frames[i];
+        measure_frame(
+            dataset,
+            i,
+            &margins[frame.subject].shells,
+            &grids[frame.subject],
+            &mut tally,
+        )?;
+        progress(i + 1, dataset.frames.len());
+    }
+    Ok(tally.report(dataset, &margins, trained.is_some()))
+}
+
+/// Per subject: the margins fitted on its training masks, and the grid that culls, its
+/// initial one or (with `trained`) the run's, checked to cover the same box.
+fn subject_grids(
+    dataset: &Dataset,
+    trained: Option<&[OccupancyGrid]>,
+) -> Result<(Vec<SubjectMargins>, Vec<OccupancyGrid>), DatasetError> {
+    let invalid = |field: String, problem: String| DatasetError::Invalid {
+        file: dataset.root.join(talkin_data::dataset::INDEX_FILE),
+        field,
+        problem,
+    };
     if let Some(t) = trained
         && t.len() != dataset.subjects.len()
     {
-        return Err(DatasetError::Invalid {
-            file: dataset.root.join(talkin_data::dataset::INDEX_FILE),
-            field: "subjects".into(),
-            problem: format!(
+        return Err(invalid(
+            "subjects".into(),
+            format!(
                 "{} trained grids for {} subjects",
                 t.len(),
                 dataset.subjects.len()
             ),
-        });
+        ));
     }
     let mut subject_margins: Vec<SubjectMargins> = Vec::new();
     let mut grids: Vec<OccupancyGrid> = Vec::new();
@@ -124,10 +150,9 @@ pub fn bench_sampling(
             None => grid,
             Some(t) if t.aabb() == grid.aabb() && t.resolution() == grid.resolution() => t.clone(),
             Some(t) => {
-                return Err(DatasetError::Invalid {
-                    file: dataset.root.join(talkin_data::dataset::INDEX_FILE),
-                    field: format!("subjects[{s}]"),
-                    problem: format!(
+                return Err(invalid(
+                    format!("subjects[{s}]"),
+                    format!(
                         "the trained grid covers {:?} at {:?} cells, this dataset's {:?} at \
                          {:?}: was the run trained on this dataset?",
                         t.aabb(),
@@ -135,126 +160,185 @@ pub fn bench_sampling(
                         grid.aabb(),
                         grid.resolution()
                     ),
-                });
+                ));
             }
         };
         subject_margins.push(m);
         grids.push(grid);
     }
+    Ok((subject_margins, grids))
+}
 
-    let mut totals = Totals::default();
-    let mut ratios = Vec::new();
-    let mut steps = Vec::new();
-    let mut part_rays = [0usize; 4];
-    let mut part_misses = [0usize; 4];
-    let mut stage_misses: BTreeMap<String, usize> = BTreeMap::new();
-    let mut split_misses: BTreeMap<String, usize> = Split::ALL
-        .iter()
-        .map(|s| (s.name().to_string(), 0))
-        .collect();
-    for i in 0..dataset.frames.len() {
-        let frame = &dataset.frames[i];
-        let skeleton = &dataset.subjects[frame.subject].skeleton;
-        let canonical = skeleton.pose(&canonical_params());
-        let scene = FrameScene::new(skeleton, &canonical, &frame.params);
-        let images = dataset.images(i)?;
-        let depth = dataset.depth(i)?;
-        let (labelled, pixels) =
-            foreground_rays(&frame.camera, &images).map_err(|e| grid_error(dataset, i, e))?;
-        let rays: Vec<Ray> = labelled.iter().map(|l| l.ray).collect();
-        let shells = &subject_margins[frame.subject].shells;
-        let grid = &grids[frame.subject];
-        let seed = i as u64;
-        // Building the frame's structures (the capsules, the accelerated sampler) is part
-        // of the accelerated sampler's cost (once per frame); the BVHs are the reference,
-        // built outside the timing.
-        let (sampler, build_s) = median_time(|| {
-            let sampler = FrameSampler::new(scene.clone(), shells, &rays)?;
-            sampler.prepare(grid)?;
-            Ok::<_, talkin_grids::GridError>(sampler)
-        });
-        let sampler = sampler.map_err(|e| grid_error(dataset, i, e))?;
-        steps.push(sampler.step);
-        let (dense, dense_s) =
-            median_time(|| sampler.sample(SamplerKind::Dense, &rays, grid, Some(seed)));
-        let dense = dense.map_err(|e| grid_error(dataset, i, e))?;
-        let (acc, acc_s) =
-            median_time(|| sampler.sample(SamplerKind::Accelerated, &rays, grid, Some(seed)));
-        let acc = acc.map_err(|e| grid_error(dataset, i, e))?;
-        let (bvh, core_bvh) = sampler.bvhs().map_err(|e| grid_error(dataset, i, e))?;
-        let (intervals, intervals_s) = median_time(|| bvh.intervals(&rays));
-        intervals.map_err(|e| grid_error(dataset, i, e))?;
-        totals.intervals_s += intervals_s;
-        totals.build_s += build_s;
-        let acc_s = acc_s + build_s;
-        // Outside the timing, for the counts and to tell which stage loses a surface
-        // point: the grown capsules alone, and with the cores (deterministic, so the same
-        // samples as inside the timed pipeline).
-        let acc_opts = sampler.accelerated_opts(Some(seed));
-        let stages = sample_in_capsules(bvh, &rays, &acc_opts)
-            .and_then(|all| {
-                let front =
-                    sample_in_front_of_cores(bvh, core_bvh, &rays, sampler.step, &acc_opts)?;
-                Ok((all, front))
-            })
-            .map_err(|e| grid_error(dataset, i, e))?;
-        let truncated_samples = stages.1.num_samples();
-        let capsule_samples = stages.0.num_samples();
-
-        totals.rays += rays.len();
-        totals.dense_samples += dense.num_samples();
-        totals.acc_samples += acc.num_samples();
-        totals.capsule_samples += capsule_samples;
-        totals.truncated_samples += truncated_samples;
-        totals.dense_s += dense_s;
-        totals.acc_s += acc_s;
-        if !rays.is_empty() && dense_s > 0.0 && acc_s > 0.0 {
-            ratios.push(dense_s / acc_s);
-        }
-        for (r, l) in labelled.iter().enumerate() {
-            let k = Part::from_label(l.label)
-                .map(|p| p.label() as usize - 1)
-                .unwrap_or(0);
-            part_rays[k] += 1;
-            let covered = match &depth {
-                Some(d) => match d[pixels[r] as usize] {
-                    Some(z) => {
-                        totals.checked += 1;
-                        let t_surface = z / l
-                            .ray
-                            .direction
-                            .dot(frame.camera.forward_in_world().as_vec3());
-                        let found = surface_sampled(&acc, r, t_surface);
-                        if !found {
-                            let stage = if !surface_sampled(&stages.0, r, t_surface) {
-                                "outside_grown_capsules"
-                            } else if !surface_sampled(&stages.1, r, t_surface) {
-                                "behind_a_core"
-                            } else {
-                                "culled_by_grid"
-                            };
-                            *stage_misses.entry(stage.to_string()).or_default() += 1;
-                        }
-                        found
-                    }
-                    // A person pixel without depth: at least one sample must exist.
-                    None => !acc.range(r).is_empty(),
-                },
-                None => !acc.range(r).is_empty(),
-            };
-            if !covered {
-                part_misses[k] += 1;
-                *split_misses
-                    .entry(frame.split.name().to_string())
-                    .or_default() += 1;
+/// Times both samplers on frame `i`'s foreground rays and counts its samples and the
+/// surface points the accelerated samples miss.
+fn measure_frame(
+    dataset: &Dataset,
+    i: usize,
+    shells: &CapsuleShells,
+    grid: &OccupancyGrid,
+    tally: &mut Tally,
+) -> Result<(), DatasetError> {
+    let frame = &dataset.frames[i];
+    let skeleton = &dataset.subjects[frame.subject].skeleton;
+    let canonical = skeleton.pose(&canonical_params());
+    let scene = FrameScene::new(skeleton, &canonical, &frame.params);
+    let images = dataset.images(i)?;
+    let depth = dataset.depth(i)?;
+    let grid_err = |e| grid_error(dataset, i, e);
+    let (labelled, pixels) = foreground_rays(&frame.camera, &images).map_err(grid_err)?;
+    let rays: Vec<Ray> = labelled.iter().map(|l| l.ray).collect();
+    let seed = i as u64;
+    // Building the frame's structures (the capsules, the accelerated sampler) is part
+    // of the accelerated sampler's cost (once per frame); the BVHs are the reference,
+    // built outside the timing.
+    let (sampler, build_s) = median_time(|| {
+        let sampler = FrameSampler::new(scene.clone(), shells, &rays)?;
+        sampler.prepare(grid)?;
+        Ok::<_, talkin_grids::GridError>(sampler)
+    });
+    let sampler = sampler.map_err(grid_err)?;
+    tally.steps.push(sampler.step);
+    let (dense, dense_s) =
+        median_time(|| sampler.sample(SamplerKind::Dense, &rays, grid, Some(seed)));
+    let dense = dense.map_err(grid_err)?;
+    let (acc, acc_s) =
+        median_time(|| sampler.sample(SamplerKind::Accelerated, &rays, grid, Some(seed)));
+    let acc = acc.map_err(grid_err)?;
+    let (bvh, core_bvh) = sampler.bvhs().map_err(grid_err)?;
+    let (intervals, intervals_s) = median_time(|| bvh.intervals(&rays));
+    intervals.map_err(grid_err)?;
+    let totals = &mut tally.totals;
+    totals.intervals_s += intervals_s;
+    totals.build_s += build_s;
+    let acc_s = acc_s + build_s;
+    // Outside the timing, for the counts and to tell which stage loses a surface point:
+    // the grown capsules alone, and with the cores (deterministic, so the same samples
+    // as inside the timed pipeline).
+    let acc_opts = sampler.accelerated_opts(Some(seed));
+    let in_capsules = sample_in_capsules(bvh, &rays, &acc_opts).map_err(grid_err)?;
+    let in_front = sample_in_front_of_cores(bvh, core_bvh, &rays, sampler.step, &acc_opts)
+        .map_err(grid_err)?;
+    totals.rays += rays.len();
+    totals.dense_samples += dense.num_samples();
+    totals.acc_samples += acc.num_samples();
+    totals.capsule_samples += in_capsules.num_samples();
+    totals.truncated_samples += in_front.num_samples();
+    totals.dense_s += dense_s;
+    totals.acc_s += acc_s;
+    if !rays.is_empty() && dense_s > 0.0 && acc_s > 0.0 {
+        tally.ratios.push(dense_s / acc_s);
+    }
+    let forward = frame.camera.forward_in_world().as_vec3();
+    for (r, l) in labelled.iter().enumerate() {
+        let k = Part::from_label(l.label)
+            .map(|p| p.label() as usize - 1)
+            .unwrap_or(0);
+        tally.part_rays[k] += 1;
+        // A person pixel without depth: at least one sample must exist.
+        let t_surface = depth
+            .as_ref()
+            .and_then(|d| d[pixels[r] as usize])
+            .map(|z| z / l.ray.direction.dot(forward));
+        let covered = match t_surface {
+            Some(t) => {
+                tally.totals.checked += 1;
+                let found = surface_sampled(&acc, r, t);
+                if !found {
+                    let stage = if !surface_sampled(&in_capsules, r, t) {
+                        "outside_grown_capsules"
+                    } else if !surface_sampled(&in_front, r, t) {
+                        "behind_a_core"
+                    } else {
+                        "culled_by_grid"
+                    };
+                    *tally.stage_misses.entry(stage.to_string()).or_default() += 1;
+                }
+                found
             }
+            None => !acc.range(r).is_empty(),
+        };
+        if !covered {
+            tally.part_misses[k] += 1;
+            *tally
+                .split_misses
+                .entry(frame.split.name().to_string())
+                .or_default() += 1;
         }
-        progress(i + 1, dataset.frames.len());
+    }
+    Ok(())
+}
+
+/// What the frames add up to.
+struct Tally {
+    totals: Totals,
+    /// Per frame, dense over accelerated seconds.
+    ratios: Vec<f64>,
+    /// Per frame, the accelerated sampler's step.
+    steps: Vec<f32>,
+    part_rays: [usize; 4],
+    part_misses: [usize; 4],
+    stage_misses: BTreeMap<String, usize>,
+    split_misses: BTreeMap<String, usize>,
+}
+
+impl Tally {
+    fn new() -> Tally {
+        Tally {
+            totals: Totals::default(),
+            ratios: Vec::new(),
+            steps: Vec::new(),
+            part_rays: [0; 4],
+            part_misses: [0; 4],
+            stage_misses: BTreeMap::new(),
+            split_misses: Split::ALL
+                .iter()
+                .map(|s| (s.name().to_string(), 0))
+                .collect(),
+        }
     }
 
-    let mut coverage_by_part = BTreeMap::new();
+    fn report(
+        mut self,
+        dataset: &Dataset,
+        margins: &[SubjectMargins],
+        trained: bool,
+    ) -> SamplingReport {
+        let totals = &self.totals;
+        let per_ray = |n: usize| n as f64 / totals.rays.max(1) as f64;
+        SamplingReport {
+            grids: if trained { "trained" } else { "initial" }.to_string(),
+            frames: dataset.frames.len(),
+            foreground_rays: totals.rays,
+            dense_samples_per_ray: per_ray(totals.dense_samples),
+            accelerated_samples_per_ray: per_ray(totals.acc_samples),
+            capsule_samples_per_ray: per_ray(totals.capsule_samples),
+            truncated_samples_per_ray: per_ray(totals.truncated_samples),
+            dense_rays_per_s: totals.rays as f64 / totals.dense_s.max(1e-12),
+            accelerated_rays_per_s: totals.rays as f64 / totals.acc_s.max(1e-12),
+            bvh_intervals_rays_per_s: totals.rays as f64 / totals.intervals_s.max(1e-12),
+            median_speed_ratio: median(&mut self.ratios),
+            accelerated_build_share: totals.build_s / totals.acc_s.max(1e-12),
+            surface_misses: self.part_misses.iter().sum(),
+            surface_checked_rays: totals.checked,
+            coverage_by_part: coverage_by_part(margins, &self.part_rays, &self.part_misses),
+            accelerated_step_m: median(
+                &mut self.steps.iter().map(|&s| s as f64).collect::<Vec<_>>(),
+            ) as f32,
+            surface_misses_by_split: self.split_misses,
+            surface_misses_by_stage: self.stage_misses,
+        }
+    }
+}
+
+/// Per part: its rays, margin, training coverage before and after the margin, misses.
+fn coverage_by_part(
+    margins: &[SubjectMargins],
+    part_rays: &[usize; 4],
+    part_misses: &[usize; 4],
+) -> BTreeMap<String, PartCoverage> {
+    let mut coverage = BTreeMap::new();
     for (k, part) in Part::ALL.into_iter().enumerate() {
-        let (rays, bare, fitted) = subject_margins.iter().fold((0, 0, 0), |acc, m| {
+        let (rays, bare, fitted) = margins.iter().fold((0, 0, 0), |acc, m| {
             (
                 acc.0 + m.coverage[k].0,
                 acc.1 + m.coverage[k].1,
@@ -268,11 +352,11 @@ pub fn bench_sampling(
                 n as f64 / rays as f64
             }
         };
-        coverage_by_part.insert(
+        coverage.insert(
             part.name().to_string(),
             PartCoverage {
                 rays: part_rays[k],
-                margin_m: subject_margins
+                margin_m: margins
                     .iter()
                     .map(|m| m.part_margins.get(part))
                     .fold(0.0, f32::max),
@@ -282,32 +366,7 @@ pub fn bench_sampling(
             },
         );
     }
-    let per_ray = |n: usize| n as f64 / totals.rays.max(1) as f64;
-    Ok(SamplingReport {
-        grids: if trained.is_some() {
-            "trained"
-        } else {
-            "initial"
-        }
-        .to_string(),
-        frames: dataset.frames.len(),
-        foreground_rays: totals.rays,
-        dense_samples_per_ray: per_ray(totals.dense_samples),
-        accelerated_samples_per_ray: per_ray(totals.acc_samples),
-        capsule_samples_per_ray: per_ray(totals.capsule_samples),
-        truncated_samples_per_ray: per_ray(totals.truncated_samples),
-        dense_rays_per_s: totals.rays as f64 / totals.dense_s.max(1e-12),
-        accelerated_rays_per_s: totals.rays as f64 / totals.acc_s.max(1e-12),
-        bvh_intervals_rays_per_s: totals.rays as f64 / totals.intervals_s.max(1e-12),
-        median_speed_ratio: median(&mut ratios),
-        accelerated_build_share: totals.build_s / totals.acc_s.max(1e-12),
-        surface_misses: part_misses.iter().sum(),
-        surface_misses_by_split: split_misses,
-        surface_misses_by_stage: stage_misses,
-        surface_checked_rays: totals.checked,
-        coverage_by_part,
-        accelerated_step_m: median(&mut steps.iter().map(|&s| s as f64).collect::<Vec<_>>()) as f32,
-    })
+    coverage
 }
 
 #[derive(Default)]

@@ -143,76 +143,15 @@ pub fn speed_vs_error(
         file: out.to_path_buf(),
         source,
     })?;
-    let max_budget = *opts.budgets.last().expect("checked non-empty");
     let marks = eval_marks(&opts.budgets);
     let mut points = Vec::new();
     let mut rates = Vec::new();
     let mut lpips_note = None;
     for sampler in [SamplerKind::Accelerated, SamplerKind::Dense] {
-        let train_opts = TrainOptions {
-            sampler,
-            budget: Budget::Seconds(max_budget),
-            // Checkpoints only at the end: writing them is not training.
-            checkpoint_every_s: f64::INFINITY,
-            ..opts.train.clone()
-        };
-        let run = out.join("runs").join(sampler.name());
-        let setup = Instant::now();
-        let mut trainer = Trainer::new(dataset, &run, &train_opts)?;
-        let setup_s = setup.elapsed().as_secs_f64();
-        let (mut rays, mut samples) = (0usize, 0usize);
-        for &mark in &marks {
-            while trainer.elapsed_seconds() < mark && !trainer.done() {
-                let log = trainer.step()?;
-                rays += log.rays;
-                samples += log.samples;
-            }
-            progress(&format!(
-                "{}: {:.0} s trained ({} steps), evaluating {} frames",
-                sampler.name(),
-                trainer.elapsed_seconds(),
-                trainer.steps_taken(),
-                eval_frames.len()
-            ));
-            let mut avatar = Avatar::from_trainer(&trainer);
-            avatar.sampler = SamplerKind::Accelerated;
-            let report = evaluate(
-                &avatar,
-                dataset,
-                &eval_frames,
-                &EvalOptions {
-                    renders_dir: None,
-                    lpips_dir: opts.lpips_dir.clone(),
-                    smooth: false,
-                },
-            )?;
-            progress(&format!(
-                "{}: PSNR {:.2} dB at {:.0} s",
-                sampler.name(),
-                report.psnr,
-                trainer.elapsed_seconds()
-            ));
-            if report.lpips_note.is_some() {
-                lpips_note = report.lpips_note.clone();
-            }
-            points.push(Point {
-                sampler: sampler.name().into(),
-                seconds: trainer.elapsed_seconds(),
-                steps: trainer.steps_taken(),
-                psnr: report.psnr,
-                ssim: report.ssim,
-                lpips: report.lpips,
-                psnr_face: report.psnr_face,
-                psnr_hands: report.psnr_hands,
-                samples_per_ray: samples as f64 / rays.max(1) as f64,
-            });
-        }
-        trainer.save()?;
-        rates.push((
-            trainer.steps_taken() as f64 / trainer.elapsed_seconds().max(1e-9),
-            samples as f64 / rays.max(1) as f64,
-            setup_s,
-        ));
+        let run = train_and_score(dataset, out, opts, sampler, &marks, &eval_frames, progress)?;
+        points.extend(run.points);
+        rates.push(run.rate);
+        lpips_note = run.lpips_note.or(lpips_note);
     }
     let curve =
         |name: &str| -> Vec<&Point> { points.iter().filter(|p| p.sampler == name).collect() };
@@ -240,6 +179,97 @@ pub fn speed_vs_error(
     };
     write_outputs(out, &summary)?;
     Ok(summary)
+}
+
+/// One sampler's run: its scored points, (steps/s, samples per ray, setup seconds) and
+/// the evaluation's LPIPS note, if any.
+struct SamplerRun {
+    points: Vec<Point>,
+    rate: (f64, f64, f64),
+    lpips_note: Option<String>,
+}
+
+/// Trains `sampler` for the largest budget, scoring test_same at every mark.
+fn train_and_score(
+    dataset: &Dataset,
+    out: &Path,
+    opts: &SpeedVsErrorOptions,
+    sampler: SamplerKind,
+    marks: &[f64],
+    eval_frames: &[usize],
+    progress: &mut dyn FnMut(&str),
+) -> Result<SamplerRun, SpeedVsErrorError> {
+    let max_budget = *opts.budgets.last().expect("checked non-empty");
+    let mut points = Vec::new();
+    let mut lpips_note = None;
+    let train_opts = TrainOptions {
+        sampler,
+        budget: Budget::Seconds(max_budget),
+        // Checkpoints only at the end: writing them is not training.
+        checkpoint_every_s: f64::INFINITY,
+        ..opts.train.clone()
+    };
+    let run = out.join("runs").join(sampler.name());
+    let setup = Instant::now();
+    let mut trainer = Trainer::new(dataset, &run, &train_opts)?;
+    let setup_s = setup.elapsed().as_secs_f64();
+    let (mut rays, mut samples) = (0usize, 0usize);
+    for &mark in marks {
+        while trainer.elapsed_seconds() < mark && !trainer.done() {
+            let log = trainer.step()?;
+            rays += log.rays;
+            samples += log.samples;
+        }
+        progress(&format!(
+            "{}: {:.0} s trained ({} steps), evaluating {} frames",
+            sampler.name(),
+            trainer.elapsed_seconds(),
+            trainer.steps_taken(),
+            eval_frames.len()
+        ));
+        let mut avatar = Avatar::from_trainer(&trainer);
+        avatar.sampler = SamplerKind::Accelerated;
+        let report = evaluate(
+            &avatar,
+            dataset,
+            &eval_frames,
+            &EvalOptions {
+                renders_dir: None,
+                lpips_dir: opts.lpips_dir.clone(),
+                smooth: false,
+            },
+        )?;
+        progress(&format!(
+            "{}: PSNR {:.2} dB at {:.0} s",
+            sampler.name(),
+            report.psnr,
+            trainer.elapsed_seconds()
+        ));
+        if report.lpips_note.is_some() {
+            lpips_note = report.lpips_note.clone();
+        }
+        points.push(Point {
+            sampler: sampler.name().into(),
+            seconds: trainer.elapsed_seconds(),
+            steps: trainer.steps_taken(),
+            psnr: report.psnr,
+            ssim: report.ssim,
+            lpips: report.lpips,
+            psnr_face: report.psnr_face,
+            psnr_hands: report.psnr_hands,
+            samples_per_ray: samples as f64 / rays.max(1) as f64,
+        });
+    }
+    trainer.save()?;
+    Ok(SamplerRun {
+        points,
+        rate: (
+            trainer.steps_taken() as f64 / trainer.elapsed_seconds().max(1e-9),
+            samples as f64 / rays.max(1) as f64,
+            setup_s,
+        ),
+        lpips_note,
+    })
 }
 
 /// The dense run's best point after the start, the accelerated run's time to reach its

@@ -30,171 +30,29 @@ impl Dataset {
 
     /// Parses and validates the JSON text of a dataset rooted at `root` (no file access).
     pub fn from_json_str(text: &str, root: &Path) -> Result<Dataset, DatasetError> {
-        let file = root.join(INDEX_FILE);
+        let r = Reader {
+            file: root.join(INDEX_FILE),
+        };
         let doc: Value = serde_json::from_str(text).map_err(|e| DatasetError::Json {
-            file: file.clone(),
+            file: r.file.clone(),
             line: e.line(),
             column: e.column(),
             message: e.to_string(),
         })?;
-        let shape = |source: ShapeError| DatasetError::Shape {
-            file: file.clone(),
-            source,
-        };
-        let invalid = |field: &str, problem: String| DatasetError::Invalid {
-            file: file.clone(),
-            field: field.to_string(),
-            problem,
-        };
-
-        let format = json_shape::string(
-            json_shape::member(&doc, "", "format").map_err(shape)?,
-            "format",
-        )
-        .map_err(shape)?;
-        if format != FORMAT {
-            return Err(invalid(
-                "format",
-                format!("expected \"{FORMAT}\", found {format:?}"),
-            ));
-        }
-        let version = json_shape::index(
-            json_shape::member(&doc, "", "version").map_err(shape)?,
-            "version",
-        )
-        .map_err(shape)?;
-        if version as u64 != VERSION {
-            return Err(invalid(
-                "version",
-                format!("this build reads version {VERSION}, found {version}"),
-            ));
-        }
-        let bg = json_shape::vector(
-            json_shape::member(&doc, "", "background").map_err(shape)?,
-            "background",
-            3,
-        )
-        .map_err(shape)?;
-        if bg.iter().any(|c| !(0.0..=1.0).contains(c)) {
-            return Err(invalid(
-                "background",
-                format!("expected 3 numbers in [0, 1], found {bg:?}"),
-            ));
-        }
-
-        let subjects_json = json_shape::member(&doc, "", "subjects").map_err(shape)?;
-        let Some(subjects_json) = subjects_json.as_array().filter(|a| !a.is_empty()) else {
-            return Err(invalid(
-                "subjects",
-                "expected a non-empty array of subjects".into(),
-            ));
-        };
-        let mut subjects = Vec::with_capacity(subjects_json.len());
-        let mut names = HashSet::new();
-        for (i, s) in subjects_json.iter().enumerate() {
-            let path = format!("subjects[{i}]");
-            let name = json_shape::string(
-                json_shape::member(s, &path, "name").map_err(shape)?,
-                &format!("{path}.name"),
-            )
-            .map_err(shape)?;
-            if name.is_empty() || !names.insert(name.to_string()) {
-                return Err(invalid(
-                    &format!("{path}.name"),
-                    format!("must be non-empty and unique, found {name:?}"),
-                ));
-            }
-            let field = format!("{path}.rest_joints");
-            let j = json_shape::matrix(
-                json_shape::member(s, &path, "rest_joints").map_err(shape)?,
-                &field,
-                N_JOINTS,
-                3,
-            )
-            .map_err(shape)?;
-            let rest_joints =
-                std::array::from_fn(|k| DVec3::new(j[3 * k], j[3 * k + 1], j[3 * k + 2]));
-            let skeleton = Skeleton { rest_joints };
-            if !(skeleton.scale() > 0.05 && skeleton.scale() < 20.0) {
-                return Err(invalid(
-                    &field,
-                    format!(
-                        "pelvis-to-neck distance {:.4} m is not a human's (joints in metres?)",
-                        skeleton.scale() * 0.55
-                    ),
-                ));
-            }
-            subjects.push(Subject {
-                name: name.to_string(),
-                skeleton,
-            });
-        }
-
-        let frames_json = json_shape::member(&doc, "", "frames").map_err(shape)?;
+        let background = r.header(&doc)?;
+        let subjects = r.subjects(&doc)?;
+        let frames_json = json_shape::member(&doc, "", "frames").map_err(|e| r.shape(e))?;
         let Some(frames_json) = frames_json.as_array().filter(|a| !a.is_empty()) else {
-            return Err(invalid(
-                "frames",
-                "expected a non-empty array of frames".into(),
-            ));
+            return Err(r.invalid("frames", "expected a non-empty array of frames".into()));
         };
-        let mut frames = Vec::with_capacity(frames_json.len());
-        for (i, f) in frames_json.iter().enumerate() {
-            let path = format!("frames[{i}]");
-            let get = |k: &str| json_shape::member(f, &path, k).map_err(shape);
-            let field = |k: &str| format!("{path}.{k}");
-            let subject = json_shape::index(get("subject")?, &field("subject")).map_err(shape)?;
-            if subject >= subjects.len() {
-                return Err(invalid(
-                    &field("subject"),
-                    format!(
-                        "index {subject} out of range: the dataset has {} subjects",
-                        subjects.len()
-                    ),
-                ));
-            }
-            let split_name = json_shape::string(get("split")?, &field("split")).map_err(shape)?;
-            let split = split_name
-                .parse::<Split>()
-                .map_err(|e| invalid(&field("split"), e))?;
-            let time = json_shape::number(get("time")?, &field("time")).map_err(shape)?;
-            let relpath = |k: &str| -> Result<PathBuf, DatasetError> {
-                let s = json_shape::string(get(k)?, &field(k)).map_err(shape)?;
-                let p = PathBuf::from(s);
-                let escapes = p
-                    .components()
-                    .any(|c| !matches!(c, Component::Normal(_) | Component::CurDir));
-                if s.is_empty() || escapes {
-                    return Err(invalid(
-                        &field(k),
-                        format!("expected a relative path inside the dataset, found {s:?}"),
-                    ));
-                }
-                Ok(p)
-            };
-            let image = relpath("image")?;
-            let mask = relpath("mask")?;
-            let segmentation = relpath("segmentation")?;
-            let depth = match f.get("depth") {
-                None | Some(Value::Null) => None,
-                Some(_) => Some(relpath("depth")?),
-            };
-            let camera = camera_field(get("camera")?, &field("camera"), &file)?;
-            let params = FrameParams::from_json(get("params")?, &field("params")).map_err(shape)?;
-            frames.push(Frame {
-                subject,
-                split,
-                time,
-                image,
-                mask,
-                segmentation,
-                depth,
-                camera,
-                params,
-            });
-        }
+        let frames = frames_json
+            .iter()
+            .enumerate()
+            .map(|(i, f)| r.frame(f, &format!("frames[{i}]"), subjects.len()))
+            .collect::<Result<Vec<_>, _>>()?;
         Ok(Dataset {
             root: root.to_path_buf(),
-            background: [bg[0] as f32, bg[1] as f32, bg[2] as f32],
+            background,
             subjects,
             frames,
         })
@@ -270,4 +128,164 @@ pub fn parse_camera(
     let k: [[f64; 3]; 3] = std::array::from_fn(|r| std::array::from_fn(|c| k[3 * r + c]));
     let e: [[f64; 4]; 4] = std::array::from_fn(|r| std::array::from_fn(|c| e[4 * r + c]));
     Camera::new(width, height, k, e).map_err(Ok)
+}
+
+/// Reads the parts of one dataset.json; errors name it.
+struct Reader {
+    file: PathBuf,
+}
+
+impl Reader {
+    fn shape(&self, source: ShapeError) -> DatasetError {
+        DatasetError::Shape {
+            file: self.file.clone(),
+            source,
+        }
+    }
+
+    fn invalid(&self, field: &str, problem: String) -> DatasetError {
+        DatasetError::Invalid {
+            file: self.file.clone(),
+            field: field.to_string(),
+            problem,
+        }
+    }
+
+    /// Checks `format` and `version`; returns the background colour.
+    fn header(&self, doc: &Value) -> Result<[f32; 3], DatasetError> {
+        let shape = |e| self.shape(e);
+        let format = json_shape::string(
+            json_shape::member(doc, "", "format").map_err(shape)?,
+            "format",
+        )
+        .map_err(shape)?;
+        if format != FORMAT {
+            return Err(self.invalid("format", format!("expected \"{FORMAT}\", found {format:?}")));
+        }
+        let version = json_shape::index(
+            json_shape::member(doc, "", "version").map_err(shape)?,
+            "version",
+        )
+        .map_err(shape)?;
+        if version as u64 != VERSION {
+            return Err(self.invalid(
+                "version",
+                format!("this build reads version {VERSION}, found {version}"),
+            ));
+        }
+        let bg = json_shape::vector(
+            json_shape::member(doc, "", "background").map_err(shape)?,
+            "background",
+            3,
+        )
+        .map_err(shape)?;
+        if bg.iter().any(|c| !(0.0..=1.0).contains(c)) {
+            return Err(self.invalid(
+                "background",
+                format!("expected 3 numbers in [0, 1], found {bg:?}"),
+            ));
+        }
+        Ok([bg[0] as f32, bg[1] as f32, bg[2] as f32])
+    }
+
+    /// The subjects: unique names and human-sized rest skeletons.
+    fn subjects(&self, doc: &Value) -> Result<Vec<Subject>, DatasetError> {
+        let shape = |e| self.shape(e);
+        let subjects_json = json_shape::member(doc, "", "subjects").map_err(shape)?;
+        let Some(subjects_json) = subjects_json.as_array().filter(|a| !a.is_empty()) else {
+            return Err(self.invalid("subjects", "expected a non-empty array of subjects".into()));
+        };
+        let mut subjects = Vec::with_capacity(subjects_json.len());
+        let mut names = HashSet::new();
+        for (i, s) in subjects_json.iter().enumerate() {
+            let path = format!("subjects[{i}]");
+            let name = json_shape::string(
+                json_shape::member(s, &path, "name").map_err(shape)?,
+                &format!("{path}.name"),
+            )
+            .map_err(shape)?;
+            if name.is_empty() || !names.insert(name.to_string()) {
+                return Err(self.invalid(
+                    &format!("{path}.name"),
+                    format!("must be non-empty and unique, found {name:?}"),
+                ));
+            }
+            let field = format!("{path}.rest_joints");
+            let j = json_shape::matrix(
+                json_shape::member(s, &path, "rest_joints").map_err(shape)?,
+                &field,
+                N_JOINTS,
+                3,
+            )
+            .map_err(shape)?;
+            let rest_joints =
+                std::array::from_fn(|k| DVec3::new(j[3 * k], j[3 * k + 1], j[3 * k + 2]));
+            let skeleton = Skeleton { rest_joints };
+            if !(skeleton.scale() > 0.05 && skeleton.scale() < 20.0) {
+                return Err(self.invalid(
+                    &field,
+                    format!(
+                        "pelvis-to-neck distance {:.4} m is not a human's (joints in metres?)",
+                        skeleton.scale() * 0.55
+                    ),
+                ));
+            }
+            subjects.push(Subject {
+                name: name.to_string(),
+                skeleton,
+            });
+        }
+        Ok(subjects)
+    }
+
+    /// The frame object `f` at `path`, of a dataset with `n_subjects` subjects.
+    fn frame(&self, f: &Value, path: &str, n_subjects: usize) -> Result<Frame, DatasetError> {
+        let shape = |e| self.shape(e);
+        let get = |k: &str| json_shape::member(f, path, k).map_err(shape);
+        let field = |k: &str| format!("{path}.{k}");
+        let subject = json_shape::index(get("subject")?, &field("subject")).map_err(shape)?;
+        if subject >= n_subjects {
+            return Err(self.invalid(
+                &field("subject"),
+                format!("index {subject} out of range: the dataset has {n_subjects} subjects"),
+            ));
+        }
+        let split_name = json_shape::string(get("split")?, &field("split")).map_err(shape)?;
+        let split = split_name
+            .parse::<Split>()
+            .map_err(|e| self.invalid(&field("split"), e))?;
+        let time = json_shape::number(get("time")?, &field("time")).map_err(shape)?;
+        let relpath = |k: &str| -> Result<PathBuf, DatasetError> {
+            let s = json_shape::string(get(k)?, &field(k)).map_err(shape)?;
+            let p = PathBuf::from(s);
+            let escapes = p
+                .components()
+                .any(|c| !matches!(c, Component::Normal(_) | Component::CurDir));
+            if s.is_empty() || escapes {
+                return Err(self.invalid(
+                    &field(k),
+                    format!("expected a relative path inside the dataset, found {s:?}"),
+                ));
+            }
+            Ok(p)
+        };
+        let image = relpath("image")?;
+        let mask = relpath("mask")?;
+        let segmentation = relpath("segmentation")?;
+        let depth = match f.get("depth") {
+            None | Some(Value::Null) => None,
+            Some(_) => Some(relpath("depth")?),
+        };
+        Ok(Frame {
+            subject,
+            split,
+            time,
+            image,
+            mask,
+            segmentation,
+            depth,
+            camera: camera_field(get("camera")?, &field("camera"), &self.file)?,
+            params: FrameParams::from_json(get("params")?, &field("params")).map_err(shape)?,
+        })
+    }
 }
