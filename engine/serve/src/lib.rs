@@ -9,7 +9,10 @@
 //! render threads.
 //!
 //! Routes: `GET /` (a page with sliders), `GET /health`, `GET /subjects`, `POST /render`,
-//! `POST /render/sequence` (a zip of PNGs). See the README for the request format.
+//! `POST /render/sequence` (a zip of PNGs). `docs/server-api.md` has the request format.
+//!
+//! The only crate with tokio and axum; it must not know about training or datasets
+//! beyond reading poses: it renders what `talkin-render` loads.
 
 pub mod bench;
 pub mod client;

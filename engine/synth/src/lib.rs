@@ -5,6 +5,10 @@
 //! talking motion, rendered by its own sphere tracer (independent of the engine's
 //! samplers) and written in dataset format v1.
 //!
+//! Must not know about training, rendering or the samplers: it writes what a user's
+//! importer would, through `talkin-data`, and its ground truth never comes from the
+//! engine's own code paths.
+//!
 //! # Expression coefficients
 //! The generator (and any motion file rendered by it) reads the 10 coefficients as:
 //! `0` smile (mouth corners up, cheeks up), `1` brow raise, `2` brow furrow (inner ends

@@ -3,7 +3,7 @@
 
 use glam::DVec3;
 
-use super::head::HeadFrame;
+use super::head_frame::HeadFrame;
 use crate::talk::SplitMix;
 use talkin_human::body::skeleton::joint::*;
 use talkin_human::body::{N_JOINTS, Skeleton};

@@ -12,6 +12,7 @@
 //! owns the figure's types and the order in which its parts are added.
 
 mod head;
+mod head_frame;
 mod looks;
 mod material;
 mod measures;

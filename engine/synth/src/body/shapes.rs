@@ -10,7 +10,7 @@
 
 use glam::Vec3;
 
-use super::head::HeadFrame;
+use super::head_frame::HeadFrame;
 use super::{Material, Prim, Proportions};
 use crate::sdf::Shape;
 use talkin_human::body::skeleton::joint::{HEAD, LEFT_HAND_FIRST};
