@@ -30,8 +30,44 @@ fn main() -> std::process::ExitCode {
     match cli::run(args) {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("error: {e:#}");
+            eprintln!("error: {}", report(&e));
             std::process::ExitCode::FAILURE
         }
+    }
+}
+
+/// The error and its causes, each once: library errors often name their cause in their
+/// own message (`"{file}: {source}"`) and also return it as `source()`, so a cause whose
+/// text is already in the report is not repeated.
+fn report(e: &anyhow::Error) -> String {
+    let mut out = String::new();
+    for cause in e.chain() {
+        let text = cause.to_string();
+        if text.is_empty() || out.contains(&text) {
+            continue;
+        }
+        if !out.is_empty() {
+            out.push_str(": ");
+        }
+        out.push_str(&text);
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn each_cause_is_reported_once() {
+        let io = std::io::Error::new(std::io::ErrorKind::NotFound, "No such file");
+        let inner = anyhow::Error::new(io).context("/data/dataset.json: No such file");
+        let e = inner.context("cannot load the dataset in /data");
+        assert_eq!(
+            report(&e),
+            "cannot load the dataset in /data: /data/dataset.json: No such file"
+        );
+        let plain = anyhow::anyhow!("a").context("b");
+        assert_eq!(report(&plain), "b: a");
     }
 }

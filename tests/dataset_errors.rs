@@ -258,3 +258,166 @@ fn wrong_format_or_version() {
         &["version", "found 2"],
     );
 }
+
+#[test]
+fn a_byte_order_mark_is_accepted() {
+    let dir = common::temp_dir("bom");
+    common::write_tiny_dataset(&dir);
+    let f = dir.join("dataset.json");
+    let text = std::fs::read_to_string(&f).unwrap();
+    std::fs::write(&f, format!("\u{feff}{text}")).unwrap();
+    assert_eq!(Dataset::load(&dir).unwrap().frames.len(), 2);
+}
+
+#[test]
+fn an_8_bit_background_gets_a_hint() {
+    check(
+        "background_255",
+        |d| edit_json(d, |v| v["background"] = serde_json::json!([255, 255, 255])),
+        &["background", "divide them by 255"],
+    );
+}
+
+#[test]
+fn an_absurd_pose_names_its_element() {
+    check(
+        "pose_1e300",
+        |d| {
+            edit_json(d, |v| {
+                v["frames"][1]["params"]["body_pose"][3][0] = 1e300.into()
+            })
+        },
+        &["frames[1].params.body_pose[3][0]", "within"],
+    );
+}
+
+#[test]
+fn rgba_images_are_composited_over_the_background() {
+    let dir = common::temp_dir("rgba");
+    let dataset = common::write_tiny_dataset(&dir);
+    // A transparent pixel where the person is, and a half-transparent red one.
+    let mut rgba = image::RgbaImage::from_pixel(24, 32, image::Rgba([0, 0, 0, 0]));
+    rgba.put_pixel(3, 3, image::Rgba([255, 0, 0, 128]));
+    rgba.save(dir.join("images/00000.png")).unwrap();
+    let images = dataset.images(0).unwrap();
+    assert_eq!(images.rgb.get_pixel(10, 10).0, [255, 255, 255]);
+    assert_eq!(images.rgb.get_pixel(3, 3).0, [255, 127, 127]);
+}
+
+/// Without a segmentation file the labels are derived from the mask and the posed
+/// capsules, and `inspect` says which frames had them derived.
+#[test]
+fn frames_without_segmentation_get_derived_labels() {
+    let dir = common::temp_dir("no_segmentation");
+    common::write_tiny_dataset(&dir);
+    edit_json(&dir, |v| {
+        v["frames"][1]
+            .as_object_mut()
+            .unwrap()
+            .remove("segmentation");
+    });
+    let dataset = Dataset::load(&dir).unwrap();
+    assert!(dataset.frames[1].segmentation.is_none());
+    let derived = dataset.images(1).unwrap();
+    assert!(derived.labels_derived && !dataset.images(0).unwrap().labels_derived);
+    // Every person pixel gets a part, every other pixel none.
+    for (m, s) in derived.mask.pixels().zip(derived.segmentation.pixels()) {
+        assert_eq!(m.0[0] >= 128, s.0[0] > 0);
+    }
+    let out = Command::new(env!("CARGO_BIN_EXE_talkin"))
+        .arg("inspect")
+        .arg(&dir)
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        stdout.contains("labels were derived") && stdout.contains(": 1\n"),
+        "{stdout}"
+    );
+    // The rewritten index keeps the frame without a segmentation.
+    dataset.save_index().unwrap();
+    assert!(
+        Dataset::load(&dir).unwrap().frames[1]
+            .segmentation
+            .is_none()
+    );
+}
+
+/// Runs `talkin eval` on `dir` with a run that does not exist: the dataset's checks come
+/// first, before any work.
+fn eval_refuses(dir: &Path, needles: &[&str]) {
+    let out = Command::new(env!("CARGO_BIN_EXE_talkin"))
+        .args([
+            "eval",
+            "--run",
+            "/nonexistent/run",
+            "--split",
+            "test_same",
+            "--json",
+        ])
+        .arg(dir.join("eval.json"))
+        .arg("--data")
+        .arg(dir)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    for n in needles {
+        assert!(stderr.contains(n), "{stderr:?} lacks {n:?}");
+    }
+    assert!(!stderr.contains("loading run"), "{stderr}");
+}
+
+#[test]
+fn an_empty_mask_is_refused_by_inspect_and_by_every_command() {
+    let dir = common::temp_dir("empty_mask");
+    common::write_tiny_dataset(&dir);
+    image::GrayImage::new(24, 32)
+        .save(dir.join("masks/00001.png"))
+        .unwrap();
+    let (code, stderr) = inspect(&dir);
+    assert_eq!(code, 1, "{stderr}");
+    assert!(
+        stderr.contains("frames[1].mask") && stderr.contains("empty"),
+        "{stderr}"
+    );
+    eval_refuses(&dir, &["frames[1].mask", "empty"]);
+}
+
+#[test]
+fn a_body_off_screen_is_refused() {
+    let dir = common::temp_dir("off_screen");
+    common::write_tiny_dataset(&dir);
+    edit_json(&dir, |v| {
+        v["frames"][0]["params"]["transl"] = serde_json::json!([40.0, 0.0, 0.0])
+    });
+    let (code, stderr) = inspect(&dir);
+    assert_eq!(code, 1, "{stderr}");
+    assert!(
+        stderr.contains("frames[0].camera") && stderr.contains("off-screen"),
+        "{stderr}"
+    );
+    eval_refuses(&dir, &["frames[0].camera", "off-screen"]);
+}
+
+/// The overlay check draws the fitted body on the frames, the flagged ones first.
+#[test]
+fn the_overlay_is_written() {
+    let dir = common::temp_dir("overlay");
+    common::write_tiny_dataset(&dir);
+    let out = Command::new(env!("CARGO_BIN_EXE_talkin"))
+        .arg("inspect")
+        .arg(&dir)
+        .arg("--overlay")
+        .arg(dir.join("overlay.png"))
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(stdout.contains("overlay:"), "{stdout}");
+    let overlay = image::open(dir.join("overlay.png")).unwrap().to_rgb8();
+    // Two 24x32 tiles side by side with 4 px gaps, drawn on.
+    assert_eq!(overlay.dimensions(), (2 * 24 + 3 * 4, 32 + 2 * 4));
+    let plain = image::open(dir.join("images/00000.png")).unwrap().to_rgb8();
+    let tile = image::imageops::crop_imm(&overlay, 4, 4, 24, 32).to_image();
+    assert_ne!(tile, plain, "nothing drawn on the frame");
+}

@@ -60,6 +60,7 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
         dir: data.clone(),
         sheet: Some(args.out.join("contact_sheet.png")),
         sheet_frames: 16,
+        overlay: None,
         joints_json: Some(args.out.join("joints.json")),
     })?;
     ensure_lpips_weights(Path::new(DEFAULT_LPIPS_DIR));

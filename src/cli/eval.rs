@@ -1,7 +1,7 @@
 use std::path::PathBuf;
 
 use anyhow::Context;
-use talkin_data::dataset::{Dataset, Split};
+use talkin_data::dataset::Split;
 use talkin_render::avatar::Avatar;
 use talkin_render::eval::{EvalOptions, evaluate_with_progress};
 use talkin_render::sequence::split_frames;
@@ -37,8 +37,7 @@ pub struct EvalArgs {
 
 pub fn run(args: EvalArgs) -> anyhow::Result<()> {
     let split: Split = args.split.parse().map_err(anyhow::Error::msg)?;
-    let dataset = Dataset::load(&args.data)
-        .with_context(|| format!("cannot load the dataset in {}", args.data.display()))?;
+    let dataset = super::load_dataset(&args.data)?;
     let avatar =
         Avatar::load(&args.run).with_context(|| format!("loading run {}", args.run.display()))?;
     let frames = split_frames(&dataset, split)?;

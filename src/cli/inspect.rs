@@ -13,16 +13,18 @@ pub struct InspectArgs {
     /// Write a contact sheet (frames with segmentation overlay and projected skeleton).
     #[arg(long)]
     pub sheet: Option<PathBuf>,
-    /// Most frames on the contact sheet.
+    /// Most frames on the contact sheet and on the overlay.
     #[arg(long, default_value_t = 16)]
     pub sheet_frames: usize,
+    /// Write the overlay check: frames (flagged ones first) with the fitted capsules'
+    /// outlines and the skeleton drawn on the image, captioned with the share of body
+    /// joints on the person.
+    #[arg(long)]
+    pub overlay: Option<PathBuf>,
     /// Write per-frame posed 3D joints and their 2D projections as JSON.
     #[arg(long)]
     pub joints_json: Option<PathBuf>,
 }
-
-/// Below this fraction of projected body joints on the person, poses or cameras are off.
-const MIN_JOINTS_ON_PERSON: f64 = 0.8;
 
 pub fn run(args: InspectArgs) -> anyhow::Result<()> {
     let dataset = Dataset::load(&args.dir)?;
@@ -41,6 +43,13 @@ pub fn run(args: InspectArgs) -> anyhow::Result<()> {
             .with_context(|| format!("writing contact sheet {}", path.display()))?;
         println!("contact sheet: {} (frames {:?})", path.display(), frames);
     }
+    if let Some(path) = &args.overlay {
+        let frames = inspect::overlay_frames(&summary, args.sheet_frames);
+        inspect::overlay_sheet(&dataset, &summary, &frames)?
+            .save(path)
+            .with_context(|| format!("writing overlay {}", path.display()))?;
+        println!("overlay: {} (frames {:?})", path.display(), frames);
+    }
     if let Some(path) = &args.joints_json {
         let joints: Vec<_> = (0..dataset.frames.len())
             .map(|i| inspect::frame_joints(&dataset, i))
@@ -49,17 +58,40 @@ pub fn run(args: InspectArgs) -> anyhow::Result<()> {
         std::fs::write(path, text).with_context(|| format!("writing {}", path.display()))?;
         println!("joints: {}", path.display());
     }
-    if summary.mask_seg_disagreement > 0.05 {
-        bail!(
-            "mask and segmentation disagree on {:.1}% of pixels: they should mark the same person",
-            100.0 * summary.mask_seg_disagreement
-        );
+    println!(
+        "projected body joints on the person, per frame (flagged below {:.0}%):",
+        100.0 * inspect::FRAME_MIN_JOINTS_ON_PERSON
+    );
+    let problems = summary.problems();
+    for p in problems.iter().filter(|p| !p.fatal) {
+        println!("  flagged {}: {}", p.field, p.message);
     }
-    if summary.joints_on_person < MIN_JOINTS_ON_PERSON {
+    if problems.iter().all(|p| p.fatal) {
+        println!("  no frame flagged");
+    }
+    let fatal: Vec<_> = problems.iter().filter(|p| p.fatal).collect();
+    if let Some(first) = fatal.first() {
+        for p in &fatal {
+            eprintln!(
+                "problem: {}: field `{}`: {}",
+                dataset_file(&args.dir),
+                p.field,
+                p.message
+            );
+        }
         bail!(
-            "only {:.0}% of projected body joints land on the person mask: poses or cameras do not line up with the images (check extrinsics are world-to-camera, OpenCV axes; look at the contact sheet)",
-            100.0 * summary.joints_on_person
+            "{}: {} problem(s), first: field `{}`: {}",
+            dataset_file(&args.dir),
+            fatal.len(),
+            first.field,
+            first.message
         );
     }
     Ok(())
+}
+
+fn dataset_file(dir: &std::path::Path) -> String {
+    dir.join(talkin_data::dataset::INDEX_FILE)
+        .display()
+        .to_string()
 }

@@ -57,3 +57,23 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Serve(a) => serve::run(a),
     }
 }
+
+/// Loads the dataset in `dir` and runs every check `talkin inspect` runs (every frame
+/// decoded) before a command does any work; flagged frames are listed on stderr.
+pub fn load_dataset(dir: &std::path::Path) -> anyhow::Result<talkin_data::dataset::Dataset> {
+    use anyhow::Context;
+    let dataset = talkin_data::dataset::Dataset::load(dir)
+        .with_context(|| format!("cannot load the dataset in {}", dir.display()))?;
+    let progress = crate::progress::Progress::new("checking frames", dataset.frames.len());
+    let summary = talkin_data::inspect::validate(&dataset, &|done| progress.update(done, ""))
+        .with_context(|| {
+            format!(
+                "the dataset in {} fails `talkin inspect`'s checks",
+                dir.display()
+            )
+        })?;
+    for p in summary.problems() {
+        eprintln!("note: flagged {}: {}", p.field, p.message);
+    }
+    Ok(dataset)
+}

@@ -117,7 +117,7 @@ pub fn write_tiny_dataset(dir: &Path) -> Dataset {
             time: i as f64 / 25.0,
             image: format!("images/{name}").into(),
             mask: format!("masks/{name}").into(),
-            segmentation: format!("segmentation/{name}").into(),
+            segmentation: Some(format!("segmentation/{name}").into()),
             depth: None,
             camera: frontal_camera(w, h),
             params,

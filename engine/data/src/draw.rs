@@ -1,4 +1,6 @@
-//! Tiny raster helpers for contact sheets: blending, lines, dots, tiling. Not a renderer.
+//! Drawing on contact sheets and overlays: blending, lines, dots, capsule outlines, text
+//! labels and tiling, on top of `imageproc` and `ab_glyph`. Every function takes any
+//! coordinates (off-image, huge, NaN) without panicking.
 
 use image::{Rgb, RgbImage};
 
@@ -22,31 +24,100 @@ pub fn blend(img: &mut RgbImage, x: i64, y: i64, colour: [u8; 3], alpha: f32) {
     }
 }
 
-/// A line from `a` to `b` (pixel coordinates, any finite values), `width` pixels wide.
+/// Far outside any image: points beyond (and NaN) are not drawn, so the float-to-int
+/// arithmetic of the drawing crate stays in range.
+const LIMIT: f64 = 1e6;
+
+fn drawable(p: (f64, f64)) -> bool {
+    p.0.abs() < LIMIT && p.1.abs() < LIMIT
+}
+
+/// A line from `a` to `b` (pixel coordinates, any values: non-finite or far-off ends
+/// draw nothing), `width` pixels wide.
 pub fn line(img: &mut RgbImage, a: (f64, f64), b: (f64, f64), colour: [u8; 3], width: i64) {
-    if !(a.0.is_finite() && a.1.is_finite() && b.0.is_finite() && b.1.is_finite()) {
+    if !(drawable(a) && drawable(b)) {
         return;
     }
-    let steps = ((b.0 - a.0).abs().max((b.1 - a.1).abs()).ceil() as i64).clamp(1, 100_000);
-    for i in 0..=steps {
-        let t = i as f64 / steps as f64;
-        let (x, y) = (a.0 + (b.0 - a.0) * t, a.1 + (b.1 - a.1) * t);
-        dot(img, (x, y), colour, width / 2);
+    let r = width / 2;
+    for dy in -r..=r {
+        for dx in -r..=r {
+            let o = (dx as f32, dy as f32);
+            imageproc::drawing::draw_line_segment_mut(
+                img,
+                (a.0 as f32 + o.0, a.1 as f32 + o.1),
+                (b.0 as f32 + o.0, b.1 as f32 + o.1),
+                Rgb(colour),
+            );
+        }
     }
 }
 
-/// A filled square dot of radius `r` around `p`.
+/// A filled dot of radius `r` pixels around `p` (one pixel for `r = 0`).
 pub fn dot(img: &mut RgbImage, p: (f64, f64), colour: [u8; 3], r: i64) {
-    let limit = 1e6; // far outside any image; keeps the integer arithmetic in range
-    if !(p.0.abs() < limit && p.1.abs() < limit) {
+    if !drawable(p) {
         return;
     }
-    let (cx, cy) = (p.0.floor() as i64, p.1.floor() as i64);
-    for dy in -r..=r {
-        for dx in -r..=r {
-            blend(img, cx + dx, cy + dy, colour, 1.0);
+    let centre = (p.0.floor() as i32, p.1.floor() as i32);
+    imageproc::drawing::draw_filled_circle_mut(img, centre, r as i32, Rgb(colour));
+}
+
+/// A circle's outline of radius `r` pixels around `p`.
+pub fn circle(img: &mut RgbImage, p: (f64, f64), r: f64, colour: [u8; 3]) {
+    if !(drawable(p) && (0.0..LIMIT).contains(&r)) {
+        return;
+    }
+    let centre = (p.0.round() as i32, p.1.round() as i32);
+    imageproc::drawing::draw_hollow_circle_mut(img, centre, r.round() as i32, Rgb(colour));
+}
+
+/// The outline of a capsule seen from the camera: the segment `a`-`b` thickened by the
+/// radii `ra` at `a` and `rb` at `b` (pixels): two side lines and a circle at each end.
+pub fn capsule_outline(
+    img: &mut RgbImage,
+    a: (f64, f64),
+    b: (f64, f64),
+    (ra, rb): (f64, f64),
+    colour: [u8; 3],
+) {
+    let (dx, dy) = (b.0 - a.0, b.1 - a.1);
+    let len = (dx * dx + dy * dy).sqrt();
+    if len > 1e-9 {
+        let n = (-dy / len, dx / len);
+        for s in [-1.0, 1.0] {
+            line(
+                img,
+                (a.0 + s * n.0 * ra, a.1 + s * n.1 * ra),
+                (b.0 + s * n.0 * rb, b.1 + s * n.1 * rb),
+                colour,
+                1,
+            );
         }
     }
+    circle(img, a, ra, colour);
+    circle(img, b, rb, colour);
+}
+
+/// DejaVu Sans, parsed once.
+fn font() -> Option<&'static ab_glyph::FontRef<'static>> {
+    static FONT: std::sync::OnceLock<Option<ab_glyph::FontRef<'static>>> =
+        std::sync::OnceLock::new();
+    FONT.get_or_init(|| ab_glyph::FontRef::try_from_slice(dejavu::sans::regular()).ok())
+        .as_ref()
+}
+
+/// Writes `text` with its top-left corner at (`x`, `y`), `height` pixels tall
+/// (anti-aliased DejaVu Sans); what falls outside the image is clipped.
+pub fn label(img: &mut RgbImage, text: &str, x: i32, y: i32, height: f32, colour: [u8; 3]) {
+    if let Some(font) = font() {
+        imageproc::drawing::draw_text_mut(img, Rgb(colour), x, y, height, font, text);
+    }
+}
+
+/// The width and height in pixels `text` takes at `height`.
+pub fn label_size(text: &str, height: f32) -> (u32, u32) {
+    font().map_or((0, 0), |font| {
+        imageproc::drawing::text_size(height, font, text)
+    })
 }
 
 /// Arranges equally sized tiles in a grid with `columns` columns and a `gap` px border.
@@ -97,10 +168,28 @@ mod tests {
         line(&mut img, (-100.0, -100.0), (100.0, 100.0), [255, 0, 0], 1);
         line(&mut img, (f64::NAN, 0.0), (3.0, 3.0), [255, 0, 0], 1);
         dot(&mut img, (1e30, -1e30), [0, 255, 0], 2);
+        circle(&mut img, (f64::NAN, 1.0), 3.0, [0, 255, 0]);
+        capsule_outline(
+            &mut img,
+            (1.0, 1.0),
+            (1.0, 1.0),
+            (1e300, f64::NAN),
+            [0, 0, 255],
+        );
+        label(&mut img, "far", 1_000_000, -5, 12.0, [0, 0, 255]);
         assert_eq!(img.get_pixel(4, 4).0, [255, 0, 0]);
         let sheet = tile(&[img.clone(), img.clone(), img], 2, 1, [9, 9, 9]);
         assert_eq!((sheet.width(), sheet.height()), (2 * 9 + 1, 2 * 9 + 1));
         assert_eq!(heat(0.0), [0, 0, 0]);
         assert_eq!(heat(f32::NAN), [255, 255, 255]);
+    }
+
+    #[test]
+    fn labels_are_drawn_and_measured() {
+        let mut img = RgbImage::new(64, 24);
+        label(&mut img, "0.93", 2, 2, 14.0, [255, 255, 255]);
+        assert!(img.pixels().any(|p| p.0[0] > 128), "no text drawn");
+        let (w, h) = label_size("0.93", 14.0);
+        assert!(w > 10 && w < 60 && h > 5 && h <= 16, "{w}x{h}");
     }
 }

@@ -9,11 +9,16 @@ use talkin_human::body::{FrameParams, N_BODY_JOINTS, N_EXPRESSION, N_HAND_JOINTS
 
 use crate::json_shape::{self, ShapeError};
 
+/// Largest magnitude of any pose, expression or translation value. Anything beyond is not
+/// a pose (radians, coefficients of a few units, metres) and would only overflow f32.
+pub const PARAM_LIMIT: f64 = 1e3;
+
 /// The JSON wire form of [`FrameParams`].
 pub trait ParamsJson: Sized {
     /// Parses a `params` object; `path` names it in errors (e.g. `frames[3].params`).
-    /// Expression may carry more than 10 coefficients (the first 10 are kept); everything
-    /// else must have exactly its shape.
+    /// Expression may carry more than 10 coefficients (the first 10 are kept: see
+    /// [`expression_count`]); everything else must have exactly its shape, and every
+    /// value be finite and within [`PARAM_LIMIT`].
     fn from_json(v: &Value, path: &str) -> Result<Self, ShapeError>;
     /// The `params` object, rounded to 1e-9 so written JSON stays short and byte-stable.
     fn to_json(&self) -> Value;
@@ -50,6 +55,7 @@ impl ParamsJson for FrameParams {
             N_EXPRESSION,
         )?;
         p.expression.copy_from_slice(&e[..N_EXPRESSION]);
+        check_limits(&p, path)?;
         Ok(p)
     }
 
@@ -87,6 +93,44 @@ impl ParamsJson for FrameParams {
     }
 }
 
+/// How many expression coefficients a `params` object carries (the engine conditions on
+/// the first [`N_EXPRESSION`]); `None` if it has no expression array.
+pub fn expression_count(v: &Value) -> Option<usize> {
+    v.get("expression").and_then(Value::as_array).map(Vec::len)
+}
+
+/// Every value of `p` within [`PARAM_LIMIT`]; the error names the element.
+fn check_limits(p: &FrameParams, path: &str) -> Result<(), ShapeError> {
+    let too_big = |name: String, x: f64| ShapeError {
+        field: format!("{path}.{name}"),
+        expected: format!("a value within +-{PARAM_LIMIT} (radians, expression units or metres)"),
+        found: format!("the number {x}"),
+    };
+    let vec3 = |name: &str, v: DVec3| -> Result<(), ShapeError> {
+        match v.to_array().iter().position(|x| x.abs() > PARAM_LIMIT) {
+            Some(k) => Err(too_big(format!("{name}[{k}]"), v[k])),
+            None => Ok(()),
+        }
+    };
+    let rows = |name: &str, r: &[DVec3]| -> Result<(), ShapeError> {
+        r.iter()
+            .enumerate()
+            .try_for_each(|(i, v)| vec3(&format!("{name}[{i}]"), *v))
+    };
+    vec3("global_orient", p.global_orient)?;
+    rows("body_pose", &p.body_pose)?;
+    vec3("jaw_pose", p.jaw_pose)?;
+    vec3("leye_pose", p.leye_pose)?;
+    vec3("reye_pose", p.reye_pose)?;
+    rows("left_hand_pose", &p.left_hand_pose)?;
+    rows("right_hand_pose", &p.right_hand_pose)?;
+    vec3("transl", p.transl)?;
+    match p.expression.iter().position(|x| x.abs() > PARAM_LIMIT) {
+        Some(k) => Err(too_big(format!("expression[{k}]"), p.expression[k])),
+        None => Ok(()),
+    }
+}
+
 /// Rounds to 1e-9 so written JSON stays short and byte-stable.
 fn round6(v: [f64; 3]) -> [f64; 3] {
     v.map(|x| (x * 1e9).round() / 1e9)
@@ -105,6 +149,22 @@ mod tests {
         p.transl = DVec3::new(0.0, 1.0, 2.0);
         let back = FrameParams::from_json(&p.to_json(), "params").unwrap();
         assert_eq!(back, p);
+    }
+
+    /// A body pose of 1e300 is not a pose: the element is named.
+    #[test]
+    fn absurd_values_name_their_element() {
+        let mut v = FrameParams::default().to_json();
+        v["body_pose"][4][1] = serde_json::json!(1e300);
+        let e = FrameParams::from_json(&v, "frames[2].params").unwrap_err();
+        assert_eq!(e.field, "frames[2].params.body_pose[4][1]");
+        let mut v = FrameParams::default().to_json();
+        v["expression"][3] = serde_json::json!(-2e3);
+        let e = FrameParams::from_json(&v, "p").unwrap_err();
+        assert_eq!(e.field, "p.expression[3]");
+        let mut v = FrameParams::default().to_json();
+        v["transl"] = serde_json::json!([0.0, 999.0, -1000.0]);
+        assert!(FrameParams::from_json(&v, "p").is_ok());
     }
 
     #[test]

@@ -177,7 +177,7 @@ pub fn generate(
             time: job.time,
             image: paths.image,
             mask: paths.mask,
-            segmentation: paths.segmentation,
+            segmentation: Some(paths.segmentation),
             depth: Some(paths.depth),
             camera,
             params: job.params,

@@ -6,7 +6,7 @@ use std::path::Path;
 
 use image::{DynamicImage, GrayImage, ImageFormat, ImageReader, RgbImage};
 
-use super::{Dataset, DatasetError};
+use super::{Dataset, DatasetError, derived_segmentation};
 
 /// Number of segmentation labels: 0 background, 1 body, 2 arms, 3 hands, 4 head.
 pub const N_LABELS: usize = 5;
@@ -21,6 +21,9 @@ pub struct FrameImages {
     pub mask: GrayImage,
     /// Labels 0..=4.
     pub segmentation: GrayImage,
+    /// The frame had no segmentation file: the labels were derived from the mask and
+    /// the posed capsules ([`super::derived_segmentation`]).
+    pub labels_derived: bool,
 }
 
 /// Opens `file` as a PNG (by content, not extension): a clear error for a missing file,
@@ -65,17 +68,46 @@ fn decode_png(root: &Path, rel: &Path, size: (u32, u32)) -> Result<DynamicImage,
     Ok(img)
 }
 
+/// The image as RGB; an image with an alpha channel is composited over `background`
+/// (what the dataset's images are matted onto), never left to lose its alpha and show
+/// black where it was transparent.
+fn over_background(img: DynamicImage, background: [f32; 3]) -> RgbImage {
+    if !img.color().has_alpha() {
+        return img.into_rgb8();
+    }
+    let rgba = img.into_rgba32f();
+    RgbImage::from_fn(rgba.width(), rgba.height(), |x, y| {
+        let p = rgba.get_pixel(x, y).0;
+        let a = p[3].clamp(0.0, 1.0);
+        image::Rgb(std::array::from_fn(|c| {
+            let v = p[c].clamp(0.0, 1.0) * a + background[c] * (1.0 - a);
+            (v * 255.0).round() as u8
+        }))
+    })
+}
+
 impl Dataset {
-    /// Decodes frame `index`'s image, mask and segmentation, checking sizes and labels.
+    /// Decodes frame `index`'s image (composited over the background if it has alpha),
+    /// mask and segmentation (derived if the frame has none), checking sizes and labels.
     pub fn images(&self, index: usize) -> Result<FrameImages, DatasetError> {
         let frame = &self.frames[index];
         let size = (frame.camera.width, frame.camera.height);
-        let rgb = decode_png(&self.root, &frame.image, size)?.into_rgb8();
+        let rgb = over_background(decode_png(&self.root, &frame.image, size)?, self.background);
         let mask = decode_png(&self.root, &frame.mask, size)?.into_luma8();
-        let segmentation = decode_png(&self.root, &frame.segmentation, size)?.into_luma8();
+        let Some(rel) = &frame.segmentation else {
+            let skeleton = &self.subjects[frame.subject].skeleton;
+            let segmentation = derived_segmentation(&mask, &frame.camera, skeleton, &frame.params);
+            return Ok(FrameImages {
+                rgb,
+                mask,
+                segmentation,
+                labels_derived: true,
+            });
+        };
+        let segmentation = decode_png(&self.root, rel, size)?.into_luma8();
         if let Some(bad) = segmentation.pixels().find(|p| p.0[0] as usize >= N_LABELS) {
             return Err(DatasetError::Image {
-                file: self.root.join(&frame.segmentation),
+                file: self.root.join(rel),
                 problem: format!(
                     "label {} is not one of 0..={} ({})",
                     bad.0[0],
@@ -88,6 +120,7 @@ impl Dataset {
             rgb,
             mask,
             segmentation,
+            labels_derived: false,
         })
     }
 

@@ -33,6 +33,8 @@ impl Dataset {
         let r = Reader {
             file: root.join(INDEX_FILE),
         };
+        // RFC 8259 lets a parser ignore a byte order mark, and editors on Windows write one.
+        let text = text.strip_prefix('\u{feff}').unwrap_or(text);
         let doc: Value = serde_json::from_str(text).map_err(|e| DatasetError::Json {
             file: r.file.clone(),
             line: e.line(),
@@ -61,8 +63,9 @@ impl Dataset {
     /// Every referenced PNG exists and its header says the camera's size.
     fn check_image_headers(&self) -> Result<(), DatasetError> {
         for frame in &self.frames {
-            for rel in [&frame.image, &frame.mask, &frame.segmentation]
+            for rel in [&frame.image, &frame.mask]
                 .into_iter()
+                .chain(&frame.segmentation)
                 .chain(&frame.depth)
             {
                 let file = self.root.join(rel);
@@ -180,9 +183,14 @@ impl Reader {
         )
         .map_err(shape)?;
         if bg.iter().any(|c| !(0.0..=1.0).contains(c)) {
+            let hint = if bg.iter().all(|c| (0.0..=255.0).contains(c)) {
+                " (8-bit values? divide them by 255)"
+            } else {
+                ""
+            };
             return Err(self.invalid(
                 "background",
-                format!("expected 3 numbers in [0, 1], found {bg:?}"),
+                format!("expected 3 numbers in [0, 1], found {bg:?}{hint}"),
             ));
         }
         Ok([bg[0] as f32, bg[1] as f32, bg[2] as f32])
@@ -271,11 +279,12 @@ impl Reader {
         };
         let image = relpath("image")?;
         let mask = relpath("mask")?;
-        let segmentation = relpath("segmentation")?;
-        let depth = match f.get("depth") {
-            None | Some(Value::Null) => None,
-            Some(_) => Some(relpath("depth")?),
+        let optional = |k: &str| match f.get(k) {
+            None | Some(Value::Null) => Ok(None),
+            Some(_) => relpath(k).map(Some),
         };
+        let segmentation = optional("segmentation")?;
+        let depth = optional("depth")?;
         Ok(Frame {
             subject,
             split,

@@ -5,6 +5,7 @@
 //! [`Dataset::load`] validates the whole JSON and every image header up front, so a
 //! training run never dies on frame 900; pixels are decoded lazily ([`Dataset::image`]).
 
+mod derive_labels;
 mod error;
 mod images;
 mod load;
@@ -12,6 +13,7 @@ mod write;
 
 use std::path::PathBuf;
 
+pub use derive_labels::derived_segmentation;
 pub use error::DatasetError;
 pub use images::{FrameImages, LABEL_NAMES, N_LABELS};
 pub use load::camera_field;
@@ -96,7 +98,9 @@ pub struct Frame {
     /// Paths relative to the dataset directory.
     pub image: PathBuf,
     pub mask: PathBuf,
-    pub segmentation: PathBuf,
+    /// DensePose-style part labels; `None`: derived from the mask and the posed capsules
+    /// when the frame is decoded ([`Dataset::images`]).
+    pub segmentation: Option<PathBuf>,
     /// Optional ground-truth depth (16-bit PNG, camera z in units of [`DEPTH_UNIT_M`],
     /// 0 = no surface). Only synthetic data has it; benchmarks use it to find the true
     /// surface point of each pixel.

@@ -33,7 +33,6 @@ impl Dataset {
                     "time": round9(f.time),
                     "image": path_string(&f.image),
                     "mask": path_string(&f.mask),
-                    "segmentation": path_string(&f.segmentation),
                     "camera": {
                         "width": f.camera.width,
                         "height": f.camera.height,
@@ -42,6 +41,9 @@ impl Dataset {
                     },
                     "params": f.params.to_json(),
                 });
+                if let Some(segmentation) = &f.segmentation {
+                    frame["segmentation"] = json!(path_string(segmentation));
+                }
                 if let Some(depth) = &f.depth {
                     frame["depth"] = json!(path_string(depth));
                 }

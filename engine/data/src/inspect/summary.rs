@@ -5,6 +5,35 @@ use rayon::prelude::*;
 use crate::dataset::{Dataset, DatasetError, LABEL_NAMES, N_LABELS, Split};
 use talkin_human::body::{N_BODY_JOINTS, N_JOINTS};
 
+/// What one frame's pixels say about its fit.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct FrameCheck {
+    pub frame: usize,
+    /// Person pixels (`mask >= 128`).
+    pub person_pixels: u64,
+    /// Body joints (0..22) that project inside the image.
+    pub joints_in_image: u32,
+    /// Of those, the ones on a person pixel.
+    pub joints_on_person: u32,
+    /// The frame had no segmentation file; its labels were derived.
+    pub labels_derived: bool,
+    /// Pixels where `mask >= 128` disagrees with `segmentation > 0` (0 when derived).
+    pub disagreeing_pixels: u64,
+    pub pixels: u64,
+}
+
+impl FrameCheck {
+    /// Share of the in-image projected body joints that land on the person (1 when none
+    /// lands in the image, which [`Summary::problems`] reports on its own).
+    pub fn joints_on_person_share(&self) -> f64 {
+        if self.joints_in_image == 0 {
+            1.0
+        } else {
+            f64::from(self.joints_on_person) / f64::from(self.joints_in_image)
+        }
+    }
+}
+
 /// What `talkin inspect` prints.
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct Summary {
@@ -16,12 +45,15 @@ pub struct Summary {
     pub label_fractions: [f64; N_LABELS],
     /// Frames in which each label is absent (e.g. hands never visible).
     pub frames_without_label: [usize; N_LABELS],
-    /// Fraction of pixels where `mask >= 128` disagrees with `segmentation > 0`.
+    /// Fraction of pixels where `mask >= 128` disagrees with `segmentation > 0`, over the
+    /// frames with a segmentation file.
     pub mask_seg_disagreement: f64,
     /// Fraction of in-image projected body joints (0..22) that land on the person mask:
     /// low values mean poses or cameras do not line up with the images.
     pub joints_on_person: f64,
     pub frames_with_depth: usize,
+    /// Per frame, in dataset order.
+    pub frames: Vec<FrameCheck>,
 }
 
 /// Decodes every frame (in parallel) and summarises; the first broken file is the error.
@@ -29,52 +61,15 @@ pub fn summarize(
     dataset: &Dataset,
     progress: &(dyn Fn(usize) + Sync),
 ) -> Result<Summary, DatasetError> {
-    struct PerFrame {
-        labels: [u64; N_LABELS],
-        disagree: u64,
-        pixels: u64,
-        joints_in_image: u32,
-        joints_on_person: u32,
-    }
     let done = std::sync::atomic::AtomicUsize::new(0);
-    let per_frame: Vec<PerFrame> = (0..dataset.frames.len())
+    let mut label_counts = vec![[0u64; N_LABELS]; dataset.frames.len()];
+    let checks: Vec<FrameCheck> = (0..dataset.frames.len())
         .into_par_iter()
-        .map(|i| {
-            let images = dataset.images(i)?;
-            dataset.depth(i)?;
-            let mut labels = [0u64; N_LABELS];
-            let mut disagree = 0;
-            for (seg, mask) in images.segmentation.pixels().zip(images.mask.pixels()) {
-                labels[seg.0[0] as usize] += 1;
-                disagree += u64::from((seg.0[0] > 0) != (mask.0[0] >= 128));
-            }
-            let frame = &dataset.frames[i];
-            let posed = dataset.subjects[frame.subject].skeleton.pose(&frame.params);
-            let (mut joints_in_image, mut joints_on_person) = (0, 0);
-            for j in 0..N_BODY_JOINTS.min(N_JOINTS) {
-                let Some(p) = frame.camera.project(posed.joint(j)) else {
-                    continue;
-                };
-                let (x, y) = (p.x.floor(), p.y.floor());
-                if x < 0.0
-                    || y < 0.0
-                    || x >= frame.camera.width as f64
-                    || y >= frame.camera.height as f64
-                {
-                    continue;
-                }
-                joints_in_image += 1;
-                joints_on_person +=
-                    u32::from(images.mask.get_pixel(x as u32, y as u32).0[0] >= 128);
-            }
+        .zip(label_counts.par_iter_mut())
+        .map(|(i, labels)| {
+            let check = check_frame(dataset, i, labels)?;
             progress(done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1);
-            Ok(PerFrame {
-                labels,
-                disagree,
-                pixels: images.mask.len() as u64,
-                joints_in_image,
-                joints_on_person,
-            })
+            Ok(check)
         })
         .collect::<Result<_, DatasetError>>()?;
 
@@ -93,31 +88,78 @@ pub fn summarize(
         .collect();
     image_sizes.sort_unstable();
     image_sizes.dedup();
-    let total_pixels: u64 = per_frame.iter().map(|f| f.pixels).sum();
+    let total_pixels: u64 = checks.iter().map(|f| f.pixels).sum();
     let mut label_fractions = [0.0; N_LABELS];
     let mut frames_without_label = [0; N_LABELS];
-    for f in &per_frame {
+    for labels in &label_counts {
         for l in 0..N_LABELS {
-            label_fractions[l] += f.labels[l] as f64 / total_pixels as f64;
-            frames_without_label[l] += usize::from(f.labels[l] == 0);
+            label_fractions[l] += labels[l] as f64 / total_pixels.max(1) as f64;
+            frames_without_label[l] += usize::from(labels[l] == 0);
         }
     }
-    let in_image: u32 = per_frame.iter().map(|f| f.joints_in_image).sum();
-    let on_person: u32 = per_frame.iter().map(|f| f.joints_on_person).sum();
+    let in_image: u32 = checks.iter().map(|f| f.joints_in_image).sum();
+    let on_person: u32 = checks.iter().map(|f| f.joints_on_person).sum();
+    let labelled = checks.iter().filter(|c| !c.labels_derived);
+    let labelled_pixels: u64 = labelled.clone().map(|c| c.pixels).sum();
+    let disagreeing: u64 = labelled.map(|c| c.disagreeing_pixels).sum();
     Ok(Summary {
         subjects: dataset.subjects.iter().map(|s| s.name.clone()).collect(),
         frames_per_split,
         image_sizes,
         label_fractions,
         frames_without_label,
-        mask_seg_disagreement: per_frame.iter().map(|f| f.disagree).sum::<u64>() as f64
-            / total_pixels as f64,
+        mask_seg_disagreement: disagreeing as f64 / labelled_pixels.max(1) as f64,
         joints_on_person: if in_image == 0 {
             0.0
         } else {
             on_person as f64 / in_image as f64
         },
         frames_with_depth: dataset.frames.iter().filter(|f| f.depth.is_some()).count(),
+        frames: checks,
+    })
+}
+
+/// Decodes frame `i` (and its depth), counts its labels into `labels` and checks its fit.
+fn check_frame(
+    dataset: &Dataset,
+    i: usize,
+    labels: &mut [u64; N_LABELS],
+) -> Result<FrameCheck, DatasetError> {
+    let images = dataset.images(i)?;
+    dataset.depth(i)?;
+    let mut disagreeing_pixels = 0;
+    let mut person_pixels = 0;
+    for (seg, mask) in images.segmentation.pixels().zip(images.mask.pixels()) {
+        labels[seg.0[0] as usize] += 1;
+        disagreeing_pixels += u64::from((seg.0[0] > 0) != (mask.0[0] >= 128));
+        person_pixels += u64::from(mask.0[0] >= 128);
+    }
+    let frame = &dataset.frames[i];
+    let posed = dataset.subjects[frame.subject].skeleton.pose(&frame.params);
+    let (mut joints_in_image, mut joints_on_person) = (0, 0);
+    for j in 0..N_BODY_JOINTS.min(N_JOINTS) {
+        let Some(p) = frame.camera.project(posed.joint(j)) else {
+            continue;
+        };
+        let (x, y) = (p.x.floor(), p.y.floor());
+        if x < 0.0 || y < 0.0 || x >= frame.camera.width as f64 || y >= frame.camera.height as f64 {
+            continue;
+        }
+        joints_in_image += 1;
+        joints_on_person += u32::from(images.mask.get_pixel(x as u32, y as u32).0[0] >= 128);
+    }
+    Ok(FrameCheck {
+        frame: i,
+        person_pixels,
+        joints_in_image,
+        joints_on_person,
+        labels_derived: images.labels_derived,
+        disagreeing_pixels: if images.labels_derived {
+            0
+        } else {
+            disagreeing_pixels
+        },
+        pixels: images.mask.len() as u64,
     })
 }
 
@@ -167,10 +209,45 @@ impl std::fmt::Display for Summary {
             "projected body joints on the person mask: {:.1}%",
             100.0 * self.joints_on_person
         )?;
+        let derived: Vec<usize> = self
+            .frames
+            .iter()
+            .filter(|c| c.labels_derived)
+            .map(|c| c.frame)
+            .collect();
+        if !derived.is_empty() {
+            writeln!(
+                f,
+                "frames whose part labels were derived from the mask and the posed \
+                 capsules (no segmentation file): {}",
+                frame_list(&derived)
+            )?;
+        }
         write!(
             f,
             "frames with ground-truth depth: {}",
             self.frames_with_depth
         )
     }
+}
+
+/// Frame indices as ranges: `0-3, 7, 9-12`.
+pub(crate) fn frame_list(frames: &[usize]) -> String {
+    let mut parts = Vec::new();
+    let mut k = 0;
+    while k < frames.len() {
+        let start = frames[k];
+        let mut end = start;
+        while k + 1 < frames.len() && frames[k + 1] == end + 1 {
+            k += 1;
+            end = frames[k];
+        }
+        parts.push(if start == end {
+            start.to_string()
+        } else {
+            format!("{start}-{end}")
+        });
+        k += 1;
+    }
+    parts.join(", ")
 }
