@@ -217,8 +217,12 @@ fn a_signal_ends_the_run_with_a_checkpoint_and_resume_continues() {
     assert_eq!(code, Some(0), "{err}");
     assert!(out.contains("trained 3 steps"), "{out}");
     assert_eq!(log_steps(&run), (1..=step + 3).collect::<Vec<_>>());
-    // The last two checkpoints are kept.
-    assert_eq!(steps_of_checkpoints(&run), [step + 3, step]);
+    // The last two checkpoints are kept (the run checkpoints every 0.3 s).
+    let kept = steps_of_checkpoints(&run);
+    assert!(
+        kept.len() == 2 && kept[0] == step + 3 && kept[1] >= step,
+        "{kept:?}"
+    );
 }
 
 #[test]
@@ -264,7 +268,9 @@ fn a_damaged_newest_checkpoint_falls_back_to_the_previous() {
     }
     let e = Checkpoint::load(&run).err().unwrap().to_string();
     assert!(
-        e.contains("no usable checkpoint") && e.contains("step-000006") && e.contains("step-000002"),
+        e.contains("no usable checkpoint")
+            && e.contains("step-000006")
+            && e.contains("step-000002"),
         "{e}"
     );
 }
@@ -377,7 +383,10 @@ fn resume_with_a_new_budget_extends_the_run_and_keeps_the_schedule() {
         virtual_steps.push(t.field_step());
     }
     assert_eq!(virtual_steps.len(), 8);
-    assert!(virtual_steps.windows(2).all(|w| w[0] < w[1]), "{virtual_steps:?}");
+    assert!(
+        virtual_steps.windows(2).all(|w| w[0] < w[1]),
+        "{virtual_steps:?}"
+    );
     assert_eq!(*virtual_steps.last().unwrap(), schedule::PAPER_ITERATIONS);
     assert_eq!(virtual_steps[3], at + (schedule::PAPER_ITERATIONS - at) / 2);
 }
@@ -410,11 +419,18 @@ fn paths_that_are_not_utf8_round_trip() {
     let report = train(&dataset, &run, &opts, &mut |_| {}).unwrap();
     assert!(report.perceptual_note.is_some());
     let resumed = Trainer::resume(&dataset, &run).unwrap();
-    assert_eq!(resumed.options().perceptual.as_deref(), Some(lpips.as_path()));
+    assert_eq!(
+        resumed.options().perceptual.as_deref(),
+        Some(lpips.as_path())
+    );
     assert_eq!(resumed.steps_taken(), 2);
     let state: serde_json::Value = serde_json::from_slice(
-        &std::fs::read(checkpoint::latest_dir(&run).unwrap().join(checkpoint::STATE_FILE))
-            .unwrap(),
+        &std::fs::read(
+            checkpoint::latest_dir(&run)
+                .unwrap()
+                .join(checkpoint::STATE_FILE),
+        )
+        .unwrap(),
     )
     .unwrap();
     assert!(state["data"]["unix_bytes"].is_array(), "{}", state["data"]);

@@ -77,7 +77,9 @@ impl TrainLog {
             .map_err(io)?;
         Ok(TrainLog {
             path: path.to_path_buf(),
-            writer: csv::WriterBuilder::new().has_headers(false).from_writer(file),
+            writer: csv::WriterBuilder::new()
+                .has_headers(false)
+                .from_writer(file),
         })
     }
 
@@ -135,7 +137,8 @@ impl TrainLog {
 fn read_rows(path: &Path) -> Result<Vec<csv::ByteRecord>, TrainError> {
     let mut reader = match csv::ReaderBuilder::new().flexible(true).from_path(path) {
         Ok(reader) => reader,
-        Err(e) if matches!(e.kind(), csv::ErrorKind::Io(io) if io.kind() == std::io::ErrorKind::NotFound) => {
+        Err(e) if matches!(e.kind(), csv::ErrorKind::Io(io) if io.kind() == std::io::ErrorKind::NotFound) =>
+        {
             return Ok(Vec::new());
         }
         Err(source) => return Err(log_error(path, source)),

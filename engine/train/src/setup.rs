@@ -245,8 +245,7 @@ pub(crate) fn write_recipe(
         "schedule": schedule,
         "field": serde_json::to_value(config).map_err(|e| unserialisable(e.to_string()))?,
     });
-    let bytes =
-        serde_json::to_vec_pretty(&recipe).map_err(|e| unserialisable(e.to_string()))?;
+    let bytes = serde_json::to_vec_pretty(&recipe).map_err(|e| unserialisable(e.to_string()))?;
     talkin_data::atomic::write_atomic(&path, &bytes)
         .map_err(|source| TrainError::Io { file: path, source })
 }

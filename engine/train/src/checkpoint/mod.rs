@@ -261,13 +261,7 @@ pub fn first_non_finite(field: &TalkinField) -> Option<String> {
             self.path.pop();
         }
         fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
-            if self.bad.is_none()
-                && !param
-                    .val()
-                    .into_data()
-                    .iter::<f32>()
-                    .all(|v| v.is_finite())
-            {
+            if self.bad.is_none() && !param.val().into_data().iter::<f32>().all(|v| v.is_finite()) {
                 self.bad = Some(self.path.join("."));
             }
         }
