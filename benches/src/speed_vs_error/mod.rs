@@ -232,7 +232,7 @@ fn train_and_score(
         let report = evaluate(
             &avatar,
             dataset,
-            &eval_frames,
+            eval_frames,
             &EvalOptions {
                 renders_dir: None,
                 lpips_dir: opts.lpips_dir.clone(),
