@@ -23,9 +23,13 @@ use crate::error::TrainError;
 use crate::log::{LOG_FILE, StepLog, TrainLog};
 use crate::preset::Preset;
 use crate::rays::FrameCache;
-use crate::recipe::{Budget, TrainOptions};
+use crate::recipe::TrainOptions;
 use crate::rng::SplitMix64;
 use crate::schedule;
+mod budget;
+
+pub use budget::ScheduleAnchor;
+
 use crate::setup::{
     clear_run, clip_of, dataset_sha256, fit_field_box, fit_subjects, options_serde,
     training_frames, unknown_subject, write_recipe,
@@ -76,19 +80,6 @@ struct TrainState {
     /// Where the schedule was last re-anchored to a new budget (absent: never).
     #[serde(default)]
     schedule_anchor: Option<ScheduleAnchor>,
-}
-
-/// The point a resumed run's budget changed at: from here the schedule's remaining
-/// virtual iterations are spread over the rest of the new budget, so the virtual step
-/// never jumps (see [`Trainer::set_budget`]).
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-pub struct ScheduleAnchor {
-    /// Steps taken when the budget changed.
-    pub step: usize,
-    /// Training seconds then.
-    pub elapsed_seconds: f64,
-    /// Schedule progress then, in [0, 1] (virtual step / 400k).
-    pub schedule_progress: f64,
 }
 
 /// A run in progress.
@@ -409,79 +400,9 @@ impl<'a> Trainer<'a> {
 }
 
 impl Trainer<'_> {
-    /// Run progress in [0, 1] (steps or training seconds against the budget).
-    pub fn progress(&self) -> f64 {
-        let (done, total) = self.budget_position();
-        (done / total).clamp(0.0, 1.0)
-    }
-
-    /// Steps or training seconds so far, and the budget's total, in the budget's unit.
-    fn budget_position(&self) -> (f64, f64) {
-        match self.opts.budget {
-            Budget::Steps(n) => (self.step as f64, n as f64),
-            Budget::Seconds(s) => (self.elapsed, s),
-        }
-    }
-
-    /// Where the run is in the paper's schedule, in [0, 1]: the budget's progress, or,
-    /// after a budget change, the anchor's position plus the new budget's remainder
-    /// spread over the schedule's remainder.
-    pub fn schedule_progress(&self) -> f64 {
-        let Some(a) = self.anchor else {
-            return self.progress();
-        };
-        let (done, total) = self.budget_position();
-        let start = match self.opts.budget {
-            Budget::Steps(_) => a.step as f64,
-            Budget::Seconds(_) => a.elapsed_seconds,
-        };
-        // A budget already spent at the anchor trains nothing and moves nothing.
-        let f = if total > start {
-            ((done - start) / (total - start)).clamp(0.0, 1.0)
-        } else {
-            0.0
-        };
-        a.schedule_progress + f * (1.0 - a.schedule_progress)
-    }
-
-    /// Gives the run a new total budget (`Steps(80)` after 40 steps: 40 more). The
-    /// schedule (see [`schedule`]) is re-anchored here: the virtual step keeps its value
-    /// and the remaining virtual iterations are spread over the rest of the new budget,
-    /// so it never goes back (no learning-rate jump, no replayed ray phases) and always
-    /// reaches the paper's end when the budget does. A finished run, being at the end,
-    /// trains on at the schedule's final learning rate and ray mix. The same budget
-    /// changes nothing (an interrupted run resumes exactly).
-    pub fn set_budget(&mut self, budget: Budget) -> Result<(), TrainError> {
-        TrainOptions {
-            budget,
-            ..self.opts.clone()
-        }
-        .check()?;
-        if budget == self.opts.budget {
-            return Ok(());
-        }
-        let anchor = ScheduleAnchor {
-            step: self.step,
-            elapsed_seconds: self.elapsed,
-            schedule_progress: self.schedule_progress(),
-        };
-        self.anchor = Some(anchor);
-        self.opts.budget = budget;
-        let extended = serde_json::to_value(anchor).map_err(|e| TrainError::Recipe {
-            file: self.out.join(crate::setup::RECIPE_FILE),
-            problem: e.to_string(),
-        })?;
-        write_recipe(&self.out, &self.opts, &self.config, Some(extended))
-    }
-
     /// What loading the checkpoint this run resumed from had to say.
     pub fn notes(&self) -> &[String] {
         &self.notes
-    }
-
-    /// Whether the budget is spent.
-    pub fn done(&self) -> bool {
-        self.progress() >= 1.0
     }
 
     /// The dataset frames this run draws its rays from (for `adapt`, the clip's).
