@@ -31,7 +31,10 @@ fn main() -> std::process::ExitCode {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("error: {}", report(&e));
-            std::process::ExitCode::FAILURE
+            match e.downcast_ref::<cli::train::Interrupted>() {
+                Some(interrupted) => std::process::ExitCode::from(interrupted.exit_code()),
+                None => std::process::ExitCode::FAILURE,
+            }
         }
     }
 }

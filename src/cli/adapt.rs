@@ -4,7 +4,7 @@ use anyhow::Context;
 use talkin_data::dataset::Dataset;
 use talkin_train::{Identities, TrainOptions, Trainer};
 
-use super::train::run_trainer;
+use super::train::{StopSignals, refuse_existing_run, run_trainer};
 
 #[derive(clap::Args, Debug, Clone)]
 pub struct AdaptArgs {
@@ -17,14 +17,22 @@ pub struct AdaptArgs {
     /// The novel subject's name in that dataset.
     #[arg(long)]
     pub subject: String,
-    /// The adapted run's directory.
+    /// The adapted run's directory. One that already holds a run is refused without
+    /// --force; continue an adapted run with `talkin train --resume`.
     #[arg(long)]
     pub out: PathBuf,
+    /// Start over in an --out that holds a run: its checkpoints are deleted and its log
+    /// and recipe replaced.
+    #[arg(long)]
+    pub force: bool,
     #[command(flatten)]
     pub recipe: TrainOptions,
 }
 
 pub fn run(args: AdaptArgs) -> anyhow::Result<()> {
+    // Before any work: a signal from here on ends the run with a checkpoint.
+    let signals = StopSignals::install()?;
+    refuse_existing_run(&args.out, args.force)?;
     let dataset = Dataset::load(&args.data)
         .with_context(|| format!("cannot load the dataset in {}", args.data.display()))?;
     let mut opts = args.recipe;
@@ -34,5 +42,5 @@ pub fn run(args: AdaptArgs) -> anyhow::Result<()> {
     opts.identities = Identities::Named(vec![args.subject.clone()]);
     let trainer = Trainer::adapt(&dataset, &args.run, &args.subject, &args.out, &opts)
         .with_context(|| format!("adapting {} to `{}`", args.run.display(), args.subject))?;
-    run_trainer(trainer, &args.data)
+    run_trainer(trainer, &args.data, &args.out, &signals)
 }

@@ -83,11 +83,14 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
     let recipe = Recipe::try_parse_from(argv)
         .context("the demo's training options")?
         .recipe;
+    // The demo regenerates its scene and starts its run over every time.
     train::run(TrainArgs {
         data: data.clone(),
         out: run_dir.clone(),
         resume: false,
+        force: true,
         recipe,
+        given: Default::default(),
     })?;
     println!("== 4/4 evaluate every held-out split (renders, metrics, a contact sheet)");
     let mut table = String::from(

@@ -1,9 +1,13 @@
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 
 use anyhow::Context;
+use clap::parser::ValueSource;
+use clap::{ArgMatches, FromArgMatches};
 use talkin_data::dataset::Dataset;
 pub use talkin_train::DEFAULT_LPIPS_DIR;
-use talkin_train::{StepLog, TrainOptions, Trainer};
+use talkin_train::{StepLog, TrainOptions, Trainer, existing_run};
 
 use crate::progress::Progress;
 
@@ -12,39 +16,209 @@ pub struct TrainArgs {
     /// Dataset directory (with dataset.json).
     #[arg(long)]
     pub data: PathBuf,
-    /// Run directory: recipe.json, train_log.csv and checkpoint/ are written there.
+    /// Run directory: recipe.json, train_log.csv and checkpoint/ are written there. One
+    /// that already holds a run is refused without --resume or --force.
     #[arg(long, default_value = "out/train")]
     pub out: PathBuf,
-    /// Continue the run in --out from its newest checkpoint (same options; the budget
-    /// options given here are ignored).
-    #[arg(long)]
+    /// Continue the run in --out from its newest good checkpoint, with its own options and
+    /// dataset. --steps or --minutes give it a new total budget (--steps 80 after 40
+    /// steps trains 40 more); without them it keeps its budget.
+    #[arg(long, conflicts_with = "force")]
     pub resume: bool,
+    /// Start a new run in an --out that holds one: its checkpoints are deleted and its
+    /// log and recipe replaced.
+    #[arg(long)]
+    pub force: bool,
+    /// Read before `recipe`, whose parser takes its values out of the matches.
+    #[command(flatten)]
+    pub given: GivenFlags,
     #[command(flatten)]
     pub recipe: TrainOptions,
 }
 
+/// Which of the recipe's options the command line named: clap fills every other one with
+/// its default, and `--resume` must tell "no budget given" from the default budget.
+#[derive(Debug, Clone, Default)]
+pub struct GivenFlags {
+    /// `--steps` or `--minutes`.
+    pub budget: bool,
+    /// Any other recipe option (ignored by `--resume`, which keeps the run's).
+    pub other: bool,
+}
+
+impl FromArgMatches for GivenFlags {
+    fn from_arg_matches(m: &ArgMatches) -> Result<Self, clap::Error> {
+        let own = ["data", "out", "resume", "force", "run", "subject"];
+        let given = |id: &str| m.value_source(id) == Some(ValueSource::CommandLine);
+        Ok(GivenFlags {
+            budget: given("steps") || given("minutes"),
+            other: m
+                .ids()
+                .map(|id| id.as_str())
+                .filter(|id| !own.contains(id) && *id != "steps" && *id != "minutes")
+                .any(given),
+        })
+    }
+
+    fn update_from_arg_matches(&mut self, m: &ArgMatches) -> Result<(), clap::Error> {
+        *self = GivenFlags::from_arg_matches(m)?;
+        Ok(())
+    }
+}
+
+impl clap::Args for GivenFlags {
+    fn augment_args(cmd: clap::Command) -> clap::Command {
+        cmd
+    }
+
+    fn augment_args_for_update(cmd: clap::Command) -> clap::Command {
+        cmd
+    }
+}
+
 pub fn run(args: TrainArgs) -> anyhow::Result<()> {
+    // Before any work: a signal from here on ends the run with a checkpoint.
+    let signals = StopSignals::install()?;
+    if !args.resume {
+        refuse_existing_run(&args.out, args.force)?;
+    }
     let dataset = Dataset::load(&args.data)
         .with_context(|| format!("cannot load the dataset in {}", args.data.display()))?;
     let trainer = if args.resume {
-        Trainer::resume(&dataset, &args.out)
-            .with_context(|| format!("resuming {}", args.out.display()))?
+        if args.given.other {
+            eprintln!(
+                "note: --resume continues with the run's own options (its recipe.json); only \
+                 --steps and --minutes given here apply"
+            );
+        }
+        let mut trainer = Trainer::resume(&dataset, &args.out)
+            .with_context(|| format!("resuming {}", args.out.display()))?;
+        if args.given.budget {
+            trainer
+                .set_budget(args.recipe.budget)
+                .with_context(|| format!("extending {}", args.out.display()))?;
+        }
+        trainer
     } else {
         Trainer::new(&dataset, &args.out, &args.recipe)
             .with_context(|| format!("training on {}", args.data.display()))?
     };
-    run_trainer(trainer, &args.data)
+    run_trainer(trainer, &args.data, &args.out, &signals)
 }
 
-/// Runs a trainer to the end with a progress line and prints a summary.
-pub fn run_trainer(trainer: Trainer, data: &std::path::Path) -> anyhow::Result<()> {
+/// Refuses an `out` that holds a run unless `force`, which says that it starts over.
+pub fn refuse_existing_run(out: &Path, force: bool) -> anyhow::Result<()> {
+    let Some(found) = existing_run(out) else {
+        return Ok(());
+    };
+    if !force {
+        anyhow::bail!(
+            "{} already holds a run ({} exists): continue it with --resume, or start over \
+             with --force (deletes its checkpoints and replaces its log)",
+            out.display(),
+            found.display()
+        );
+    }
+    eprintln!(
+        "--force: starting over in {}: its checkpoints are deleted and its train_log.csv and \
+         recipe.json replaced",
+        out.display()
+    );
+    Ok(())
+}
+
+/// SIGINT and SIGTERM while this is alive set a flag the trainer polls between steps; a
+/// second signal (the flag already set) exits at once with 128 + its number. Once
+/// dropped, any signal exits at once.
+pub struct StopSignals {
+    stop: Arc<AtomicBool>,
+    signal: Arc<AtomicUsize>,
+}
+
+impl StopSignals {
+    pub fn install() -> anyhow::Result<StopSignals> {
+        use signal_hook::consts::{SIGINT, SIGTERM};
+        let stop = Arc::new(AtomicBool::new(false));
+        let signal = Arc::new(AtomicUsize::new(0));
+        for sig in [SIGINT, SIGTERM] {
+            // Order matters: the exit checks the flag before this signal sets it.
+            signal_hook::flag::register_conditional_shutdown(sig, 128 + sig, stop.clone())
+                .and_then(|_| signal_hook::flag::register_usize(sig, signal.clone(), sig as usize))
+                .and_then(|_| signal_hook::flag::register(sig, stop.clone()))
+                .context("installing the SIGINT/SIGTERM handlers")?;
+        }
+        Ok(StopSignals { stop, signal })
+    }
+
+    /// The signal that arrived, if any.
+    fn received(&self) -> Option<i32> {
+        match self.signal.load(Ordering::SeqCst) {
+            0 => None,
+            s => Some(s as i32),
+        }
+    }
+}
+
+impl Drop for StopSignals {
+    fn drop(&mut self) {
+        self.stop.store(true, Ordering::SeqCst);
+    }
+}
+
+/// A run stopped by a signal, its checkpoint written: the message says how to go on, and
+/// the process exits with 128 + the signal's number.
+#[derive(Debug)]
+pub struct Interrupted {
+    pub signal: i32,
+    step: usize,
+    checkpoint: PathBuf,
+    data: PathBuf,
+    out: PathBuf,
+}
+
+impl Interrupted {
+    /// The shell's convention: 130 for SIGINT, 143 for SIGTERM.
+    pub fn exit_code(&self) -> u8 {
+        u8::try_from(128 + self.signal).unwrap_or(1)
+    }
+}
+
+impl std::fmt::Display for Interrupted {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let name = match self.signal {
+            signal_hook::consts::SIGINT => "SIGINT (Ctrl-C)".to_string(),
+            signal_hook::consts::SIGTERM => "SIGTERM".to_string(),
+            s => format!("signal {s}"),
+        };
+        write!(
+            f,
+            "interrupted by {name} after step {}: checkpoint {} written and the log flushed; \
+             continue with: talkin train --data {} --out {} --resume",
+            self.step,
+            self.checkpoint.display(),
+            self.data.display(),
+            self.out.display()
+        )
+    }
+}
+
+impl std::error::Error for Interrupted {}
+
+/// Runs a trainer to the end (or to a signal) with a progress line and prints a summary.
+pub fn run_trainer(
+    trainer: Trainer,
+    data: &Path,
+    out: &Path,
+    signals: &StopSignals,
+) -> anyhow::Result<()> {
     if let Some(note) = trainer.perceptual_note() {
         eprintln!("note: {note}");
     }
     let opts = trainer.options().clone();
+    let (steps_before, budget) = (trainer.steps_taken(), opts.budget);
     let progress = Progress::new("training (per mille)", 1000);
     let report = trainer
-        .run(&mut |log: &StepLog| {
+        .run_until(&signals.stop, &mut |log: &StepLog| {
             progress.update(
                 (log.progress * 1000.0).floor() as usize,
                 &format!(
@@ -55,10 +229,17 @@ pub fn run_trainer(trainer: Trainer, data: &std::path::Path) -> anyhow::Result<(
         })
         .with_context(|| format!("training on {}", data.display()))?;
     let n = report.logs.len();
-    if n == 0 {
+    if n == 0 && !report.interrupted {
         // A resumed run whose budget was already spent: no step to average.
-        println!("trained 0 steps: the run's budget was already spent");
-    } else {
+        println!(
+            "trained 0 steps: the run's budget ({}) was already spent at step {steps_before}; \
+             give --resume a larger --steps or --minutes to extend it",
+            match budget {
+                talkin_train::Budget::Steps(s) => format!("{s} steps"),
+                talkin_train::Budget::Seconds(s) => format!("{:.1} minutes", s / 60.0),
+            }
+        );
+    } else if n > 0 {
         let tail = &report.logs[n.saturating_sub(20)..];
         let mean =
             |f: &dyn Fn(&StepLog) -> f64| tail.iter().map(f).sum::<f64>() / tail.len() as f64;
@@ -85,5 +266,15 @@ pub fn run_trainer(trainer: Trainer, data: &std::path::Path) -> anyhow::Result<(
         report.log_file.display(),
         report.checkpoint.display()
     );
+    if report.interrupted {
+        return Err(Interrupted {
+            signal: signals.received().unwrap_or(signal_hook::consts::SIGTERM),
+            step: report.steps,
+            checkpoint: report.checkpoint,
+            data: data.to_path_buf(),
+            out: out.to_path_buf(),
+        }
+        .into());
+    }
     Ok(())
 }

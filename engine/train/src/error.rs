@@ -24,6 +24,12 @@ pub enum TrainError {
         #[source]
         source: std::io::Error,
     },
+    #[error("{}: {source}", file.display())]
+    Log {
+        file: PathBuf,
+        #[source]
+        source: csv::Error,
+    },
     #[error("option `{flag}`: {problem}")]
     BadOption { flag: &'static str, problem: String },
     #[error("{}: no frame of split `train` for the chosen identities", file.display())]
@@ -55,4 +61,20 @@ pub enum TrainError {
     NonFinite { step: usize, loss: f32 },
     #[error("{}: {problem}", file.display())]
     Resume { file: PathBuf, problem: String },
+    #[error("{}: cannot record the run: {problem}", file.display())]
+    Recipe { file: PathBuf, problem: String },
+    #[error(
+        "{}: the run was trained on {} (dataset.json SHA-256 {trained_sha256}), but {} has \
+         SHA-256 {given_sha256}: resume with the run's dataset, or start a new run with --force",
+        run.display(),
+        trained_on.display(),
+        given.display()
+    )]
+    OtherDataset {
+        run: PathBuf,
+        trained_on: PathBuf,
+        trained_sha256: String,
+        given: PathBuf,
+        given_sha256: String,
+    },
 }

@@ -31,6 +31,6 @@ pub use log::{LOG_FILE, StepLog};
 pub use preset::Preset;
 pub use recipe::{Ablation, Budget, DEFAULT_LPIPS_DIR, Identities, TrainOptions};
 pub use rng::SplitMix64;
-pub use setup::RECIPE_FILE;
+pub use setup::{RECIPE_FILE, existing_run};
 pub use talkin_grids::SamplerKind;
-pub use trainer::{TrainReport, Trainer, train};
+pub use trainer::{ScheduleAnchor, TrainReport, Trainer, train};

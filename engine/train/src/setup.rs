@@ -1,19 +1,96 @@
 //! What a new run is built from: its training frames (all, or a clip of each subject),
-//! each trained subject's model, the field's canonical box and the recipe file.
+//! each trained subject's model, the field's canonical box, the recipe file, the
+//! dataset's fingerprint, and a run directory cleared of any run it held.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use glam::Vec3;
-use talkin_data::dataset::{Dataset, Split};
+use serde_json::{Value, json};
+use talkin_data::dataset::{Dataset, INDEX_FILE, Split};
 use talkin_nets::FieldConfig;
 
+use crate::checkpoint::{CHECKPOINT_DIR, path_json, sha256_hex};
 use crate::error::TrainError;
+use crate::log::LOG_FILE;
 use crate::recipe::TrainOptions;
 use crate::subject::{SubjectModel, SubjectSlot};
 use crate::{loss, rays, schedule};
 
 /// The recipe (options and the derived schedule) inside the run directory.
 pub const RECIPE_FILE: &str = "recipe.json";
+
+/// What in `out` shows it holds a run (its checkpoint directory or its training log),
+/// if anything: a new run there would destroy it.
+pub fn existing_run(out: &Path) -> Option<PathBuf> {
+    [out.join(CHECKPOINT_DIR), out.join(LOG_FILE)]
+        .into_iter()
+        .find(|p| p.symlink_metadata().is_ok())
+}
+
+/// Clears the run in `out` for a new one: its checkpoints go (a new run's would
+/// otherwise sit beside them as fallbacks), and the log and recipe are rewritten by the
+/// new run. Anything else in `out` stays.
+pub(crate) fn clear_run(out: &Path) -> Result<(), TrainError> {
+    let checkpoints = out.join(CHECKPOINT_DIR);
+    match std::fs::remove_dir_all(&checkpoints) {
+        Ok(()) => Ok(()),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(()),
+        Err(source) => Err(TrainError::Io {
+            file: checkpoints,
+            source,
+        }),
+    }
+}
+
+/// The dataset's fingerprint: the SHA-256 of its `dataset.json` (every frame's files,
+/// split, camera and parameters), recorded in each checkpoint and checked on resume.
+pub(crate) fn dataset_sha256(dataset: &Dataset) -> Result<String, TrainError> {
+    let file = dataset.root.join(INDEX_FILE);
+    std::fs::read(&file)
+        .map(|bytes| sha256_hex(&bytes))
+        .map_err(|source| TrainError::Io { file, source })
+}
+
+/// The options as recorded in `state.json` and `recipe.json`: serde's form, but with
+/// `--lpips-dir` in [`path_json`]'s form, so a path that is not UTF-8 round-trips
+/// instead of failing to serialise.
+pub(crate) fn options_to_json(opts: &TrainOptions) -> Result<Value, String> {
+    let mut plain = opts.clone();
+    let dir = plain.perceptual.take();
+    let mut value = serde_json::to_value(&plain).map_err(|e| e.to_string())?;
+    if let Some(dir) = dir {
+        value["perceptual"] = path_json::to_json(&dir)?;
+    }
+    Ok(value)
+}
+
+/// The inverse of [`options_to_json`].
+pub(crate) fn options_from_json(mut value: Value) -> Result<TrainOptions, String> {
+    let dir = match value.get_mut("perceptual").map(Value::take) {
+        None | Some(Value::Null) => None,
+        Some(p) => Some(path_json::from_json(&p).map_err(|e| format!("`perceptual`: {e}"))?),
+    };
+    let mut opts: TrainOptions = serde_json::from_value(value).map_err(|e| e.to_string())?;
+    opts.perceptual = dir;
+    Ok(opts)
+}
+
+/// For `#[serde(with = "crate::setup::options_serde")]` on a [`TrainOptions`].
+pub(crate) mod options_serde {
+    use serde::{Deserialize, Deserializer, Serialize, Serializer};
+
+    use super::*;
+
+    pub fn serialize<S: Serializer>(opts: &TrainOptions, s: S) -> Result<S::Ok, S::Error> {
+        options_to_json(opts)
+            .map_err(serde::ser::Error::custom)?
+            .serialize(s)
+    }
+
+    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<TrainOptions, D::Error> {
+        options_from_json(Value::deserialize(d)?).map_err(serde::de::Error::custom)
+    }
+}
 
 /// The training frames of the chosen identities (all with training frames when `None`),
 /// each cut to its first `clip_seconds` of video when given.
@@ -120,48 +197,55 @@ pub(crate) fn fit_field_box(config: &mut FieldConfig, subjects: &[SubjectSlot]) 
     }
 }
 
-/// `RUN/recipe.json`: the options, the field config and the schedule they imply.
+/// `RUN/recipe.json`: the options, the field config and the schedule they imply;
+/// `extended` is where a resumed run's schedule was re-anchored to a new budget.
 pub(crate) fn write_recipe(
     out: &Path,
     opts: &TrainOptions,
     config: &FieldConfig,
+    extended: Option<Value>,
 ) -> Result<(), TrainError> {
-    let recipe = serde_json::json!({
-        "options": opts,
-        "initial_lr": opts.initial_lr(),
-        "loss": format!(
-            "{}{}",
-            if opts.perceptual_dir().is_some() {
-                format!(
-                    "perceptual (LPIPS alex, else 1 - SSIM) on {} patch(es) of {p}x{p} + {} MSE + {} CE",
-                    opts.patches,
-                    loss::MSE_WEIGHT,
-                    loss::SEG_WEIGHT,
-                    p = rays::PATCH
-                )
-            } else {
-                format!("MSE + {} CE (no perceptual term)", loss::SEG_WEIGHT)
-            },
-            if opts.mask_weight > 0.0 {
-                format!(" + {} MSE(opacity, mask)", opts.mask_weight)
-            } else {
-                String::new()
-            }
-        ),
-        "schedule": {
-            "virtual_iterations": schedule::PAPER_ITERATIONS,
-            "lr_decay": format!("x0.1 per {} virtual iterations", schedule::LR_DECAY_ITERATIONS),
-            "part_aware_rays": "virtual 0-20k: 20% hands; 20-40k: 20% hands + 60% arms; 40-60k: 40/40; 60-80k: 80/20; then 20% hands (of the in-box rays)",
-            "non_rigid_start_step": config.non_rigid_start_step,
-        },
-        "field": config,
-    });
     let path = out.join(RECIPE_FILE);
-    talkin_data::atomic::write_atomic(
-        &path,
-        serde_json::to_string_pretty(&recipe)
-            .expect("JSON serialises")
-            .as_bytes(),
-    )
-    .map_err(|source| TrainError::Io { file: path, source })
+    let unserialisable = |problem: String| TrainError::Recipe {
+        file: path.clone(),
+        problem,
+    };
+    let loss = format!(
+        "{}{}",
+        if opts.perceptual_dir().is_some() {
+            format!(
+                "perceptual (LPIPS alex, else 1 - SSIM) on {} patch(es) of {p}x{p} + {} MSE + {} CE",
+                opts.patches,
+                loss::MSE_WEIGHT,
+                loss::SEG_WEIGHT,
+                p = rays::PATCH
+            )
+        } else {
+            format!("MSE + {} CE (no perceptual term)", loss::SEG_WEIGHT)
+        },
+        if opts.mask_weight > 0.0 {
+            format!(" + {} MSE(opacity, mask)", opts.mask_weight)
+        } else {
+            String::new()
+        }
+    );
+    let mut schedule = json!({
+        "virtual_iterations": schedule::PAPER_ITERATIONS,
+        "lr_decay": format!("x0.1 per {} virtual iterations", schedule::LR_DECAY_ITERATIONS),
+        "part_aware_rays": "virtual 0-20k: 20% hands; 20-40k: 20% hands + 60% arms; 40-60k: 40/40; 60-80k: 80/20; then 20% hands (of the in-box rays)",
+        "non_rigid_start_step": config.non_rigid_start_step,
+    });
+    if let Some(extended) = extended {
+        schedule["extended"] = extended;
+    }
+    let recipe = json!({
+        "options": options_to_json(opts).map_err(unserialisable)?,
+        "initial_lr": opts.initial_lr(),
+        "loss": loss,
+        "schedule": schedule,
+        "field": serde_json::to_value(config).map_err(|e| unserialisable(e.to_string()))?,
+    });
+    let bytes = serde_json::to_vec_pretty(&recipe).map_err(|e| unserialisable(e.to_string()))?;
+    talkin_data::atomic::write_atomic(&path, &bytes)
+        .map_err(|source| TrainError::Io { file: path, source })
 }

@@ -1,10 +1,12 @@
 //! The run around the step: a trainer is built fresh ([`Trainer::new`]), adapted from
 //! another run to a novel subject ([`Trainer::adapt`]) or resumed exactly from its newest
-//! checkpoint ([`Trainer::resume`]); [`Trainer::run`] steps it ([`crate::step`]) until
-//! its budget is spent, checkpointing every few minutes and at the end.
+//! checkpoint ([`Trainer::resume`]), optionally to a new budget ([`Trainer::set_budget`]);
+//! [`Trainer::run`] steps it ([`crate::step`]) until its budget is spent or it is told to
+//! stop ([`Trainer::run_until`]), checkpointing every few minutes and at the end.
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
 
 use burn::optim::ModuleOptimizer;
 use burn::prelude::*;
@@ -16,16 +18,21 @@ use talkin_nets::loss::{Backbone, PerceptualLoss};
 use talkin_nets::{FieldConfig, TalkinField};
 
 use crate::adam::FusedAdam;
-use crate::checkpoint::{Checkpoint, CheckpointContents};
+use crate::checkpoint::{Checkpoint, CheckpointContents, CheckpointError, path_json};
 use crate::error::TrainError;
 use crate::log::{LOG_FILE, StepLog, TrainLog};
 use crate::preset::Preset;
 use crate::rays::FrameCache;
-use crate::recipe::{Budget, TrainOptions};
+use crate::recipe::TrainOptions;
 use crate::rng::SplitMix64;
 use crate::schedule;
+mod budget;
+
+pub use budget::ScheduleAnchor;
+
 use crate::setup::{
-    clip_of, fit_field_box, fit_subjects, training_frames, unknown_subject, write_recipe,
+    clear_run, clip_of, dataset_sha256, fit_field_box, fit_subjects, options_serde,
+    training_frames, unknown_subject, write_recipe,
 };
 use crate::subject::{SubjectModel, SubjectSlot, bone_prior};
 
@@ -33,7 +40,15 @@ use crate::subject::{SubjectModel, SubjectSlot, bone_prior};
 #[derive(Clone, Debug)]
 pub struct TrainReport {
     pub logs: Vec<StepLog>,
+    /// The checkpoint written at the end (or at the interruption).
     pub checkpoint: PathBuf,
+    /// Steps of the run in all (earlier calls included): the checkpoint's step.
+    pub steps: usize,
+    /// Whether the run stopped early because [`Trainer::run_until`]'s flag was set.
+    pub interrupted: bool,
+    /// What loading the checkpoint it resumed from had to say (a fallback from a damaged
+    /// checkpoint, a checkpoint without a manifest or dataset fingerprint).
+    pub notes: Vec<String>,
     pub log_file: PathBuf,
     /// Training seconds of this call.
     pub seconds: f64,
@@ -49,12 +64,22 @@ struct TrainState {
     field_step: usize,
     elapsed_seconds: f64,
     rng_state: u64,
+    #[serde(with = "options_serde")]
     options: TrainOptions,
+    /// The dataset directory, as given (for messages).
+    #[serde(with = "path_json::serde_path")]
     data: PathBuf,
+    /// SHA-256 of the dataset's `dataset.json`; with `frames`, the dataset's fingerprint
+    /// (absent in runs from before it was recorded).
+    #[serde(default)]
+    dataset_sha256: Option<String>,
     /// Dataset frames trained on.
     frames: Vec<usize>,
     /// Per dataset subject: its identity code and subject slot.
     slot_of: Vec<Option<usize>>,
+    /// Where the schedule was last re-anchored to a new budget (absent: never).
+    #[serde(default)]
+    schedule_anchor: Option<ScheduleAnchor>,
 }
 
 /// A run in progress.
@@ -81,6 +106,13 @@ pub struct Trainer<'a> {
     pub(crate) grid_occupied: f64,
     /// Per dataset subject: its identity code and subject slot.
     pub(crate) slot_of: Vec<Option<usize>>,
+    /// SHA-256 of the dataset's `dataset.json`, recorded in every checkpoint.
+    pub(crate) dataset_sha256: String,
+    pub(crate) anchor: Option<ScheduleAnchor>,
+    /// The checkpoint written or resumed from last (kept as the fallback by the next
+    /// save) and its step.
+    pub(crate) last_checkpoint: Option<(usize, PathBuf)>,
+    pub(crate) notes: Vec<String>,
 }
 
 impl<'a> Trainer<'a> {
@@ -127,6 +159,15 @@ impl<'a> Trainer<'a> {
         opts: &TrainOptions,
     ) -> Result<Self, TrainError> {
         opts.check()?;
+        if same_dir(base, out) {
+            return Err(TrainError::BadOption {
+                flag: "--out",
+                problem: format!(
+                    "{} is the run being adapted; give the adapted run its own directory",
+                    out.display()
+                ),
+            });
+        }
         let index_file = dataset.root.join(talkin_data::dataset::INDEX_FILE);
         let s = dataset
             .subject_index(subject)
@@ -184,15 +225,41 @@ impl<'a> Trainer<'a> {
         Trainer::start(dataset, out, opts, config, field, subjects, frames, slot_of)
     }
 
-    /// Continues the run in `run` from its newest checkpoint, with the same options.
+    /// Continues the run in `run` from its newest usable checkpoint, with the same options
+    /// and budget ([`Trainer::set_budget`] gives it another). Refuses a dataset other
+    /// than the one the run was trained on.
     pub fn resume(dataset: &'a Dataset, run: &Path) -> Result<Self, TrainError> {
         let checkpoint = Checkpoint::load(run)?;
+        let mut notes = checkpoint.notes.clone();
         let state_file = checkpoint.dir.join(crate::checkpoint::STATE_FILE);
         let state: TrainState =
             serde_json::from_value(checkpoint.state.clone()).map_err(|e| TrainError::Resume {
                 file: state_file.clone(),
                 problem: format!("not a training state: {e}"),
             })?;
+        let given_sha256 = dataset_sha256(dataset)?;
+        match &state.dataset_sha256 {
+            Some(trained) if *trained != given_sha256 => {
+                return Err(TrainError::OtherDataset {
+                    run: run.to_path_buf(),
+                    trained_on: state.data.clone(),
+                    trained_sha256: trained.clone(),
+                    given: dataset.root.join(talkin_data::dataset::INDEX_FILE),
+                    given_sha256,
+                });
+            }
+            Some(_) => {}
+            None => {
+                let note = format!(
+                    "note: {}: no dataset fingerprint (a run from an older build): cannot \
+                     check that {} is the dataset it was trained on",
+                    state_file.display(),
+                    dataset.root.display()
+                );
+                eprintln!("{note}");
+                notes.push(note);
+            }
+        }
         if let Some(&bad) = state.frames.iter().find(|&&i| i >= dataset.frames.len()) {
             return Err(TrainError::Resume {
                 file: state_file,
@@ -235,10 +302,14 @@ impl<'a> Trainer<'a> {
         t.step = state.step;
         t.elapsed = state.elapsed_seconds;
         t.rng = SplitMix64::from_state(state.rng_state);
+        t.anchor = state.schedule_anchor;
+        t.last_checkpoint = Some((state.step, checkpoint.dir.clone()));
+        t.notes = notes;
         Ok(t)
     }
 
-    /// A new run directory: creates it, writes the recipe and a fresh log.
+    /// A new run directory: creates it (clearing any run it held), writes the recipe and
+    /// a fresh log.
     #[allow(clippy::too_many_arguments)]
     fn start(
         dataset: &'a Dataset,
@@ -254,7 +325,8 @@ impl<'a> Trainer<'a> {
             file: out.to_path_buf(),
             source,
         })?;
-        write_recipe(out, opts, &config)?;
+        clear_run(out)?;
+        write_recipe(out, opts, &config, None)?;
         let log = TrainLog::open(&out.join(LOG_FILE), None)?;
         Trainer::assemble(
             dataset,
@@ -299,6 +371,7 @@ impl<'a> Trainer<'a> {
             ..OccUpdateOpts::default()
         };
         let optim = optimizer(opts.preset);
+        let dataset_sha256 = dataset_sha256(dataset)?;
         Ok(Trainer {
             dataset,
             out: out.to_path_buf(),
@@ -318,23 +391,18 @@ impl<'a> Trainer<'a> {
             occ_opts,
             grid_occupied: 1.0,
             slot_of,
+            dataset_sha256,
+            anchor: None,
+            last_checkpoint: None,
+            notes: Vec::new(),
         })
     }
 }
 
 impl Trainer<'_> {
-    /// Run progress in [0, 1] (steps or training seconds against the budget).
-    pub fn progress(&self) -> f64 {
-        match self.opts.budget {
-            Budget::Steps(n) => self.step as f64 / n as f64,
-            Budget::Seconds(s) => self.elapsed / s,
-        }
-        .clamp(0.0, 1.0)
-    }
-
-    /// Whether the budget is spent.
-    pub fn done(&self) -> bool {
-        self.progress() >= 1.0
+    /// What loading the checkpoint this run resumed from had to say.
+    pub fn notes(&self) -> &[String] {
+        &self.notes
     }
 
     /// The dataset frames this run draws its rays from (for `adapt`, the clip's).
@@ -383,7 +451,7 @@ impl Trainer<'_> {
 
     /// The step the field sees now (virtual; see [`schedule`]).
     pub fn field_step(&self) -> usize {
-        schedule::virtual_step(self.progress())
+        schedule::virtual_step(self.schedule_progress())
     }
 
     pub(crate) fn field(&self) -> &TalkinField {
@@ -392,9 +460,17 @@ impl Trainer<'_> {
             .expect("the field is back after every step")
     }
 
-    /// Writes a checkpoint now (the log is flushed first).
+    /// Writes a checkpoint now (the log is flushed and fsynced first), keeping the
+    /// previous one as a fallback. Without a step since the last checkpoint, returns
+    /// that one.
     pub fn save(&mut self) -> Result<PathBuf, TrainError> {
-        self.log.flush()?;
+        self.log.sync()?;
+        if let Some((step, dir)) = &self.last_checkpoint
+            && *step == self.step
+            && dir.is_dir()
+        {
+            return Ok(dir.clone());
+        }
         let optimizer = self.optim.into_bytes().map_err(|e| TrainError::Resume {
             file: self.out.join(crate::checkpoint::OPTIMIZER_FILE),
             problem: e.to_string(),
@@ -406,10 +482,18 @@ impl Trainer<'_> {
             rng_state: self.rng.state(),
             options: self.opts.clone(),
             data: self.dataset.root.clone(),
+            dataset_sha256: Some(self.dataset_sha256.clone()),
             frames: self.frames.clone(),
             slot_of: self.slot_of.clone(),
+            schedule_anchor: self.anchor,
         };
-        let state = serde_json::to_value(&state).expect("plain data serialises");
+        let state = serde_json::to_value(&state).map_err(|e| {
+            CheckpointError::format(
+                &crate::checkpoint::checkpoint_root(&self.out).join(crate::checkpoint::STATE_FILE),
+                "state",
+                e,
+            )
+        })?;
         let dir = crate::checkpoint::save(
             &self.out,
             &CheckpointContents {
@@ -420,10 +504,12 @@ impl Trainer<'_> {
                 background: self.dataset.background,
                 subjects: &self.subjects,
                 state: &state,
+                keep: self.last_checkpoint.as_ref().map(|(_, dir)| dir.as_path()),
             },
         )?;
         // Checkpoint time counts as training time, not the schedule's.
         self.since_checkpoint = 0.0;
+        self.last_checkpoint = Some((self.step, dir.clone()));
         Ok(dir)
     }
 
@@ -442,10 +528,26 @@ impl Trainer<'_> {
     }
 
     /// Trains until the budget is spent, checkpointing on the way and at the end.
-    pub fn run(mut self, progress: &mut dyn FnMut(&StepLog)) -> Result<TrainReport, TrainError> {
+    pub fn run(self, progress: &mut dyn FnMut(&StepLog)) -> Result<TrainReport, TrainError> {
+        self.run_until(&AtomicBool::new(false), progress)
+    }
+
+    /// [`Trainer::run`], but `stop` is polled between steps: once it is set, the step in
+    /// progress finishes, a checkpoint is written (the log flushed with it) and the report
+    /// says `interrupted` (a signal handler sets it: Ctrl-C or SIGTERM).
+    pub fn run_until(
+        mut self,
+        stop: &AtomicBool,
+        progress: &mut dyn FnMut(&StepLog),
+    ) -> Result<TrainReport, TrainError> {
         let start = self.elapsed;
         let mut logs = Vec::new();
+        let mut interrupted = false;
         while !self.done() {
+            if stop.load(Ordering::SeqCst) {
+                interrupted = true;
+                break;
+            }
             let entry = self.step()?;
             progress(&entry);
             logs.push(entry);
@@ -455,6 +557,9 @@ impl Trainer<'_> {
         Ok(TrainReport {
             logs,
             checkpoint,
+            steps: self.step,
+            interrupted,
+            notes: self.notes.clone(),
             log_file: self.out.join(LOG_FILE),
             seconds: self.elapsed - start,
             perceptual_note: self.perceptual_note(),
@@ -470,6 +575,14 @@ pub fn train(
     progress: &mut dyn FnMut(&StepLog),
 ) -> Result<TrainReport, TrainError> {
     Trainer::new(dataset, out, opts)?.run(progress)
+}
+
+/// Whether `a` and `b` name the same existing directory.
+fn same_dir(a: &Path, b: &Path) -> bool {
+    match (a.canonicalize(), b.canonicalize()) {
+        (Ok(a), Ok(b)) => a == b,
+        _ => false,
+    }
 }
 
 /// Adam with the preset's settings, fused into one pass per parameter ([`FusedAdam`]).

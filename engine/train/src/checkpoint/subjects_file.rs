@@ -70,8 +70,8 @@ impl SubjectsFile {
         }
     }
 
-    pub fn to_json(&self) -> Vec<u8> {
-        serde_json::to_vec_pretty(self).expect("plain data serialises")
+    pub fn to_json(&self) -> Result<Vec<u8>, serde_json::Error> {
+        serde_json::to_vec_pretty(self)
     }
 
     pub fn from_json(bytes: &[u8], file: &Path) -> Result<SubjectsFile, CheckpointError> {
