@@ -5,11 +5,14 @@
 //! Must not know about neural nets, samplers or training: it hands the later stages
 //! validated frames, cameras and parameters.
 
+pub mod array;
 pub mod atomic;
 pub mod dataset;
 pub mod draw;
 pub mod inspect;
 pub mod json_shape;
 pub mod motion;
+pub mod npz;
 pub mod params_json;
+pub mod pickle;
 pub mod text;
