@@ -15,4 +15,5 @@ pub mod motion;
 pub mod npz;
 pub mod params_json;
 pub mod pickle;
+pub mod smplx_model;
 pub mod text;
