@@ -265,7 +265,7 @@ fn floats(a: &NdArray) -> Vec<f64> {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::array::ArrayData;
     use crate::npz::{NpzWriter, object_npy_bytes};
@@ -274,7 +274,7 @@ mod tests {
     const S: usize = 20;
 
     /// A small model file of the real layout: keys, dtypes, an object member to skip.
-    struct Fixture {
+    pub(crate) struct Fixture {
         v_template: Vec<f64>,
         shapedirs: Vec<f64>,
         j_regressor: Vec<f64>,
@@ -287,7 +287,7 @@ mod tests {
         ((*seed >> 11) as f64 / (1u64 << 53) as f64) - 0.5
     }
 
-    fn write_fixture(file: &Path, parents: &[i32; N_JOINTS]) -> Fixture {
+    pub(crate) fn write_fixture(file: &Path, parents: &[i32; N_JOINTS]) -> Fixture {
         let mut seed = 7;
         let v_template: Vec<f64> = (0..V * 3).map(|_| lcg(&mut seed)).collect();
         let shapedirs: Vec<f64> = (0..V * 3 * S).map(|_| 0.01 * lcg(&mut seed)).collect();
