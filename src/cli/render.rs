@@ -1,55 +1,113 @@
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use talkin_data::dataset::{Dataset, Split};
+use talkin_data::motion::{Motion, MotionLayout, Prepare};
+use talkin_data::smplx_model::SmplxModel;
+use talkin_human::camera::Camera;
 use talkin_human::smooth::Smoothing;
 use talkin_render::avatar::Avatar;
 use talkin_render::sequence::{
-    read_poses_file, render_sequence, shots_from_frames, shots_from_poses, smooth_shots,
-    split_frames,
+    PoseSource, PosedCamera, Shot, default_camera, motion_poses, read_pose_source, render_sequence,
+    shots_from_frames, shots_from_poses, smooth_shots, split_frames,
 };
 
 use crate::progress::Progress;
 
 #[derive(clap::Args, Debug)]
+#[command(group(
+    clap::ArgGroup::new("source").required(true).args(["data", "poses", "motion"])
+))]
 pub struct RenderArgs {
     /// The trained run (its newest checkpoint is rendered).
     #[arg(long)]
     pub run: PathBuf,
     /// Dataset whose split's poses and cameras to render (with ground truth: a contact
     /// sheet ground truth | render | error is written too).
-    #[arg(
-        long,
-        requires = "split",
-        conflicts_with = "poses",
-        required_unless_present = "poses"
-    )]
+    #[arg(long, requires = "split")]
     pub data: Option<PathBuf>,
     /// The split of --data: train, test_same, test_cross or test_ood.
     #[arg(long, requires = "data")]
     pub split: Option<String>,
-    /// A poses file: {"frames": [{"params": {...}, "camera": {...}}, ...]} with dataset.json's
-    /// `params` and `camera` objects.
+    /// A poses file ({"frames": [{"params": {...}, "camera": {...}}, ...]} with
+    /// dataset.json's `params` and `camera` objects), or a motion file as for --motion.
     #[arg(long)]
     pub poses: Option<PathBuf>,
-    /// Output directory: frame_0000.png, ... (and contact_sheet.png).
+    /// A motion file: a BEAT2 or AMASS .npz (`poses` N x 165, ...) or a JSON list of
+    /// `params` objects, seen through the subject's default camera (or --camera-from).
+    #[arg(long)]
+    pub motion: Option<PathBuf>,
+    /// Output directory: frame_0000.png, ... (and contact_sheet.png). Written in full or
+    /// not at all.
     #[arg(long)]
     pub out: PathBuf,
     /// Render every pose as this trained subject (default: each dataset frame's own
-    /// subject; for --poses, the only trained subject).
+    /// subject; for --poses and --motion, the only trained subject).
     #[arg(long)]
     pub subject: Option<String>,
     /// Smooth poses and cameras over time (Gaussian, window 5, sigma 1), per subject in
-    /// time order for dataset splits, in file order for --poses.
+    /// time order for dataset splits, in file order otherwise.
     #[arg(long)]
     pub smooth: bool,
+    /// Motions: force the .npz layout instead of telling it from the keys.
+    #[arg(long, value_name = "beat2|amass")]
+    pub motion_layout: Option<MotionLayout>,
+    /// Motions: the camera of the subject's first frame (by time) in this dataset instead
+    /// of the subject's default camera.
+    #[arg(long, value_name = "DATASET")]
+    pub camera_from: Option<PathBuf>,
+    /// Motions: frames per second to render (resampled by slerp; default the file's).
+    #[arg(long)]
+    pub fps: Option<f64>,
+    /// Motions: the SMPL-X model file (SMPLX_NEUTRAL.npz, ...): adds its mean hand to
+    /// hand poses stored relative to it (BEAT2) and places the motion by its rest pelvis.
+    #[arg(long, value_name = "MODEL")]
+    pub body_model: Option<PathBuf>,
+    /// Motions: keep the file's translation (turned y-up) instead of starting the motion
+    /// at the subject's rest position.
+    #[arg(long)]
+    pub keep_trans: bool,
+    /// Motions with the default camera: image height in pixels (width is 3/4 of it).
+    #[arg(long, default_value_t = 192)]
+    pub size: u32,
 }
 
 pub fn run(args: RenderArgs) -> anyhow::Result<()> {
+    let motion_only = [
+        (args.camera_from.is_some(), "--camera-from"),
+        (args.fps.is_some(), "--fps"),
+        (args.body_model.is_some(), "--body-model"),
+        (args.keep_trans, "--keep-trans"),
+        (args.motion_layout.is_some(), "--motion-layout"),
+    ];
+    if args.data.is_some()
+        && let Some((_, flag)) = motion_only.iter().find(|(given, _)| *given)
+    {
+        anyhow::bail!("{flag} applies to --motion and --poses, not to --data");
+    }
+    if !(16..=4096).contains(&args.size) {
+        anyhow::bail!("--size {} is not in 16..=4096 pixels", args.size);
+    }
+    // Read every input before the checkpoint, so that a bad file fails fast.
+    let source = match args.motion.as_ref().or(args.poses.as_ref()) {
+        Some(file) => Some(read_pose_source(file, args.motion_layout)?),
+        None => None,
+    };
+    if matches!(source, Some(PoseSource::Posed(_)))
+        && let Some((_, flag)) = motion_only
+            .iter()
+            .find(|(given, flag)| *given && *flag != "--motion-layout")
+    {
+        anyhow::bail!("{flag} applies to motion files; this poses file brings its own cameras");
+    }
+    let model = match &args.body_model {
+        Some(m) => Some(SmplxModel::load(m)?),
+        None => None,
+    };
     let avatar =
         Avatar::load(&args.run).with_context(|| format!("loading run {}", args.run.display()))?;
     let subject = args.subject.as_deref();
-    let (dataset, mut shots) = match (&args.data, &args.split, &args.poses) {
+    let (dataset, mut shots) = match (&args.data, &args.split, source) {
         (Some(dir), Some(split), _) => {
             let split: Split = split.parse().map_err(anyhow::Error::msg)?;
             let dataset = Dataset::load(dir)
@@ -58,23 +116,34 @@ pub fn run(args: RenderArgs) -> anyhow::Result<()> {
             let shots = shots_from_frames(&avatar, &dataset, &frames, subject)?;
             (Some(dataset), shots)
         }
-        (_, _, Some(file)) => {
-            let poses = read_poses_file(file)?;
+        (_, _, Some(PoseSource::Posed(poses))) => {
             (None, shots_from_poses(&avatar, &poses, subject)?)
         }
-        _ => anyhow::bail!("give --data DIR --split NAME, or --poses FILE"),
+        (_, _, Some(PoseSource::Motion(motion))) => {
+            (None, motion_shots(&args, &avatar, &motion, model.as_ref())?)
+        }
+        _ => anyhow::bail!("give --data DIR --split NAME, --poses FILE or --motion FILE"),
     };
     if args.smooth {
         smooth_shots(&mut shots, &Smoothing::PAPER)?;
     }
     let progress = Progress::new("rendering frames", shots.len());
+    let staging = staging_dir(&args.out)?;
     let renders = render_sequence(
         &avatar,
         &shots,
         dataset.as_ref(),
-        &args.out,
+        &staging,
         &mut |done, _| progress.update(done, ""),
-    )?;
+    );
+    let renders = match renders {
+        Ok(r) => r,
+        Err(e) => {
+            let _ = std::fs::remove_dir_all(&staging);
+            return Err(e.into());
+        }
+    };
+    publish(&staging, &args.out)?;
     println!(
         "rendered {} frames to {} in {:.1} s ({:.2} s a frame, {:.0} samples a frame)",
         renders.frames.len(),
@@ -83,11 +152,123 @@ pub fn run(args: RenderArgs) -> anyhow::Result<()> {
         renders.seconds / renders.frames.len().max(1) as f64,
         renders.samples as f64 / renders.frames.len().max(1) as f64
     );
-    if let Some(sheet) = &renders.contact_sheet {
+    if renders.contact_sheet.is_some() {
         println!(
             "contact sheet (ground truth | render | error): {}",
-            sheet.display()
+            args.out.join(talkin_render::sequence::SHEET_FILE).display()
         );
     }
     Ok(())
+}
+
+/// The shots of a motion file: prepared for the subject's skeleton, seen through its
+/// default camera or its first camera in --camera-from.
+fn motion_shots(
+    args: &RenderArgs,
+    avatar: &Avatar,
+    motion: &Motion,
+    model: Option<&SmplxModel>,
+) -> anyhow::Result<Vec<Shot>> {
+    let name = match args.subject.as_deref() {
+        Some(n) => n.to_string(),
+        None => match avatar.trained_subjects().as_slice() {
+            [only] => only.to_string(),
+            names => anyhow::bail!(
+                "the avatar has {} trained subjects ({}): name one with --subject",
+                names.len(),
+                names.join(", ")
+            ),
+        },
+    };
+    let (_, subject) = avatar.subject(&name)?;
+    let prepared = motion.prepare(&Prepare {
+        subject: &subject.skeleton,
+        model,
+        fps: args.fps,
+        keep_trans: args.keep_trans,
+    })?;
+    for note in &prepared.notes {
+        eprintln!("note: {note}");
+    }
+    let camera = match &args.camera_from {
+        Some(dir) => first_camera(dir, &name)?,
+        None => default_camera(&subject.skeleton, args.size * 3 / 4, args.size)
+            .context("the subject's default camera")?,
+    };
+    eprintln!(
+        "{} motion {}: {} frames{} as `{name}`",
+        motion.layout,
+        motion.file.display(),
+        prepared.frames.len(),
+        prepared
+            .fps
+            .map_or(String::new(), |f| format!(" at {f} fps"))
+    );
+    let poses: Vec<PosedCamera> = motion_poses(&prepared.frames, camera);
+    Ok(shots_from_poses(avatar, &poses, Some(&name))?)
+}
+
+/// The camera of subject `name`'s earliest frame in the dataset `dir`.
+fn first_camera(dir: &Path, name: &str) -> anyhow::Result<Camera> {
+    let dataset = Dataset::load(dir)
+        .with_context(|| format!("cannot load the dataset in {}", dir.display()))?;
+    let s = dataset
+        .subjects
+        .iter()
+        .position(|s| s.name == name)
+        .with_context(|| {
+            format!(
+                "{}: no subject `{name}` (it has {})",
+                dir.display(),
+                dataset
+                    .subjects
+                    .iter()
+                    .map(|s| s.name.as_str())
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            )
+        })?;
+    dataset
+        .frames
+        .iter()
+        .filter(|f| f.subject == s)
+        .min_by(|a, b| a.time.total_cmp(&b.time))
+        .map(|f| f.camera)
+        .with_context(|| format!("{}: subject `{name}` has no frames", dir.display()))
+}
+
+/// A fresh hidden directory beside `out` to render into.
+fn staging_dir(out: &Path) -> anyhow::Result<PathBuf> {
+    let name = out
+        .file_name()
+        .with_context(|| format!("{}: not a directory name", out.display()))?;
+    let staging = out.with_file_name(format!(
+        ".{}.partial-{}",
+        name.to_string_lossy(),
+        std::process::id()
+    ));
+    let _ = std::fs::remove_dir_all(&staging);
+    Ok(staging)
+}
+
+/// Moves the finished renders into `out`: a rename when `out` is absent or empty, else
+/// file by file (replacing same-named files).
+fn publish(staging: &Path, out: &Path) -> anyhow::Result<()> {
+    let io = |e: std::io::Error| anyhow::anyhow!("{}: {e}", out.display());
+    let empty = match std::fs::read_dir(out) {
+        Ok(mut entries) => entries.next().is_none(),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => true,
+        Err(e) => return Err(io(e)),
+    };
+    if empty {
+        if out.exists() {
+            std::fs::remove_dir(out).map_err(io)?;
+        }
+        return std::fs::rename(staging, out).map_err(io);
+    }
+    for entry in std::fs::read_dir(staging).map_err(io)? {
+        let entry = entry.map_err(io)?;
+        std::fs::rename(entry.path(), out.join(entry.file_name())).map_err(io)?;
+    }
+    std::fs::remove_dir(staging).map_err(io)
 }

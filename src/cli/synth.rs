@@ -24,7 +24,8 @@ pub struct SynthArgs {
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// Render ground truth for this motion instead of the built-in one: a JSON list of
-    /// `params` objects, or an .npz with SMPL-X `poses` (N x 165), `expressions`, `trans`.
+    /// `params` objects, or a BEAT2 or AMASS .npz (`poses` N x 165, ...; see
+    /// docs/dataset-format.md), its frames as stored.
     #[arg(long)]
     pub motion: Option<PathBuf>,
 }

@@ -399,9 +399,11 @@ fn motion_files_load_and_fail_clearly() {
     npz(&missing, &[("trans", npy("<f8", &[n, 3], &trans))]);
     let e = message(load_motion(&missing).unwrap_err());
     assert!(e.contains("missing") && e.contains("poses"), "{e}");
-    let int = dir.join("int.npz");
-    npz(&int, &[("poses", npy("<i8", &[n, 165], &poses))]);
-    assert!(message(load_motion(&int).unwrap_err()).contains("dtype"));
+    // Text where numbers belong (8-byte elements as 2-character strings): refused.
+    let text = dir.join("text.npz");
+    npz(&text, &[("poses", npy("<U2", &[n, 165], &poses))]);
+    let e = message(load_motion(&text).unwrap_err());
+    assert!(e.contains("text.npz") && e.contains("`poses`"), "{e}");
 
     // JSON: a list of params objects.
     let mut a = FrameParams {

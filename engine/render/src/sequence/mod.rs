@@ -3,13 +3,18 @@
 //! smoothed over time ([`talkin_human::smooth`]), rendered to numbered PNGs with a ground truth |
 //! render | error contact sheet where ground truth exists.
 
+mod camera;
 mod poses_file;
 mod render;
 mod sheet;
 
 use std::path::PathBuf;
 
-pub use poses_file::{PosedCamera, parse_poses, read_poses_file};
+pub use camera::default_camera;
+pub use poses_file::{
+    PoseSource, PoseSourceError, PosedCamera, motion_poses, parse_poses, read_pose_source,
+    read_poses_file,
+};
 pub use render::{
     SHEET_FILE, SHEET_MAX_FRAMES, SequenceRenders, encode_png, render_sequence, write_png,
 };
