@@ -7,8 +7,8 @@ use crate::error::TrainError;
 
 /// The log file inside the run directory.
 pub const LOG_FILE: &str = "train_log.csv";
-const LOG_HEADER: &str =
-    "step,seconds,loss,mse,psnr,rays,samples,rays_per_s,samples_per_s,lr,grid_occupied,sampling_s";
+const LOG_HEADER: &str = "step,seconds,loss,mse,psnr,rays,samples,rays_per_s,samples_per_s,lr,grid_occupied,sampling_s,\
+     bones_per_sample";
 
 /// One row of the training log.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -33,6 +33,9 @@ pub struct StepLog {
     /// Seconds of this step spent drawing the batch's samples (the chosen sampler, with
     /// any per-frame structure it builds on first use), out of the step's wall time.
     pub sampling_s: f64,
+    /// Mean body bones inverse skinning evaluates per sample (its candidates; 22 for a
+    /// dense sample).
+    pub bones_per_sample: f64,
 }
 
 /// The open log of a run.
@@ -80,7 +83,7 @@ impl TrainLog {
     pub fn write(&mut self, entry: &StepLog) -> Result<(), TrainError> {
         writeln!(
             self.file,
-            "{},{:.3},{},{},{},{},{},{:.1},{:.1},{:e},{:.4},{:.6}",
+            "{},{:.3},{},{},{},{},{},{:.1},{:.1},{:e},{:.4},{:.6},{:.3}",
             entry.step,
             entry.seconds,
             entry.loss,
@@ -92,7 +95,8 @@ impl TrainLog {
             entry.samples_per_s,
             entry.lr,
             entry.grid_occupied,
-            entry.sampling_s
+            entry.sampling_s,
+            entry.bones_per_sample
         )
         .map_err(|source| self.io(source))?;
         if entry.step.is_multiple_of(25) {
@@ -144,7 +148,9 @@ mod tests {
             lines.iter().all(|l| l.split(',').count() == columns),
             "{text}"
         );
-        assert_eq!(lines[2], "2,0.2,1,1,1,8,8,1,1,1e-2,1,");
+        // The row had 11 values; every later column is left empty.
+        let padding = ",".repeat(columns - 11);
+        assert_eq!(lines[2], format!("2,0.2,1,1,1,8,8,1,1,1e-2,1{padding}"));
         std::fs::remove_dir_all(&dir).unwrap();
     }
 }
