@@ -51,6 +51,17 @@ fn check_run(dataset: &Dataset, sampler: SamplerKind) {
         // The sampler's share of the step: timed, and a part of it.
         let step_s = l.rays as f64 / l.rays_per_s;
         assert!(l.sampling_s > 0.0 && l.sampling_s < step_s, "{l:?}");
+        // Skinning's candidate bones: all 22 body bones for a dense sample, the few of the
+        // capsules holding it for an accelerated one.
+        match sampler {
+            SamplerKind::Dense => assert_eq!(l.bones_per_sample, 22.0, "{l:?}"),
+            SamplerKind::Accelerated => {
+                assert!(
+                    l.bones_per_sample >= 1.0 && l.bones_per_sample < 6.0,
+                    "{l:?}"
+                )
+            }
+        }
     }
     assert_eq!(logs[STEPS - 1].progress, 1.0);
     let (first, last) = (&logs[..4], &logs[STEPS - 4..]);
@@ -75,7 +86,7 @@ fn check_run(dataset: &Dataset, sampler: SamplerKind) {
     // The log: a header and one row per step.
     let csv = std::fs::read_to_string(out.join(LOG_FILE)).unwrap();
     assert!(csv.starts_with("step,seconds,loss,"), "{csv}");
-    assert!(csv.lines().all(|l| l.split(',').count() == 12), "{csv}");
+    assert!(csv.lines().all(|l| l.split(',').count() == 13), "{csv}");
     assert_eq!(csv.lines().count(), STEPS + 1);
 
     // The checkpoint: LATEST names a complete directory, nothing temporary is left.

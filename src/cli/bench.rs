@@ -25,9 +25,9 @@ pub enum BenchCommand {
     /// canonical occupancy grid) sampling over every frame: samples per foreground ray,
     /// rays per second, and surface points the accelerated samples miss.
     Sampling(SamplingArgs),
-    /// Accelerated against dense training for the same wall-clock budgets in one run:
-    /// PSNR/SSIM/LPIPS on test_same at every budget, a CSV, a plot and
-    /// `speedup_to_dense_final_psnr`.
+    /// Time to quality: for target PSNRs on test_same, the training seconds and steps the
+    /// accelerated and the dense sampler (HumanNeRF's, at its own best learning rate) each
+    /// need to reach each target, the speed-up at each and where it comes from.
     SpeedVsError(SpeedVsErrorArgs),
     /// The paper's ablations (w/o D_hands, w/o background, w/o jaw in e, single- vs
     /// multi-identity), each trained for the same budget and scored on held-out frames.
@@ -111,15 +111,36 @@ pub struct SpeedVsErrorArgs {
     /// Dataset directory.
     #[arg(long)]
     pub data: PathBuf,
-    /// Report directory: speed_vs_error.csv, speed_vs_error.png, summary.json, runs/.
+    /// Report directory: report.md, summary.json, speed_vs_error.csv, speed_vs_error.png,
+    /// runs/.
     #[arg(long)]
     pub out: PathBuf,
-    /// Training budgets in seconds, ascending.
-    #[arg(long, default_value = "30,60,120,240", value_delimiter = ',')]
-    pub budgets: Vec<f64>,
-    /// test_same frames evaluated at every mark, evenly spaced (0: all).
-    #[arg(long, default_value_t = 6)]
+    /// Target PSNRs on test_same (dB), ascending.
+    #[arg(long, default_value = "18,20,22,24,26", value_delimiter = ',')]
+    pub targets: Vec<f64>,
+    /// Training minutes of the accelerated run (it stops early once it reaches the highest
+    /// target).
+    #[arg(long, default_value_t = 10.0)]
+    pub accelerated_minutes: f64,
+    /// Training minutes of the dense run at most (it stops once it reaches the highest
+    /// target the accelerated run reached).
+    #[arg(long, default_value_t = 60.0)]
+    pub dense_minutes: f64,
+    /// test_same frames scored at every evaluation, evenly spaced (0: all); each run is
+    /// rendered by its own sampler (dense: about 10 s a 144x192 frame on 2 cores).
+    #[arg(long, default_value_t = 3)]
     pub eval_frames: usize,
+    /// Training seconds between evaluations (default: 25% of the time trained so far, at
+    /// least 5 s).
+    #[arg(long, value_name = "S")]
+    pub eval_every_s: Option<f64>,
+    /// The dense run's candidate learning rates; with more than one, a sweep picks the
+    /// best (default: half, once and twice the recipe's rate).
+    #[arg(long, value_delimiter = ',')]
+    pub dense_lrs: Option<Vec<f64>>,
+    /// Training minutes of each run of the dense learning-rate sweep.
+    #[arg(long, default_value_t = 3.0)]
+    pub dense_sweep_minutes: f64,
     #[command(flatten)]
     pub recipe: TrainOptions,
 }
@@ -280,20 +301,27 @@ fn trained_grids(
 
 fn speed_vs_error_bench(args: SpeedVsErrorArgs) -> anyhow::Result<()> {
     use talkin_benches::speed_vs_error::{SpeedVsErrorOptions, format_summary, speed_vs_error};
-    let dataset = Dataset::load(&args.data)?;
-    let train = args.recipe.clone();
-    let lpips_dir = args.recipe.perceptual.clone();
+    let lr = args.recipe.initial_lr();
     let opts = SpeedVsErrorOptions {
-        budgets: args.budgets.clone(),
+        targets_db: args.targets.clone(),
+        accelerated_s: args.accelerated_minutes * 60.0,
+        dense_s: args.dense_minutes * 60.0,
         eval_frames: args.eval_frames,
-        train,
-        lpips_dir,
+        eval_every_s: args.eval_every_s,
+        dense_lrs: args
+            .dense_lrs
+            .clone()
+            .unwrap_or_else(|| vec![lr / 2.0, lr, 2.0 * lr]),
+        dense_sweep_s: args.dense_sweep_minutes * 60.0,
+        train: args.recipe.clone(),
+        lpips_dir: args.recipe.perceptual.clone(),
     };
+    let dataset = Dataset::load(&args.data)?;
     let summary = speed_vs_error(&dataset, &args.out, &opts, &mut |msg| eprintln!("{msg}"))
         .with_context(|| format!("speed-vs-error benchmark on {}", args.data.display()))?;
     println!("{}", format_summary(&summary));
     println!(
-        "report: {}/{{speed_vs_error.csv, speed_vs_error.png, summary.json}}",
+        "report: {}/{{report.md, summary.json, speed_vs_error.csv, speed_vs_error.png}}",
         args.out.display()
     );
     Ok(())

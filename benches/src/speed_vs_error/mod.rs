@@ -1,107 +1,67 @@
-//! `talkin bench speed-vs-error`: the accelerated and the dense sampler trained on the
-//! same data for the same wall-clock budgets in one run, each evaluated on held-out
-//! frames at every budget mark, and how much sooner the accelerated run reaches the
-//! dense run's best PSNR.
+//! `talkin bench speed-vs-error`: time to quality. For target PSNRs on test_same, the
+//! training seconds and steps the accelerated and the dense sampler each need to first
+//! reach each target, and the speed-up at each, split into the steps each needs and what
+//! a step costs ([`targets`]).
 //!
-//! Each sampler trains once with its schedule spread over the largest budget; the
-//! evaluation at a mark pauses the training clock (it is not training time). The marks
-//! are the budgets plus a quarter and a half of the first one, and 0 (the untrained
-//! field), so the time to a PSNR is interpolated on a fine enough curve.
-//!
-//! Both runs are rendered for evaluation by the same renderer: the accelerated sampler
-//! with the subject's capsule intervals and its *initial* (capsule-marked) grid for the
-//! dense run, whose grid is never updated. Only error is compared here, and this renderer
-//! can only remove what the dense field put outside every grown capsule (floaters), so it
-//! never hurts the baseline; rendering the dense run densely cost ~2 min per frame on 2
-//! cores.
+//! - **The same recipe.** Both train the same field with the same loss, batch and seed;
+//!   each run's schedule (learning-rate decay, the paper's phases) is spread over its own
+//!   budget.
+//! - **Dense at its best.** The dense sampler is HumanNeRF's: 128 stratified samples in
+//!   the posed joints' box +- 0.3 m. Its learning rate is its own: a short sweep (the
+//!   first seconds of a dense run at each rate, on the full dense budget's schedule) picks
+//!   the rate with the highest PSNR, and the dense run proper starts afresh at it.
+//! - **Each run rendered by its own sampler.** Evaluation pauses the training clock. A
+//!   dense render costs about 10 s a 144x192 frame on 2 cores, so a few fixed frames are
+//!   scored often ([`run::eval_marks`]).
+//! - **Stopping.** The accelerated run trains until it reaches the highest target or its
+//!   budget ends; the dense run until it reaches the highest target the accelerated run
+//!   reached, or its budget ends. A target the dense run never reaches gives a lower bound
+//!   (its training seconds over the accelerated run's time), marked as one.
 
 mod plot;
+mod report;
+mod run;
+pub mod targets;
 
 use std::path::{Path, PathBuf};
-use std::time::Instant;
-
-use serde::Serialize;
-use talkin_grids::SamplerKind;
-
-pub use plot::{Curve, plot_psnr_vs_seconds};
 
 use talkin_data::dataset::{Dataset, Split};
-use talkin_render::avatar::Avatar;
-use talkin_render::eval::{EvalOptions, evaluate};
-use talkin_train::{Budget, TrainOptions, Trainer};
+use talkin_grids::SamplerKind;
+use talkin_render::eval::EvalOptions;
+use talkin_train::TrainOptions;
+
+pub use plot::{Curve, plot_psnr_vs_seconds};
+pub use report::{SamplerSummary, Summary, SweepRow, csv, format_summary, write_outputs};
+pub use run::{EVAL_GAP_SHARE, MIN_EVAL_GAP_S, Point, StepCost, Stop, eval_marks};
+use run::{RunContext, RunResult, RunSpec, train_and_score};
+use targets::{RunTotals, compare_at_targets, first_crossing, highest_common, highest_reached};
+
+pub use crate::error::BenchError as SpeedVsErrorError;
 
 /// What the benchmark is told.
 #[derive(Clone, Debug)]
 pub struct SpeedVsErrorOptions {
-    /// Wall-clock training budgets (seconds), ascending.
-    pub budgets: Vec<f64>,
+    /// Target PSNRs on test_same (dB), ascending.
+    pub targets_db: Vec<f64>,
+    /// Training seconds of the accelerated run.
+    pub accelerated_s: f64,
+    /// Training seconds of the dense run (at most).
+    pub dense_s: f64,
     /// Evaluation frames from `test_same` (evenly spaced; 0: all).
     pub eval_frames: usize,
-    /// The training recipe both samplers share (budget and sampler are overridden).
+    /// Training seconds between evaluations (`None`: gaps growing with the time trained,
+    /// see [`eval_marks`]).
+    pub eval_every_s: Option<f64>,
+    /// The dense run's candidate learning rates; with more than one, each trains for
+    /// `dense_sweep_s` and the best PSNR picks the rate.
+    pub dense_lrs: Vec<f64>,
+    /// Training seconds of each sweep run.
+    pub dense_sweep_s: f64,
+    /// The recipe both samplers share (sampler, budget and learning rate are set per run;
+    /// the accelerated run keeps the recipe's rate).
     pub train: TrainOptions,
     /// LPIPS weights for the evaluation (`None`: LPIPS is not reported).
     pub lpips_dir: Option<PathBuf>,
-}
-
-/// One evaluation of one sampler's run.
-#[derive(Clone, Debug, Serialize)]
-pub struct Point {
-    pub sampler: String,
-    /// Training seconds at the evaluation.
-    pub seconds: f64,
-    pub steps: usize,
-    pub psnr: f64,
-    pub ssim: f64,
-    pub lpips: Option<f64>,
-    pub psnr_face: Option<f64>,
-    pub psnr_hands: Option<f64>,
-    /// Mean field samples per training ray so far.
-    pub samples_per_ray: f64,
-}
-
-/// `summary.json`.
-#[derive(Clone, Debug, Serialize)]
-pub struct Summary {
-    pub budgets_s: Vec<f64>,
-    pub eval_split: String,
-    pub eval_frames: Vec<usize>,
-    pub dense_best_psnr: f64,
-    /// Training seconds at which the dense run first measured its best PSNR.
-    pub dense_seconds_to_best: f64,
-    /// Training seconds the accelerated run needed to reach `dense_best_psnr`
-    /// (interpolated between marks); `None` if it never did.
-    pub accelerated_seconds_to_dense_best: Option<f64>,
-    /// `dense_seconds_to_best / accelerated_seconds_to_dense_best`.
-    pub speedup_to_dense_final_psnr: Option<f64>,
-    pub accelerated_final_psnr: f64,
-    pub dense_final_psnr: f64,
-    pub accelerated_steps_per_s: f64,
-    pub dense_steps_per_s: f64,
-    pub accelerated_samples_per_ray: f64,
-    pub dense_samples_per_ray: f64,
-    /// Setup before the first step (margins, grids, field), not on the time axis.
-    pub accelerated_setup_s: f64,
-    pub dense_setup_s: f64,
-    pub lpips_note: Option<String>,
-    /// Why there is no speedup, when there is none.
-    pub note: Option<String>,
-    pub points: Vec<Point>,
-}
-
-pub use crate::error::BenchError as SpeedVsErrorError;
-
-/// The evaluation marks for `budgets`: 0, a quarter and a half of the first budget, and
-/// every budget.
-pub fn eval_marks(budgets: &[f64]) -> Vec<f64> {
-    let mut marks = vec![0.0];
-    if let Some(&first) = budgets.first() {
-        marks.push(first / 4.0);
-        marks.push(first / 2.0);
-    }
-    marks.extend_from_slice(budgets);
-    marks.sort_by(f64::total_cmp);
-    marks.dedup();
-    marks
 }
 
 /// `count` frames of `split` evenly spaced over the split (all when `count` is 0 or
@@ -110,28 +70,16 @@ pub fn spread_frames(dataset: &Dataset, split: Split, count: usize) -> Vec<usize
     crate::shared::thin(&dataset.split_indices(split), count)
 }
 
-/// Runs the benchmark, writing `out/speed_vs_error.csv`, `out/speed_vs_error.png`,
-/// `out/summary.json` and each sampler's run under `out/runs/`. `progress` hears what
-/// is happening.
+/// Runs the benchmark, writing `out/summary.json`, `out/report.md`,
+/// `out/speed_vs_error.csv`, `out/speed_vs_error.png` and every run under `out/runs/`.
+/// `progress` hears what is happening.
 pub fn speed_vs_error(
     dataset: &Dataset,
     out: &Path,
     opts: &SpeedVsErrorOptions,
     progress: &mut dyn FnMut(&str),
 ) -> Result<Summary, SpeedVsErrorError> {
-    let bad = |field, problem: &str| SpeedVsErrorError::BadOption {
-        field,
-        problem: problem.to_string(),
-    };
-    if opts.budgets.is_empty()
-        || opts.budgets.iter().any(|b| !(b.is_finite() && *b > 0.0))
-        || opts.budgets.windows(2).any(|w| w[0] >= w[1])
-    {
-        return Err(bad(
-            "budgets",
-            "expected ascending positive seconds, e.g. 30,60,120,240",
-        ));
-    }
+    check(opts)?;
     let eval_frames = spread_frames(dataset, Split::TestSame, opts.eval_frames);
     if eval_frames.is_empty() {
         return Err(bad(
@@ -143,313 +91,340 @@ pub fn speed_vs_error(
         file: out.to_path_buf(),
         source,
     })?;
-    let marks = eval_marks(&opts.budgets);
-    let mut points = Vec::new();
-    let mut rates = Vec::new();
-    let mut lpips_note = None;
-    for sampler in [SamplerKind::Accelerated, SamplerKind::Dense] {
-        let run = train_and_score(dataset, out, opts, sampler, &marks, &eval_frames, progress)?;
-        points.extend(run.points);
-        rates.push(run.rate);
-        lpips_note = run.lpips_note.or(lpips_note);
-    }
-    let curve =
-        |name: &str| -> Vec<&Point> { points.iter().filter(|p| p.sampler == name).collect() };
-    let (acc, dense) = (curve("accelerated"), curve("dense"));
-    let (best, acc_time, note) = compare(&acc, &dense);
+    let ctx = RunContext {
+        dataset,
+        out,
+        train: &opts.train,
+        eval_frames: &eval_frames,
+        eval: EvalOptions {
+            renders_dir: None,
+            lpips_dir: opts.lpips_dir.clone(),
+            smooth: false,
+        },
+    };
+    let highest_target = opts.targets_db.iter().copied().fold(f64::MIN, f64::max);
+
+    let acc_marks = eval_marks(opts.accelerated_s, opts.eval_every_s);
+    let acc = train_and_score(
+        &ctx,
+        &RunSpec {
+            name: "accelerated".into(),
+            sampler: SamplerKind::Accelerated,
+            lr: opts.train.initial_lr(),
+            budget_s: opts.accelerated_s,
+            marks: &acc_marks,
+            stop_at_psnr: Some(highest_target),
+            save: true,
+        },
+        progress,
+    )?;
+    let reached = highest_reached(&opts.targets_db, &acc.curve());
+    progress(&match reached {
+        Some(t) => format!("accelerated reached {t:.1} dB; dense trains until it does"),
+        None => "accelerated reached no target; dense trains for its whole budget".into(),
+    });
+
+    let (dense_lr, sweep, mut points) = sweep_dense_lr(&ctx, opts, progress)?;
+    let dense_marks = eval_marks(opts.dense_s, opts.eval_every_s);
+    let dense = train_and_score(
+        &ctx,
+        &RunSpec {
+            name: "dense".into(),
+            sampler: SamplerKind::Dense,
+            lr: dense_lr,
+            budget_s: opts.dense_s,
+            marks: &dense_marks,
+            stop_at_psnr: reached,
+            save: true,
+        },
+        progress,
+    )?;
+
+    let rows = compare_at_targets(
+        &opts.targets_db,
+        &acc.curve(),
+        &dense.curve(),
+        RunTotals {
+            seconds: dense.trained_s,
+            steps: dense.steps as f64,
+        },
+    );
+    let common = highest_common(&rows);
     let summary = Summary {
-        budgets_s: opts.budgets.clone(),
+        targets_db: opts.targets_db.clone(),
         eval_split: Split::TestSame.name().into(),
         eval_frames: eval_frames.clone(),
-        dense_best_psnr: best.psnr,
-        dense_seconds_to_best: best.seconds,
-        accelerated_seconds_to_dense_best: acc_time,
-        speedup_to_dense_final_psnr: acc_time.map(|t| best.seconds / t.max(1e-9)),
-        note,
-        accelerated_final_psnr: acc.last().map_or(f64::NAN, |p| p.psnr),
-        dense_final_psnr: dense.last().map_or(f64::NAN, |p| p.psnr),
-        accelerated_steps_per_s: rates[0].0,
-        dense_steps_per_s: rates[1].0,
-        accelerated_samples_per_ray: rates[0].1,
-        dense_samples_per_ray: rates[1].1,
-        accelerated_setup_s: rates[0].2,
-        dense_setup_s: rates[1].2,
-        lpips_note,
-        points,
+        accelerated: sampler_summary(
+            &acc,
+            SamplerKind::Accelerated,
+            opts,
+            opts.train.initial_lr(),
+        ),
+        dense: sampler_summary(&dense, SamplerKind::Dense, opts, dense_lr),
+        speedup_at_target: rows.iter().map(|r| r.speedup).collect(),
+        is_lower_bound: rows.iter().map(|r| r.is_lower_bound).collect(),
+        highest_common_target_db: common.map(|r| r.target_db),
+        speedup_at_highest_common_target: common.and_then(|r| r.speedup),
+        targets: rows.clone(),
+        dense_lr_sweep: sweep,
+        dense_sweep_s: opts.dense_sweep_s,
+        lpips_note: acc.lpips_note.clone().or(dense.lpips_note.clone()),
+        points: {
+            let mut all = acc.points.clone();
+            all.append(&mut points);
+            all.extend(dense.points.iter().cloned());
+            all
+        },
     };
     write_outputs(out, &summary)?;
     Ok(summary)
 }
 
-/// One sampler's run: its scored points, (steps/s, samples per ray, setup seconds) and
-/// the evaluation's LPIPS note, if any.
-struct SamplerRun {
-    points: Vec<Point>,
-    rate: (f64, f64, f64),
-    lpips_note: Option<String>,
-}
-
-/// Trains `sampler` for the largest budget, scoring test_same at every mark.
-fn train_and_score(
-    dataset: &Dataset,
-    out: &Path,
+/// The dense learning rate: the only one given, or the sweep's best (its rows and points
+/// are returned with it).
+fn sweep_dense_lr(
+    ctx: &RunContext,
     opts: &SpeedVsErrorOptions,
-    sampler: SamplerKind,
-    marks: &[f64],
-    eval_frames: &[usize],
     progress: &mut dyn FnMut(&str),
-) -> Result<SamplerRun, SpeedVsErrorError> {
-    let max_budget = *opts.budgets.last().expect("checked non-empty");
+) -> Result<(f64, Vec<SweepRow>, Vec<Point>), SpeedVsErrorError> {
+    if let [lr] = opts.dense_lrs[..] {
+        return Ok((lr, Vec::new(), Vec::new()));
+    }
+    let sweep_s = opts.dense_sweep_s.min(opts.dense_s);
+    let mut rows: Vec<SweepRow> = Vec::new();
     let mut points = Vec::new();
-    let mut lpips_note = None;
-    let train_opts = TrainOptions {
-        sampler,
-        budget: Budget::Seconds(max_budget),
-        // Checkpoints only at the end: writing them is not training.
-        checkpoint_every_s: f64::INFINITY,
-        ..opts.train.clone()
-    };
-    let run = out.join("runs").join(sampler.name());
-    let setup = Instant::now();
-    let mut trainer = Trainer::new(dataset, &run, &train_opts)?;
-    let setup_s = setup.elapsed().as_secs_f64();
-    let (mut rays, mut samples) = (0usize, 0usize);
-    for &mark in marks {
-        while trainer.elapsed_seconds() < mark && !trainer.done() {
-            let log = trainer.step()?;
-            rays += log.rays;
-            samples += log.samples;
-        }
-        progress(&format!(
-            "{}: {:.0} s trained ({} steps), evaluating {} frames",
-            sampler.name(),
-            trainer.elapsed_seconds(),
-            trainer.steps_taken(),
-            eval_frames.len()
-        ));
-        let mut avatar = Avatar::from_trainer(&trainer);
-        avatar.sampler = SamplerKind::Accelerated;
-        let report = evaluate(
-            &avatar,
-            dataset,
-            eval_frames,
-            &EvalOptions {
-                renders_dir: None,
-                lpips_dir: opts.lpips_dir.clone(),
-                smooth: false,
+    for &lr in &opts.dense_lrs {
+        let run = train_and_score(
+            ctx,
+            &RunSpec {
+                name: format!("dense-sweep-lr-{lr:e}"),
+                sampler: SamplerKind::Dense,
+                lr,
+                budget_s: opts.dense_s,
+                marks: &[sweep_s],
+                stop_at_psnr: None,
+                save: false,
             },
+            progress,
         )?;
-        progress(&format!(
-            "{}: PSNR {:.2} dB at {:.0} s",
-            sampler.name(),
-            report.psnr,
-            trainer.elapsed_seconds()
-        ));
-        if report.lpips_note.is_some() {
-            lpips_note = report.lpips_note.clone();
-        }
-        points.push(Point {
-            sampler: sampler.name().into(),
-            seconds: trainer.elapsed_seconds(),
-            steps: trainer.steps_taken(),
-            psnr: report.psnr,
-            ssim: report.ssim,
-            lpips: report.lpips,
-            psnr_face: report.psnr_face,
-            psnr_hands: report.psnr_hands,
-            samples_per_ray: samples as f64 / rays.max(1) as f64,
+        let last = run.points.last().expect("a run has its last mark");
+        rows.push(SweepRow {
+            lr,
+            seconds: last.seconds,
+            steps: last.steps,
+            psnr: last.psnr,
+            chosen: false,
         });
+        points.extend(run.points);
     }
-    trainer.save()?;
-    Ok(SamplerRun {
-        points,
-        rate: (
-            trainer.steps_taken() as f64 / trainer.elapsed_seconds().max(1e-9),
-            samples as f64 / rays.max(1) as f64,
-            setup_s,
-        ),
-        lpips_note,
-    })
-}
-
-/// The dense run's best point after the start, the accelerated run's time to reach its
-/// PSNR, and why there is no speedup when there is none. Both runs start from the same
-/// untrained field, so the start (0 s) is nobody's achievement: a dense run that never
-/// beats it has no time to its best, and the accelerated run must climb to the target.
-pub fn compare<'p>(
-    acc: &[&'p Point],
-    dense: &[&'p Point],
-) -> (&'p Point, Option<f64>, Option<String>) {
-    let start = dense.first().map_or(f64::NEG_INFINITY, |p| p.psnr);
-    let best = dense
-        .iter()
-        .copied()
-        .filter(|p| p.seconds > 0.0)
-        .fold(None::<&Point>, |b, p| match b {
-            Some(b) if b.psnr >= p.psnr => Some(b),
-            _ => Some(p),
+    // The first of the best (a NaN PSNR never wins).
+    let best = (0..rows.len())
+        .filter(|&k| rows[k].psnr.is_finite())
+        .fold(None::<usize>, |b, k| match b {
+            Some(b) if rows[b].psnr >= rows[k].psnr => Some(b),
+            _ => Some(k),
         })
-        .or_else(|| dense.first().copied())
-        .expect("the dense curve has points");
-    if best.psnr <= start {
-        let note = format!(
-            "the dense run never improved on the untrained field's {start:.2} dB within the \
-             budget, so it has no time to its best PSNR"
-        );
-        return (best, None, Some(note));
-    }
-    match time_to_reach(acc, best.psnr) {
-        Some(t) => (best, Some(t), None),
-        None => (
-            best,
-            None,
-            Some(format!(
-                "the accelerated run never reached the dense best {:.2} dB",
-                best.psnr
-            )),
-        ),
-    }
-}
-
-/// The first time (seconds) the curve climbs to `psnr`, linearly interpolated between
-/// consecutive points; `None` if it never does (the starting point does not count).
-pub fn time_to_reach(curve: &[&Point], psnr: f64) -> Option<f64> {
-    curve.windows(2).find_map(|w| {
-        let (a, b) = (w[0], w[1]);
-        (b.psnr >= psnr).then(|| {
-            let f = ((psnr - a.psnr) / (b.psnr - a.psnr)).clamp(0.0, 1.0);
-            a.seconds + f * (b.seconds - a.seconds)
-        })
-    })
-}
-
-fn write_outputs(out: &Path, summary: &Summary) -> Result<(), SpeedVsErrorError> {
-    let write = |name: &str, bytes: &[u8]| {
-        let file = out.join(name);
-        talkin_data::atomic::write_atomic(&file, bytes)
-            .map_err(|source| SpeedVsErrorError::Io { file, source })
-    };
-    let opt = |v: Option<f64>| v.map_or(String::new(), |v| format!("{v:.4}"));
-    let mut csv = String::from(
-        "sampler,seconds,steps,psnr,ssim,lpips,psnr_face,psnr_hands,samples_per_ray\n",
-    );
-    for p in &summary.points {
-        csv.push_str(&format!(
-            "{},{:.2},{},{:.4},{:.5},{},{},{},{:.2}\n",
-            p.sampler,
-            p.seconds,
-            p.steps,
-            p.psnr,
-            p.ssim,
-            opt(p.lpips),
-            opt(p.psnr_face),
-            opt(p.psnr_hands),
-            p.samples_per_ray
-        ));
-    }
-    write("speed_vs_error.csv", csv.as_bytes())?;
-    write(
-        "summary.json",
-        serde_json::to_string_pretty(summary)
-            .expect("plain data serialises")
-            .as_bytes(),
-    )?;
-    let curves: Vec<Curve> = [("accelerated", [230, 90, 30]), ("dense", [40, 90, 200])]
-        .into_iter()
-        .map(|(name, colour)| {
-            let pts = summary
-                .points
-                .iter()
-                .filter(|p| p.sampler == name)
-                .map(|p| (p.seconds, p.psnr))
-                .collect();
-            (name, colour, pts)
-        })
-        .collect();
-    let png = plot_psnr_vs_seconds(&curves, summary.dense_best_psnr);
-    let mut bytes = Vec::new();
-    png.write_to(
-        &mut std::io::Cursor::new(&mut bytes),
-        image::ImageFormat::Png,
-    )
-    .expect("encoding a PNG in memory");
-    write("speed_vs_error.png", &bytes)
-}
-
-/// A table of the summary for the terminal and the README.
-pub fn format_summary(s: &Summary) -> String {
-    let mut t = String::from(
-        "| sampler | seconds | steps | PSNR | SSIM | LPIPS* | samples/ray |\n|---|---|---|---|---|---|---|\n",
-    );
-    for p in &s.points {
-        t.push_str(&format!(
-            "| {} | {:.0} | {} | {:.2} | {:.4} | {} | {:.1} |\n",
-            p.sampler,
-            p.seconds,
-            p.steps,
-            p.psnr,
-            p.ssim,
-            p.lpips.map_or("-".into(), |v| format!("{v:.1}")),
-            p.samples_per_ray
-        ));
-    }
-    t.push_str(&format!(
-        "\ndense best PSNR {:.2} dB at {:.0} s; accelerated reaches it at {}; \
-         speedup_to_dense_final_psnr = {}\n\
-         steps/s: accelerated {:.2}, dense {:.2}; samples/ray: accelerated {:.1}, dense {:.1}\n",
-        s.dense_best_psnr,
-        s.dense_seconds_to_best,
-        s.accelerated_seconds_to_dense_best
-            .map_or("never".into(), |t| format!("{t:.1} s")),
-        s.speedup_to_dense_final_psnr.map_or(
-            format!("none: {}", s.note.clone().unwrap_or_default()),
-            |v| { format!("{v:.2}x") }
-        ),
-        s.accelerated_steps_per_s,
-        s.dense_steps_per_s,
-        s.accelerated_samples_per_ray,
-        s.dense_samples_per_ray,
+        .unwrap_or(0);
+    rows[best].chosen = true;
+    progress(&format!(
+        "dense learning rate: {:e} ({:.2} dB after {sweep_s:.0} s)",
+        rows[best].lr, rows[best].psnr
     ));
-    t
+    Ok((rows[best].lr, rows, points))
+}
+
+fn sampler_summary(
+    run: &RunResult,
+    sampler: SamplerKind,
+    opts: &SpeedVsErrorOptions,
+    lr: f64,
+) -> SamplerSummary {
+    let curve = run.curve();
+    let crossings: Vec<_> = opts
+        .targets_db
+        .iter()
+        .map(|&t| first_crossing(&curve, t))
+        .collect();
+    SamplerSummary {
+        sampler: sampler.name().into(),
+        lr,
+        budget_s: match sampler {
+            SamplerKind::Accelerated => opts.accelerated_s,
+            SamplerKind::Dense => opts.dense_s,
+        },
+        trained_s: run.trained_s,
+        steps: run.steps,
+        stopped: run.stop,
+        seconds_to_target: crossings.iter().map(|c| c.map(|c| c.seconds)).collect(),
+        steps_to_target: crossings.iter().map(|c| c.map(|c| c.steps)).collect(),
+        best_psnr: curve.iter().map(|p| p.psnr).fold(f64::NAN, f64::max),
+        final_psnr: curve.last().map_or(f64::NAN, |p| p.psnr),
+        cost: run.cost.clone(),
+        setup_s: run.setup_s,
+        eval_s: run.eval_s,
+    }
+}
+
+fn bad(field: &'static str, problem: &str) -> SpeedVsErrorError {
+    SpeedVsErrorError::BadOption {
+        field,
+        problem: problem.to_string(),
+    }
+}
+
+/// Checks every option; errors name the option.
+fn check(opts: &SpeedVsErrorOptions) -> Result<(), SpeedVsErrorError> {
+    let positive = |v: f64| v.is_finite() && v > 0.0;
+    if opts.targets_db.is_empty()
+        || opts.targets_db.iter().any(|t| !t.is_finite())
+        || opts.targets_db.windows(2).any(|w| w[0] >= w[1])
+    {
+        return Err(bad(
+            "targets",
+            "expected ascending PSNRs in dB, e.g. 18,20,22,24,26",
+        ));
+    }
+    for (field, v) in [
+        ("accelerated-minutes", opts.accelerated_s),
+        ("dense-minutes", opts.dense_s),
+        ("dense-sweep-minutes", opts.dense_sweep_s),
+    ] {
+        if !positive(v) {
+            return Err(bad(field, "expected a positive number"));
+        }
+    }
+    if opts.eval_every_s.is_some_and(|s| !positive(s)) {
+        return Err(bad("eval-every-s", "expected a positive number of seconds"));
+    }
+    if opts.dense_lrs.is_empty() || opts.dense_lrs.iter().any(|&lr| !positive(lr)) {
+        return Err(bad(
+            "dense-lrs",
+            "expected one or more positive learning rates, e.g. 5e-3,1e-2,2e-2",
+        ));
+    }
+    Ok(())
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
 
-    fn p(seconds: f64, psnr: f64) -> Point {
-        Point {
-            sampler: String::new(),
-            seconds,
-            steps: 0,
-            psnr,
-            ssim: 0.0,
-            lpips: None,
-            psnr_face: None,
-            psnr_hands: None,
-            samples_per_ray: 0.0,
+    fn opts() -> SpeedVsErrorOptions {
+        SpeedVsErrorOptions {
+            targets_db: vec![18.0, 20.0],
+            accelerated_s: 60.0,
+            dense_s: 120.0,
+            eval_frames: 3,
+            eval_every_s: None,
+            dense_lrs: vec![1e-2],
+            dense_sweep_s: 30.0,
+            train: TrainOptions::default(),
+            lpips_dir: None,
         }
     }
 
     #[test]
-    fn speedup_is_interpolated_and_undefined_when_dense_never_improves() {
-        let acc = [p(0.0, 10.0), p(10.0, 14.0), p(20.0, 18.0)];
-        let dense = [p(0.0, 10.0), p(30.0, 12.0), p(60.0, 16.0)];
-        let (a, d): (Vec<&Point>, Vec<&Point>) = (acc.iter().collect(), dense.iter().collect());
-        let (best, t, note) = compare(&a, &d);
-        assert_eq!(best.seconds, 60.0);
-        // 16 dB lies halfway between 14 (10 s) and 18 (20 s).
-        assert!((t.unwrap() - 15.0).abs() < 1e-9 && note.is_none());
-        // A dense run that only gets worse has no time to its best.
-        let flat = [p(0.0, 10.0), p(30.0, 9.0)];
-        let f: Vec<&Point> = flat.iter().collect();
-        let (_, t, note) = compare(&a, &f);
-        assert!(t.is_none() && note.unwrap().contains("never improved"));
-        // An accelerated run that never gets there.
-        let slow = [p(0.0, 10.0), p(60.0, 11.0)];
-        let s: Vec<&Point> = slow.iter().collect();
-        let (_, t, note) = compare(&s, &d);
-        assert!(t.is_none() && note.unwrap().contains("never reached"));
-        assert_eq!(eval_marks(&[30.0, 60.0]), vec![0.0, 7.5, 15.0, 30.0, 60.0]);
+    fn bad_options_name_their_flag() {
+        let field = |o: SpeedVsErrorOptions| match check(&o) {
+            Err(SpeedVsErrorError::BadOption { field, .. }) => field,
+            other => panic!("{other:?}"),
+        };
+        assert!(check(&opts()).is_ok());
+        for targets in [vec![], vec![20.0, 18.0], vec![f64::NAN]] {
+            assert_eq!(
+                field(SpeedVsErrorOptions {
+                    targets_db: targets,
+                    ..opts()
+                }),
+                "targets"
+            );
+        }
+        let o = SpeedVsErrorOptions {
+            dense_s: 0.0,
+            ..opts()
+        };
+        assert_eq!(field(o), "dense-minutes");
+        let o = SpeedVsErrorOptions {
+            eval_every_s: Some(-1.0),
+            ..opts()
+        };
+        assert_eq!(field(o), "eval-every-s");
+        for lrs in [vec![], vec![1e-2, 0.0]] {
+            assert_eq!(
+                field(SpeedVsErrorOptions {
+                    dense_lrs: lrs,
+                    ..opts()
+                }),
+                "dense-lrs"
+            );
+        }
+    }
+
+    /// `summary.json` keeps the keys readers of the report rely on, and no longer
+    /// carries the old single ratio.
+    #[test]
+    fn summary_json_has_the_report_keys() {
+        let cost = StepCost::default();
+        let side = |sampler: &str| SamplerSummary {
+            sampler: sampler.into(),
+            lr: 1e-2,
+            budget_s: 60.0,
+            trained_s: 60.0,
+            steps: 10,
+            stopped: Stop::Budget,
+            seconds_to_target: vec![Some(5.0), None],
+            steps_to_target: vec![Some(50.0), None],
+            best_psnr: 19.0,
+            final_psnr: 19.0,
+            cost: cost.clone(),
+            setup_s: 1.0,
+            eval_s: 1.0,
+        };
+        let summary = Summary {
+            targets_db: vec![18.0, 20.0],
+            eval_split: "test_same".into(),
+            eval_frames: vec![1],
+            accelerated: side("accelerated"),
+            dense: side("dense"),
+            speedup_at_target: vec![Some(1.0), None],
+            is_lower_bound: vec![false, false],
+            highest_common_target_db: Some(18.0),
+            speedup_at_highest_common_target: Some(1.0),
+            targets: Vec::new(),
+            dense_lr_sweep: Vec::new(),
+            dense_sweep_s: 30.0,
+            lpips_note: None,
+            points: Vec::new(),
+        };
+        let json = serde_json::to_value(&summary).unwrap();
+        for key in [
+            "targets_db",
+            "speedup_at_target",
+            "highest_common_target_db",
+            "speedup_at_highest_common_target",
+            "is_lower_bound",
+            "dense_lr_sweep",
+        ] {
+            assert!(json.get(key).is_some(), "{key} missing: {json}");
+        }
+        assert!(json.get("speedup_to_dense_final_psnr").is_none());
+        for sampler in ["accelerated", "dense"] {
+            for key in ["seconds_to_target", "steps_to_target", "lr", "cost"] {
+                assert!(json[sampler].get(key).is_some(), "{sampler}.{key}: {json}");
+            }
+            assert!(json[sampler]["seconds_to_target"][1].is_null());
+            for key in [
+                "median_step_s",
+                "samples_per_ray",
+                "bones_per_sample",
+                "sampling_share",
+            ] {
+                assert!(
+                    json[sampler]["cost"].get(key).is_some(),
+                    "{sampler}.cost.{key}"
+                );
+            }
+        }
+        assert_eq!(json["accelerated"]["stopped"], "budget");
     }
 }

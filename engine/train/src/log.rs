@@ -6,8 +6,8 @@ use crate::error::TrainError;
 
 /// The log file inside the run directory.
 pub const LOG_FILE: &str = "train_log.csv";
-const LOG_HEADER: &str =
-    "step,seconds,loss,mse,psnr,rays,samples,rays_per_s,samples_per_s,lr,grid_occupied,sampling_s";
+const LOG_HEADER: &str = "step,seconds,loss,mse,psnr,rays,samples,rays_per_s,samples_per_s,lr,grid_occupied,sampling_s,\
+     bones_per_sample";
 
 /// One row of the training log.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -32,6 +32,9 @@ pub struct StepLog {
     /// Seconds of this step spent drawing the batch's samples (the chosen sampler, with
     /// any per-frame structure it builds on first use), out of the step's wall time.
     pub sampling_s: f64,
+    /// Mean body bones inverse skinning evaluates per sample (its candidates; 22 for a
+    /// dense sample).
+    pub bones_per_sample: f64,
 }
 
 /// The open log of a run.
@@ -99,6 +102,7 @@ impl TrainLog {
             format!("{:e}", entry.lr),
             format!("{:.4}", entry.grid_occupied),
             format!("{:.6}", entry.sampling_s),
+            format!("{:.3}", entry.bones_per_sample),
         ];
         self.writer
             .write_record(&row)
@@ -181,6 +185,7 @@ mod tests {
             progress: 0.5,
             grid_occupied: 1.0,
             sampling_s: 0.01,
+            bones_per_sample: 2.5,
         }
     }
 
@@ -210,7 +215,9 @@ mod tests {
             lines.iter().all(|l| l.split(',').count() == columns),
             "{text}"
         );
-        assert_eq!(lines[2], "2,0.2,1,1,1,8,8,1,1,1e-2,1,");
+        // The row had 11 values; every later column is left empty.
+        let padding = ",".repeat(columns - 11);
+        assert_eq!(lines[2], format!("2,0.2,1,1,1,8,8,1,1,1e-2,1{padding}"));
         std::fs::remove_dir_all(&dir).unwrap();
     }
 
@@ -229,7 +236,7 @@ mod tests {
         assert_eq!(written.lines().count(), 4, "{written}");
         assert_eq!(
             written.lines().nth(1).unwrap(),
-            "1,0.100,0.5,0.25,6,8,80,80.0,800.0,1e-2,1.0000,0.010000"
+            "1,0.100,0.5,0.25,6,8,80,80.0,800.0,1e-2,1.0000,0.010000,2.500"
         );
         drop(log);
         let mut log = TrainLog::open(&path, Some(2)).unwrap();

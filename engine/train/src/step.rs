@@ -31,6 +31,7 @@ impl Trainer<'_> {
         let samples = self.draw_samples(frame, &batch)?;
         let sampling_s = sampling_start.elapsed().as_secs_f64();
         let (n_rays, n_samples) = (batch.rays.len(), samples.num_samples());
+        let bones_per_sample = mean_candidate_bones(&samples.bone_mask);
 
         // Field and loss: forward, render, loss and backward.
         let StepLoss { loss, mse, grads } = self.field_loss(frame, &batch, samples, vstep)?;
@@ -65,6 +66,7 @@ impl Trainer<'_> {
             progress: self.progress(),
             grid_occupied: self.grid_occupied,
             sampling_s,
+            bones_per_sample,
         };
         self.log.write(&entry)?;
         Ok(entry)
@@ -207,6 +209,16 @@ impl Trainer<'_> {
             .as_ref()
             .expect("a trained subject has a model")
     }
+}
+
+/// The mean number of body bones inverse skinning evaluates per sample: each sample's
+/// candidate joints mapped to their body ancestors (all 22 for a dense sample).
+fn mean_candidate_bones(bone_masks: &[u64]) -> f64 {
+    let total: u64 = bone_masks
+        .iter()
+        .map(|&m| u64::from(talkin_nets::skinning::body_candidates(m).count_ones()))
+        .sum();
+    total as f64 / bone_masks.len().max(1) as f64
 }
 
 /// A sampling error at dataset frame `frame`, naming the index file.
