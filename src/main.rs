@@ -3,6 +3,7 @@
 
 mod cli;
 mod progress;
+mod verbosity;
 
 use clap::Parser;
 
@@ -27,6 +28,7 @@ fn keep_freed_memory_mapped() {
 fn main() -> std::process::ExitCode {
     keep_freed_memory_mapped();
     let args = cli::Cli::parse();
+    verbosity::init(args.quiet, args.verbose);
     match cli::run(args) {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {

@@ -1,65 +1,77 @@
-//! A one-line progress display on stderr: count, rate and ETA, redrawn at most 5 times a
-//! second on a terminal; elsewhere (a log file) a line every 15 s and the final one.
+//! Progress on stderr through `indicatif`: a bar with count, rate and ETA on a terminal;
+//! elsewhere (a log file, CI) an info line every 15 s and the final one, so logs show
+//! progress without carriage returns. `-q` hides both.
 
-use std::io::{IsTerminal, Write};
 use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
+use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+
 pub struct Progress {
+    bar: ProgressBar,
     label: String,
-    total: usize,
-    start: Instant,
-    last_draw: Mutex<Instant>,
-    interactive: bool,
+    unit: &'static str,
+    /// When stderr is not a terminal: the last time a log line was written.
+    last_line: Option<Mutex<Instant>>,
 }
 
+/// How often a log line is written where no bar can be drawn.
+const LOG_PERIOD: Duration = Duration::from_secs(15);
+
 impl Progress {
-    pub fn new(label: impl Into<String>, total: usize) -> Progress {
-        let now = Instant::now();
+    /// `total` units of `unit` (e.g. "frames", "steps", "s").
+    pub fn new(label: impl Into<String>, total: usize, unit: &'static str) -> Progress {
+        let label = label.into();
+        let target = ProgressDrawTarget::stderr_with_hz(5);
+        let drawn = !target.is_hidden() && !crate::verbosity::quiet();
+        let bar = ProgressBar::with_draw_target(Some(total as u64), target);
+        if drawn {
+            let template = format!(
+                "{{prefix}} [{{bar:30}}] {{pos}}/{{len}} {unit} ({{per_sec}}, {{elapsed}} \
+                 elapsed, ETA {{eta}}) {{wide_msg}}"
+            );
+            if let Ok(style) = ProgressStyle::with_template(&template) {
+                bar.set_style(style.progress_chars("=> "));
+            }
+            bar.set_prefix(label.clone());
+        } else {
+            bar.set_draw_target(ProgressDrawTarget::hidden());
+        }
+        let last_line = (!drawn).then(|| Mutex::new(Instant::now()));
         Progress {
-            label: label.into(),
-            total,
-            start: now,
-            last_draw: Mutex::new(now - Duration::from_secs(1)),
-            interactive: std::io::stderr().is_terminal(),
+            bar,
+            label,
+            unit,
+            last_line,
         }
     }
 
-    /// Reports `done` of `total` units finished, with an optional extra message.
-    pub fn update(&self, done: usize, extra: &str) {
-        let finished = done >= self.total;
+    /// Reports `done` of the total finished, with an optional message.
+    pub fn update(&self, done: usize, message: &str) {
+        self.bar.set_position(done as u64);
+        self.bar.set_message(message.to_owned());
+        let total = self.bar.length().unwrap_or(0);
+        let finished = done as u64 >= total;
+        if finished && !self.bar.is_finished() {
+            self.bar.finish();
+        }
+        let Some(last) = &self.last_line else {
+            return;
+        };
         {
-            let mut last = self.last_draw.lock().unwrap_or_else(|p| p.into_inner());
-            // A terminal is redrawn 5 times a second; a log file gets a line every 15 s.
-            let period = if self.interactive {
-                Duration::from_millis(200)
-            } else {
-                Duration::from_secs(15)
-            };
-            if !finished && last.elapsed() < period {
+            let mut last = last.lock().unwrap_or_else(|p| p.into_inner());
+            if !finished && last.elapsed() < LOG_PERIOD {
                 return;
             }
             *last = Instant::now();
         }
-        let elapsed = self.start.elapsed().as_secs_f64();
+        let elapsed = self.bar.elapsed().as_secs_f64();
         let rate = done as f64 / elapsed.max(1e-9);
-        let eta = if done > 0 {
-            (self.total.saturating_sub(done)) as f64 / rate
-        } else {
-            f64::NAN
-        };
-        let mut err = std::io::stderr().lock();
-        let line = format!(
-            "{}: {done}/{} ({:.1}/s, {:.0}s elapsed, ETA {:.0}s) {extra}",
-            self.label, self.total, rate, elapsed, eta
+        tracing::info!(
+            "{}: {done}/{total} {} ({rate:.1}/s, {elapsed:.0} s elapsed, ETA {:.0} s) {message}",
+            self.label,
+            self.unit,
+            self.bar.eta().as_secs_f64(),
         );
-        if self.interactive {
-            let _ = write!(err, "\r{line}\x1b[K");
-            if finished {
-                let _ = writeln!(err);
-            }
-        } else {
-            let _ = writeln!(err, "{line}");
-        }
     }
 }

@@ -343,29 +343,57 @@ fn frames_without_segmentation_get_derived_labels() {
     );
 }
 
-/// Runs `talkin eval` on `dir` with a run that does not exist: the dataset's checks come
-/// first, before any work.
-fn eval_refuses(dir: &Path, needles: &[&str]) {
-    let out = Command::new(env!("CARGO_BIN_EXE_talkin"))
-        .args([
-            "eval",
-            "--run",
-            "/nonexistent/run",
-            "--split",
-            "test_same",
-            "--json",
-        ])
-        .arg(dir.join("eval.json"))
-        .arg("--data")
-        .arg(dir)
-        .output()
-        .unwrap();
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    assert_eq!(out.status.code(), Some(1), "{stderr}");
-    for n in needles {
-        assert!(stderr.contains(n), "{stderr:?} lacks {n:?}");
+/// Runs `talkin eval`, `train` and `adapt` on `dir` (eval and adapt with a run that does
+/// not exist): the dataset's checks come first, before any work, and nothing is written.
+fn every_command_refuses(dir: &Path, needles: &[&str]) {
+    let out_dir = dir.join("refused_out");
+    let commands: [Vec<std::ffi::OsString>; 3] = [
+        vec![
+            "eval".into(),
+            "--run".into(),
+            "/nonexistent/run".into(),
+            "--split".into(),
+            "test_same".into(),
+            "--json".into(),
+            dir.join("eval.json").into(),
+        ],
+        vec![
+            "train".into(),
+            "--out".into(),
+            out_dir.clone().into(),
+            "--steps".into(),
+            "1".into(),
+        ],
+        vec![
+            "adapt".into(),
+            "--run".into(),
+            "/nonexistent/run".into(),
+            "--subject".into(),
+            "a".into(),
+            "--out".into(),
+            out_dir.clone().into(),
+        ],
+    ];
+    for args in commands {
+        let out = Command::new(env!("CARGO_BIN_EXE_talkin"))
+            .args(&args)
+            .arg("--data")
+            .arg(dir)
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(1), "{args:?}: {stderr}");
+        for n in needles {
+            assert!(stderr.contains(n), "{args:?}: {stderr:?} lacks {n:?}");
+        }
+        assert!(!stderr.contains("loading run"), "{stderr}");
+        assert!(!dir.join("eval.json").exists(), "{args:?} wrote a report");
+        assert!(
+            std::fs::read_dir(&out_dir).map_or(true, |mut d| d.next().is_none()),
+            "{args:?} wrote into {}",
+            out_dir.display()
+        );
     }
-    assert!(!stderr.contains("loading run"), "{stderr}");
 }
 
 #[test]
@@ -381,7 +409,7 @@ fn an_empty_mask_is_refused_by_inspect_and_by_every_command() {
         stderr.contains("frames[1].mask") && stderr.contains("empty"),
         "{stderr}"
     );
-    eval_refuses(&dir, &["frames[1].mask", "empty"]);
+    every_command_refuses(&dir, &["frames[1].mask", "empty"]);
 }
 
 #[test]
@@ -397,7 +425,7 @@ fn a_body_off_screen_is_refused() {
         stderr.contains("frames[0].camera") && stderr.contains("off-screen"),
         "{stderr}"
     );
-    eval_refuses(&dir, &["frames[0].camera", "off-screen"]);
+    every_command_refuses(&dir, &["frames[0].camera", "off-screen"]);
 }
 
 /// The overlay check draws the fitted body on the frames, the flagged ones first.
@@ -420,4 +448,30 @@ fn the_overlay_is_written() {
     let plain = image::open(dir.join("images/00000.png")).unwrap().to_rgb8();
     let tile = image::imageops::crop_imm(&overlay, 4, 4, 24, 32).to_image();
     assert_ne!(tile, plain, "nothing drawn on the frame");
+}
+
+/// Off a terminal, progress is an info line (the final count at least); `-q` hides it and
+/// keeps the exit code.
+#[test]
+fn progress_is_a_log_line_off_a_terminal_and_quiet_hides_it() {
+    let dir = common::temp_dir("quiet_progress");
+    common::write_tiny_dataset(&dir);
+    let run = |args: &[&str]| {
+        Command::new(env!("CARGO_BIN_EXE_talkin"))
+            .args(args)
+            .arg(&dir)
+            .output()
+            .unwrap()
+    };
+    let loud = run(&["inspect"]);
+    let stderr = String::from_utf8_lossy(&loud.stderr);
+    assert_eq!(loud.status.code(), Some(0), "{stderr}");
+    assert!(
+        stderr.contains("decoding: ") && stderr.contains(" frames ("),
+        "{stderr}"
+    );
+    let quiet = run(&["-q", "inspect"]);
+    let stderr = String::from_utf8_lossy(&quiet.stderr);
+    assert_eq!(quiet.status.code(), Some(0), "{stderr}");
+    assert!(!stderr.contains("decoding"), "{stderr}");
 }

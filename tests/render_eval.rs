@@ -31,16 +31,22 @@ fn scene() -> &'static (PathBuf, PathBuf) {
     })
 }
 
-/// `$TALKIN_LPIPS_DIR`, else `<repo>/assets/lpips` (written by scripts/lpips_weights.py).
+/// Where every command looks for the LPIPS weights (`talkin lpips-weights` writes there).
 fn lpips_dir() -> PathBuf {
-    match std::env::var_os("TALKIN_LPIPS_DIR") {
-        Some(d) => PathBuf::from(d),
-        None => Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/lpips"),
-    }
+    talkin::nets::loss::lpips_weights_dir()
 }
 
 fn talkin(args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_talkin"))
+        .args(args)
+        .output()
+        .unwrap()
+}
+
+/// `talkin ARGS` run from `cwd`: what an installed binary sees outside the repository.
+fn talkin_in(cwd: &Path, args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_talkin"))
+        .current_dir(cwd)
         .args(args)
         .output()
         .unwrap()
@@ -60,19 +66,22 @@ fn eval_json_has_the_keys_and_renders_that_rescore_the_same() {
     let out = common::temp_dir("render_eval_eval");
     let json = out.join("eval.json");
     let lpips = lpips_dir();
-    let res = talkin(&[
-        "eval",
-        "--run",
-        s(run),
-        "--data",
-        s(data),
-        "--split",
-        "test_cross",
-        "--json",
-        s(&json),
-        "--lpips-dir",
-        s(&lpips),
-    ]);
+    // From a directory outside the repository and without --lpips-dir: the weights are
+    // found where `talkin lpips-weights` put them.
+    let res = talkin_in(
+        &out,
+        &[
+            "eval",
+            "--run",
+            s(run),
+            "--data",
+            s(data),
+            "--split",
+            "test_cross",
+            "--json",
+            s(&json),
+        ],
+    );
     assert_eq!(res.status.code(), Some(0), "{}", stderr(&res));
     let table = String::from_utf8_lossy(&res.stdout);
     assert!(table.contains("PSNR") && table.contains("hands"), "{table}");

@@ -86,10 +86,16 @@ fn resume_continues_exactly() {
         }
     }
     let grid = |run: &Path| {
-        std::fs::read(checkpoint::latest_dir(run).unwrap().join("grid-0.bin")).unwrap()
+        std::fs::read(
+            checkpoint::latest_dir(run)
+                .unwrap()
+                .join("grid-0.safetensors"),
+        )
+        .unwrap()
     };
-    let load =
-        |run: &Path| checkpoint::grid_from_bytes(&grid(run), Path::new("grid-0.bin")).unwrap();
+    let load = |run: &Path| {
+        checkpoint::grid_from_bytes(&grid(run), Path::new("grid-0.safetensors")).unwrap()
+    };
     let (ga, gb) = (load(&straight), load(&broken));
     assert_eq!(ga.resolution(), gb.resolution());
     let off = ga

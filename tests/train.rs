@@ -99,7 +99,7 @@ fn check_run(dataset: &Dataset, sampler: SamplerKind) {
         checkpoint::CONFIG_FILE,
         checkpoint::SUBJECTS_FILE,
         checkpoint::STATE_FILE,
-        "grid-0.bin",
+        "grid-0.safetensors",
     ] {
         let len = std::fs::metadata(dir.join(f)).unwrap().len();
         assert!(len > 0, "{f} is empty");
@@ -159,11 +159,11 @@ fn missing_and_damaged_checkpoints_are_named() {
     .unwrap();
     let dir = checkpoint::latest_dir(&run).unwrap();
     // A truncated grid and a LATEST escaping the directory: errors naming the file.
-    let grid = dir.join("grid-0.bin");
+    let grid = dir.join("grid-0.safetensors");
     let bytes = std::fs::read(&grid).unwrap();
     std::fs::write(&grid, &bytes[..bytes.len() / 2]).unwrap();
     let e = Avatar::load(&run).err().unwrap().to_string();
-    assert!(e.contains("grid-0.bin"), "{e}");
+    assert!(e.contains("grid-0.safetensors"), "{e}");
     std::fs::write(&grid, &bytes).unwrap();
     let latest = run.join(CHECKPOINT_DIR).join(LATEST_FILE);
     std::fs::write(&latest, "../../etc").unwrap();

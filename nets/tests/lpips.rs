@@ -2,20 +2,19 @@
 //! by scripts/lpips_reference.py), autodiff vs central differences, loader errors, and the
 //! SSIM fallback of `PerceptualLoss`.
 //!
-//! The weights come from `scripts/lpips_weights.py`; they are looked for in
-//! `$TALKIN_LPIPS_DIR`, else `<repo>/assets/lpips`. Absent weights skip the tests that need
+//! The weights come from `talkin lpips-weights` (`scripts/lpips_weights.py`); they are
+//! looked for where every command looks ([`lpips_weights_dir`]). Absent weights skip the tests that need
 //! them, except under `CI` (set), where they fail.
 
 use std::path::{Path, PathBuf};
 
 use burn::tensor::{Device, Tensor, TensorData};
-use talkin_nets::loss::{Backbone, LossError, Lpips, PerceptualKind, PerceptualLoss};
+use talkin_nets::loss::{
+    Backbone, LossError, Lpips, PerceptualKind, PerceptualLoss, lpips_weights_dir,
+};
 
 fn weights_dir() -> PathBuf {
-    match std::env::var_os("TALKIN_LPIPS_DIR") {
-        Some(d) => PathBuf::from(d),
-        None => Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets/lpips"),
-    }
+    lpips_weights_dir()
 }
 
 /// The weights file of `backbone`, or `None` (with a skip message) when absent outside CI.
@@ -26,12 +25,12 @@ fn weights(backbone: Backbone) -> Option<PathBuf> {
     }
     if std::env::var_os("CI").is_some() {
         panic!(
-            "LPIPS weights missing at {} (CI is set: run `python3 scripts/lpips_weights.py` first)",
+            "LPIPS weights missing at {} (CI is set: run `talkin lpips-weights` first)",
             path.display()
         );
     }
     eprintln!(
-        "SKIPPED: LPIPS weights not found at {}; run `python3 scripts/lpips_weights.py` \
+        "SKIPPED: LPIPS weights not found at {}; run `talkin lpips-weights` \
          (or set TALKIN_LPIPS_DIR) to enable this test",
         path.display()
     );

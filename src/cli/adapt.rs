@@ -1,7 +1,6 @@
 use std::path::PathBuf;
 
 use anyhow::Context;
-use talkin_data::dataset::Dataset;
 use talkin_train::{Identities, TrainOptions, Trainer};
 
 use super::train::{StopSignals, refuse_existing_run, run_trainer};
@@ -33,8 +32,7 @@ pub fn run(args: AdaptArgs) -> anyhow::Result<()> {
     // Before any work: a signal from here on ends the run with a checkpoint.
     let signals = StopSignals::install()?;
     refuse_existing_run(&args.out, args.force)?;
-    let dataset = Dataset::load(&args.data)
-        .with_context(|| format!("cannot load the dataset in {}", args.data.display()))?;
+    let dataset = super::load_dataset(&args.data)?;
     let mut opts = args.recipe;
     if opts.lr.is_none() {
         opts.lr = Some(opts.initial_lr() * opts.preset.adapt_lr_ratio());

@@ -259,7 +259,7 @@ fn sampling_bench(args: SamplingArgs) -> anyhow::Result<()> {
     let mut progress: Option<Progress> = None;
     let report = sampling::bench_sampling(&dataset, trained.as_deref(), &mut |done, total| {
         progress
-            .get_or_insert_with(|| Progress::new("sampling frames", total))
+            .get_or_insert_with(|| Progress::new("sampling", total, "frames"))
             .update(done, "")
     })?;
     println!("{}", sampling::format_report(&report));
@@ -317,8 +317,10 @@ fn speed_vs_error_bench(args: SpeedVsErrorArgs) -> anyhow::Result<()> {
         lpips_dir: args.recipe.perceptual.clone(),
     };
     let dataset = Dataset::load(&args.data)?;
-    let summary = speed_vs_error(&dataset, &args.out, &opts, &mut |msg| eprintln!("{msg}"))
-        .with_context(|| format!("speed-vs-error benchmark on {}", args.data.display()))?;
+    let summary = speed_vs_error(&dataset, &args.out, &opts, &mut |msg| {
+        tracing::info!("{msg}")
+    })
+    .with_context(|| format!("speed-vs-error benchmark on {}", args.data.display()))?;
     println!("{}", format_summary(&summary));
     println!(
         "report: {}/{{report.md, summary.json, speed_vs_error.csv, speed_vs_error.png}}",
@@ -336,8 +338,10 @@ fn ablations_bench(args: AblationArgs) -> anyhow::Result<()> {
         train: args.recipe.clone(),
         lpips_dir: args.recipe.perceptual.clone(),
     };
-    let rows = ablations(&dataset, &args.out, &opts, &mut |msg| eprintln!("{msg}"))
-        .with_context(|| format!("ablations on {}", args.data.display()))?;
+    let rows = ablations(&dataset, &args.out, &opts, &mut |msg| {
+        tracing::info!("{msg}")
+    })
+    .with_context(|| format!("ablations on {}", args.data.display()))?;
     println!("{}", format_table(&rows));
     println!("report: {}/ablations.md", args.out.display());
     Ok(())
@@ -369,8 +373,10 @@ fn novel_identity_bench(args: NovelIdentityArgs) -> anyhow::Result<()> {
         train: args.recipe.clone(),
         lpips_dir: args.recipe.perceptual.clone(),
     };
-    let rows = novel_identity(&dataset, &args.out, &opts, &mut |msg| eprintln!("{msg}"))
-        .with_context(|| format!("novel-identity benchmark on {}", args.data.display()))?;
+    let rows = novel_identity(&dataset, &args.out, &opts, &mut |msg| {
+        tracing::info!("{msg}")
+    })
+    .with_context(|| format!("novel-identity benchmark on {}", args.data.display()))?;
     println!("{}", format_table(&rows));
     println!("report: {}/novel_identity.md", args.out.display());
     Ok(())

@@ -63,7 +63,7 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
         overlay: None,
         joints_json: Some(args.out.join("joints.json")),
     })?;
-    ensure_lpips_weights(Path::new(DEFAULT_LPIPS_DIR));
+    ensure_lpips_weights(&DEFAULT_LPIPS_DIR);
     println!(
         "== 3/4 train all identities for {} min (accelerated sampler, fast preset, {}) -> {}",
         args.minutes,
@@ -104,7 +104,7 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
             split: split.into(),
             json: json.clone(),
             renders: None,
-            lpips_dir: PathBuf::from(DEFAULT_LPIPS_DIR),
+            lpips_dir: DEFAULT_LPIPS_DIR.clone(),
             smooth: false,
         })?;
         let report: serde_json::Value = serde_json::from_slice(
@@ -145,15 +145,17 @@ fn ensure_lpips_weights(dir: &Path) {
     if dir.join("alex.safetensors").exists() {
         return;
     }
-    println!("== fetching the LPIPS weights: python3 scripts/lpips_weights.py");
-    let ok = std::process::Command::new("python3")
-        .arg("scripts/lpips_weights.py")
-        .arg(dir)
-        .status()
-        .is_ok_and(|s| s.success());
+    println!("== fetching the LPIPS weights into {}", dir.display());
+    let ok = match super::lpips::convert(dir) {
+        Ok(()) => true,
+        Err(e) => {
+            tracing::warn!("{e:#}");
+            false
+        }
+    };
     if !ok {
-        eprintln!(
-            "note: could not fetch the LPIPS weights; training uses 1 - SSIM as the \
+        tracing::warn!(
+            "could not fetch the LPIPS weights; training uses 1 - SSIM as the \
              perceptual term and LPIPS is reported as null"
         );
     }

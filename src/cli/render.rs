@@ -110,8 +110,7 @@ pub fn run(args: RenderArgs) -> anyhow::Result<()> {
     let (dataset, mut shots) = match (&args.data, &args.split, source) {
         (Some(dir), Some(split), _) => {
             let split: Split = split.parse().map_err(anyhow::Error::msg)?;
-            let dataset = Dataset::load(dir)
-                .with_context(|| format!("cannot load the dataset in {}", dir.display()))?;
+            let dataset = super::load_dataset(dir)?;
             let frames = split_frames(&dataset, split)?;
             let shots = shots_from_frames(&avatar, &dataset, &frames, subject)?;
             (Some(dataset), shots)
@@ -127,7 +126,7 @@ pub fn run(args: RenderArgs) -> anyhow::Result<()> {
     if args.smooth {
         smooth_shots(&mut shots, &Smoothing::PAPER)?;
     }
-    let progress = Progress::new("rendering frames", shots.len());
+    let progress = Progress::new("rendering", shots.len(), "frames");
     let staging = staging_dir(&args.out)?;
     let renders = render_sequence(
         &avatar,
@@ -188,14 +187,14 @@ fn motion_shots(
         keep_trans: args.keep_trans,
     })?;
     for note in &prepared.notes {
-        eprintln!("note: {note}");
+        tracing::warn!("{note}");
     }
     let camera = match &args.camera_from {
         Some(dir) => first_camera(dir, &name)?,
         None => default_camera(&subject.skeleton, args.size * 3 / 4, args.size)
             .context("the subject's default camera")?,
     };
-    eprintln!(
+    tracing::info!(
         "{} motion {}: {} frames{} as `{name}`",
         motion.layout,
         motion.file.display(),

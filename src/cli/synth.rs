@@ -54,7 +54,7 @@ pub fn generate(args: &SynthArgs) -> anyhow::Result<Dataset> {
     let mut progress: Option<Progress> = None;
     let dataset = synth::generate(&cfg, &args.out, &mut |done, total| {
         progress
-            .get_or_insert_with(|| Progress::new("synth frames", total))
+            .get_or_insert_with(|| Progress::new("synth", total, "frames"))
             .update(done, "")
     })?;
     Ok(dataset)

@@ -5,7 +5,6 @@ use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use anyhow::Context;
 use clap::parser::ValueSource;
 use clap::{ArgMatches, FromArgMatches};
-use talkin_data::dataset::Dataset;
 pub use talkin_train::DEFAULT_LPIPS_DIR;
 use talkin_train::{StepLog, TrainOptions, Trainer, existing_run};
 
@@ -82,12 +81,11 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
     if !args.resume {
         refuse_existing_run(&args.out, args.force)?;
     }
-    let dataset = Dataset::load(&args.data)
-        .with_context(|| format!("cannot load the dataset in {}", args.data.display()))?;
+    let dataset = super::load_dataset(&args.data)?;
     let trainer = if args.resume {
         if args.given.other {
-            eprintln!(
-                "note: --resume continues with the run's own options (its recipe.json); only \
+            tracing::warn!(
+                "--resume continues with the run's own options (its recipe.json); only \
                  --steps and --minutes given here apply"
             );
         }
@@ -119,7 +117,7 @@ pub fn refuse_existing_run(out: &Path, force: bool) -> anyhow::Result<()> {
             found.display()
         );
     }
-    eprintln!(
+    tracing::warn!(
         "--force: starting over in {}: its checkpoints are deleted and its train_log.csv and \
          recipe.json replaced",
         out.display()
@@ -212,15 +210,25 @@ pub fn run_trainer(
     signals: &StopSignals,
 ) -> anyhow::Result<()> {
     if let Some(note) = trainer.perceptual_note() {
-        eprintln!("note: {note}");
+        tracing::warn!("{note}");
     }
     let opts = trainer.options().clone();
     let (steps_before, budget) = (trainer.steps_taken(), opts.budget);
-    let progress = Progress::new("training (per mille)", 1000);
+    // In the budget's own unit: steps, or seconds of training.
+    let progress = match budget {
+        talkin_train::Budget::Steps(total) => Progress::new("training", total, "steps"),
+        talkin_train::Budget::Seconds(total) => {
+            Progress::new("training", total.ceil() as usize, "s")
+        }
+    };
+    let position = |log: &StepLog| match budget {
+        talkin_train::Budget::Steps(_) => log.step,
+        talkin_train::Budget::Seconds(total) => (log.progress * total).floor() as usize,
+    };
     let report = trainer
         .run_until(&signals.stop, &mut |log: &StepLog| {
             progress.update(
-                (log.progress * 1000.0).floor() as usize,
+                position(log),
                 &format!(
                     "step {} loss {:.4} psnr {:.2} dB, {:.0} rays/s",
                     log.step, log.loss, log.psnr, log.rays_per_s

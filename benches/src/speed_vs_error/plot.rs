@@ -1,31 +1,43 @@
-//! The PSNR-against-training-seconds plot: one polyline per run on a logarithmic time
-//! axis (a speed-up is then the same horizontal distance at any time; the untrained start
-//! at 0 s is left off), each target PSNR as a dashed level, axes with numbered ticks (a
-//! 3x5 pixel font, scaled).
+//! The PSNR-against-training-seconds plot, drawn with `plotters`: one line per run on a
+//! logarithmic time axis (a speed-up is then the same horizontal distance at any time;
+//! the untrained start at 0 s is left off), each target PSNR as a dashed level, labelled
+//! axes and a legend. Text is DejaVu Sans from the `dejavu` crate: no system fonts.
 
-use image::{Rgb, RgbImage};
+use std::sync::OnceLock;
 
-use talkin_data::draw::{dot, line};
-use talkin_data::text::draw_text;
+use image::RgbImage;
+use plotters::prelude::*;
+use plotters::style::{FontStyle, register_font};
 
-const W: u32 = 720;
-const H: u32 = 440;
-const LEFT: f64 = 70.0;
-const RIGHT: f64 = 20.0;
-const TOP: f64 = 40.0;
-const BOTTOM: f64 = 60.0;
+const W: u32 = 760;
+const H: u32 = 460;
 
-/// One polyline: name, colour, points (seconds, psnr).
+/// One line: name, colour, points (seconds, psnr).
 pub type Curve<'a> = (&'a str, [u8; 3], Vec<(f64, f64)>);
 
-/// `targets`: PSNRs drawn as dashed levels.
-pub fn plot_psnr_vs_seconds(curves: &[Curve], targets: &[f64]) -> RgbImage {
-    let mut img = RgbImage::from_pixel(W, H, Rgb([255, 255, 255]));
-    let all: Vec<(f64, f64)> = curves
-        .iter()
-        .flat_map(|c| c.2.iter().copied())
-        .filter(|(x, y)| x.is_finite() && *x > 0.0 && y.is_finite())
-        .collect();
+/// The colour of the target levels.
+pub const TARGET_COLOUR: [u8; 3] = [120, 120, 120];
+
+/// Registers DejaVu Sans as plotters' "sans-serif" once; false if it could not be.
+fn font_ready() -> bool {
+    static READY: OnceLock<bool> = OnceLock::new();
+    *READY.get_or_init(|| {
+        register_font("sans-serif", FontStyle::Normal, dejavu::sans::regular()).is_ok()
+    })
+}
+
+/// `targets`: PSNRs drawn as dashed levels. Errors are plotters' drawing errors, as text.
+pub fn plot_psnr_vs_seconds(curves: &[Curve], targets: &[f64]) -> Result<RgbImage, String> {
+    if !font_ready() {
+        return Err("the plot's font (DejaVu Sans) could not be loaded".into());
+    }
+    let finite = |pts: &[(f64, f64)]| -> Vec<(f64, f64)> {
+        pts.iter()
+            .copied()
+            .filter(|(x, y)| x.is_finite() && *x > 0.0 && y.is_finite())
+            .collect()
+    };
+    let all: Vec<(f64, f64)> = curves.iter().flat_map(|c| finite(&c.2)).collect();
     // Whole decades around the points.
     let (x_lo, x_hi) = all
         .iter()
@@ -38,11 +50,12 @@ pub fn plot_psnr_vs_seconds(curves: &[Curve], targets: &[f64]) -> RgbImage {
     } else {
         (0.0, 3.0)
     };
-    let levels = targets.iter().copied().filter(|t| t.is_finite());
+    let (x_min, x_max) = (10f64.powf(d_lo), 10f64.powf(d_hi));
+    let levels: Vec<f64> = targets.iter().copied().filter(|t| t.is_finite()).collect();
     let (mut y_min, mut y_max) = all
         .iter()
         .map(|p| p.1)
-        .chain(levels.clone())
+        .chain(levels.iter().copied())
         .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), y| {
             (a.min(y), b.max(y))
         });
@@ -50,121 +63,67 @@ pub fn plot_psnr_vs_seconds(curves: &[Curve], targets: &[f64]) -> RgbImage {
         (y_min, y_max) = (0.0, 40.0);
     }
     let (y_min, y_max) = ((y_min - 1.0).floor(), (y_max + 1.0).ceil());
-    let px = |x: f64| LEFT + (x.log10() - d_lo) / (d_hi - d_lo) * (f64::from(W) - LEFT - RIGHT);
-    let py = |y: f64| {
-        f64::from(H) - BOTTOM - (y - y_min) / (y_max - y_min) * (f64::from(H) - TOP - BOTTOM)
-    };
-    let (x_min, x_max) = (10f64.powf(d_lo), 10f64.powf(d_hi));
-    let grey = [200, 200, 200];
-    let black = [0, 0, 0];
-    // Axes, ticks and grid: 1, 2 and 5 of every decade.
-    line(
-        &mut img,
-        (LEFT, py(y_min)),
-        (px(x_max), py(y_min)),
-        black,
-        1,
-    );
-    line(&mut img, (LEFT, py(y_min)), (LEFT, py(y_max)), black, 1);
-    for decade in d_lo as i32..=d_hi as i32 {
-        for m in [1.0, 2.0, 5.0] {
-            let x = m * 10f64.powi(decade);
-            if x < x_min * 0.999 || x > x_max * 1.001 {
-                continue;
-            }
-            let colour = if m == 1.0 { grey } else { [230, 230, 230] };
-            line(&mut img, (px(x), py(y_min)), (px(x), py(y_max)), colour, 0);
-            let label = if x >= 1.0 {
-                format!("{x:.0}")
-            } else {
-                format!("{x}")
-            };
-            draw_text(
-                &mut img,
-                &label,
-                px(x) as i64 - 6,
-                py(y_min) as i64 + 8,
-                2,
-                black,
-            );
-        }
-    }
-    let y_step = nice_step((y_max - y_min) / 6.0);
-    let mut y = (y_min / y_step).ceil() * y_step;
-    while y <= y_max {
-        line(&mut img, (LEFT, py(y)), (px(x_max), py(y)), grey, 0);
-        draw_text(&mut img, &format!("{y:.0}"), 20, py(y) as i64 - 5, 2, black);
-        y += y_step;
-    }
-    draw_text(
-        &mut img,
-        "training seconds (log)",
-        W as i64 / 2 - 120,
-        i64::from(H) - 28,
-        2,
-        black,
-    );
-    draw_text(&mut img, "psnr db", 8, 12, 2, black);
-    // The targets, dashed.
-    for level in levels {
-        let (a, b) = (px(x_min), px(x_max));
-        let dash = (b - a) / 80.0;
-        let mut x0 = a;
-        while x0 < b {
-            let x1 = (x0 + dash).min(b);
-            line(
-                &mut img,
-                (x0, py(level)),
-                (x1, py(level)),
-                [120, 120, 120],
-                0,
-            );
-            x0 += 2.0 * dash;
-        }
-    }
-    // Curves and legend.
-    for (k, (name, colour, pts)) in curves.iter().enumerate() {
-        let pts: Vec<(f64, f64)> = pts
-            .iter()
-            .copied()
-            .filter(|(x, y)| x.is_finite() && *x > 0.0 && y.is_finite())
-            .collect();
-        for w in pts.windows(2) {
-            line(
-                &mut img,
-                (px(w[0].0), py(w[0].1)),
-                (px(w[1].0), py(w[1].1)),
-                *colour,
-                1,
-            );
-        }
-        for p in &pts {
-            dot(&mut img, (px(p.0), py(p.1)), *colour, 3);
-        }
-        let ly = 14 + 18 * k as i64;
-        line(
-            &mut img,
-            (f64::from(W) - 230.0, ly as f64 + 5.0),
-            (f64::from(W) - 200.0, ly as f64 + 5.0),
-            *colour,
-            2,
-        );
-        draw_text(&mut img, name, i64::from(W) - 190, ly, 2, black);
-    }
-    img
-}
 
-/// 1, 2 or 5 times a power of ten, at least `raw`.
-fn nice_step(raw: f64) -> f64 {
-    if !(raw.is_finite() && raw > 0.0) {
-        return 1.0;
+    let mut buffer = vec![255u8; (W * H * 3) as usize];
+    {
+        let e = |e: DrawingAreaErrorKind<_>| e.to_string();
+        let root = BitMapBackend::with_buffer(&mut buffer, (W, H)).into_drawing_area();
+        root.fill(&WHITE).map_err(e)?;
+        let mut chart = ChartBuilder::on(&root)
+            .margin(14)
+            .caption(
+                "PSNR on test_same against training time",
+                ("sans-serif", 20),
+            )
+            .x_label_area_size(44)
+            .y_label_area_size(52)
+            .build_cartesian_2d((x_min..x_max).log_scale(), y_min..y_max)
+            .map_err(e)?;
+        chart
+            .configure_mesh()
+            .x_desc("training seconds (log scale)")
+            .y_desc("PSNR (dB)")
+            .label_style(("sans-serif", 14))
+            .axis_desc_style(("sans-serif", 15))
+            .light_line_style(RGBColor(235, 235, 235))
+            .draw()
+            .map_err(e)?;
+        let grey = RGBColor(TARGET_COLOUR[0], TARGET_COLOUR[1], TARGET_COLOUR[2]);
+        for level in &levels {
+            chart
+                .draw_series(DashedLineSeries::new(
+                    [(x_min, *level), (x_max, *level)],
+                    8,
+                    6,
+                    grey.stroke_width(1),
+                ))
+                .map_err(e)?;
+        }
+        for (name, [r, g, b], pts) in curves {
+            let colour = RGBColor(*r, *g, *b);
+            let pts = finite(pts);
+            chart
+                .draw_series(LineSeries::new(pts.clone(), colour.stroke_width(2)))
+                .map_err(e)?
+                .label(*name)
+                .legend(move |(x, y)| {
+                    PathElement::new([(x, y), (x + 24, y)], colour.stroke_width(2))
+                });
+            chart
+                .draw_series(pts.iter().map(|p| Circle::new(*p, 3, colour.filled())))
+                .map_err(e)?;
+        }
+        chart
+            .configure_series_labels()
+            .position(SeriesLabelPosition::LowerRight)
+            .label_font(("sans-serif", 15))
+            .background_style(WHITE.mix(0.9))
+            .border_style(BLACK)
+            .draw()
+            .map_err(e)?;
+        root.present().map_err(e)?;
     }
-    let p = 10f64.powf(raw.log10().floor());
-    [1.0, 2.0, 5.0, 10.0]
-        .into_iter()
-        .map(|m| m * p)
-        .find(|s| *s >= raw)
-        .unwrap_or(10.0 * p)
+    RgbImage::from_raw(W, H, buffer).ok_or_else(|| "plot buffer of the wrong size".into())
 }
 
 #[cfg(test)]
@@ -187,19 +146,24 @@ mod tests {
                 ),
             ],
             &[18.0, 22.0],
-        );
-        // Both colours were drawn.
-        let has = |c: [u8; 3]| img.pixels().any(|p| p.0 == c);
-        assert!(has([230, 90, 30]) && has([40, 90, 200]));
-        // The targets' dashed levels.
-        assert!(has([120, 120, 120]));
+        )
+        .unwrap();
+        // Both colours were drawn, and the targets' dashed levels.
+        let count = |c: [u8; 3]| img.pixels().filter(|p| p.0 == c).count();
+        assert!(count([230, 90, 30]) > 50 && count([40, 90, 200]) > 50);
+        assert!(count(TARGET_COLOUR) > 100);
+        // Text was drawn (dark pixels left of the plot: the tick labels).
+        let dark_left = (0..H)
+            .flat_map(|y| (0..60).map(move |x| (x, y)))
+            .filter(|&(x, y)| img.get_pixel(x, y).0.iter().all(|&v| v < 100))
+            .count();
+        assert!(dark_left > 30, "{dark_left}");
         // Empty and NaN input: still an image, no panic.
         let empty = plot_psnr_vs_seconds(
             &[("dense", [0, 0, 255], vec![(f64::NAN, 1.0), (0.0, 3.0)])],
             &[f64::NAN],
-        );
+        )
+        .unwrap();
         assert_eq!(empty.dimensions(), (W, H));
-        assert_eq!(nice_step(37.0), 50.0);
-        assert_eq!(nice_step(0.3), 0.5);
     }
 }

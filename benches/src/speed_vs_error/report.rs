@@ -80,7 +80,11 @@ pub fn write_outputs(out: &Path, summary: &Summary) -> Result<(), BenchError> {
         talkin_data::atomic::write_atomic(&file, bytes)
             .map_err(|source| BenchError::Io { file, source })
     };
-    write("speed_vs_error.csv", csv(&summary.points).as_bytes())?;
+    let table = csv(&summary.points).map_err(|e| BenchError::Io {
+        file: out.join("speed_vs_error.csv"),
+        source: std::io::Error::other(e),
+    })?;
+    write("speed_vs_error.csv", &table)?;
     let json = serde_json::to_string_pretty(summary).map_err(|e| BenchError::Io {
         file: out.join("summary.json"),
         source: std::io::Error::other(e),
@@ -99,7 +103,10 @@ pub fn write_outputs(out: &Path, summary: &Summary) -> Result<(), BenchError> {
             (run, colour, pts)
         })
         .collect();
-    let png = plot_psnr_vs_seconds(&curves, &summary.targets_db);
+    let png = plot_psnr_vs_seconds(&curves, &summary.targets_db).map_err(|e| BenchError::Io {
+        file: out.join("speed_vs_error.png"),
+        source: std::io::Error::other(e),
+    })?;
     let mut bytes = Vec::new();
     png.write_to(
         &mut std::io::Cursor::new(&mut bytes),
@@ -112,31 +119,41 @@ pub fn write_outputs(out: &Path, summary: &Summary) -> Result<(), BenchError> {
     write("speed_vs_error.png", &bytes)
 }
 
-/// Every evaluation, one row each.
-pub fn csv(points: &[Point]) -> String {
+/// Every evaluation, one row each, as CSV.
+pub fn csv(points: &[Point]) -> Result<Vec<u8>, csv::Error> {
     let opt = |v: Option<f64>| v.map_or(String::new(), |v| format!("{v:.4}"));
-    let mut csv = String::from(
-        "run,sampler,lr,seconds,steps,psnr,ssim,lpips,psnr_face,psnr_hands,samples_per_ray,\
-         eval_s\n",
-    );
+    let mut w = csv::Writer::from_writer(Vec::new());
+    w.write_record([
+        "run",
+        "sampler",
+        "lr",
+        "seconds",
+        "steps",
+        "psnr",
+        "ssim",
+        "lpips",
+        "psnr_face",
+        "psnr_hands",
+        "samples_per_ray",
+        "eval_s",
+    ])?;
     for p in points {
-        csv.push_str(&format!(
-            "{},{},{:e},{:.2},{},{:.4},{:.5},{},{},{},{:.2},{:.2}\n",
-            p.run,
-            p.sampler,
-            p.lr,
-            p.seconds,
-            p.steps,
-            p.psnr,
-            p.ssim,
+        w.write_record([
+            p.run.to_string(),
+            p.sampler.to_string(),
+            format!("{:e}", p.lr),
+            format!("{:.2}", p.seconds),
+            p.steps.to_string(),
+            format!("{:.4}", p.psnr),
+            format!("{:.5}", p.ssim),
             opt(p.lpips),
             opt(p.psnr_face),
             opt(p.psnr_hands),
-            p.samples_per_ray,
-            p.eval_s
-        ));
+            format!("{:.2}", p.samples_per_ray),
+            format!("{:.2}", p.eval_s),
+        ])?;
     }
-    csv
+    w.into_inner().map_err(|e| e.into_error().into())
 }
 
 /// The report's tables in Markdown: time to each target, what a step costs, the dense

@@ -18,4 +18,3 @@ pub mod npz;
 pub mod params_json;
 pub mod pickle;
 pub mod smplx_model;
-pub mod text;

@@ -12,8 +12,8 @@ use talkin_grids::SamplerKind;
 use crate::error::TrainError;
 use crate::preset::Preset;
 
-/// Where `scripts/lpips_weights.py` puts the converted LPIPS weights.
-pub const DEFAULT_LPIPS_DIR: &str = "assets/lpips";
+/// Where `talkin lpips-weights` puts the converted LPIPS weights (a per-user cache).
+pub use talkin_nets::loss::DEFAULT_LPIPS_DIR;
 
 /// Everything a run is told.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, Args)]
@@ -58,9 +58,9 @@ pub struct TrainOptions {
     /// Occupancy-grid cells along the canonical box's longest axis.
     #[arg(long, default_value_t = TrainOptions::default().grid_resolution)]
     pub grid_resolution: u32,
-    /// Directory of the converted LPIPS weights (`python3 scripts/lpips_weights.py`);
+    /// Directory of the converted LPIPS weights (`talkin lpips-weights`; by default the per-user cache);
     /// without them the perceptual term is 1 - SSIM, and the run says so.
-    #[arg(long = "lpips-dir", value_name = "DIR", default_value = DEFAULT_LPIPS_DIR)]
+    #[arg(long = "lpips-dir", value_name = "DIR", default_value_os = DEFAULT_LPIPS_DIR.as_os_str())]
     pub perceptual: Option<PathBuf>,
     /// Checkpoint every this many seconds of training (and always at the end).
     #[arg(long = "checkpoint-every", value_name = "SECONDS", default_value_t = TrainOptions::default().checkpoint_every_s)]
@@ -361,7 +361,7 @@ mod tests {
         assert_eq!(
             parsed,
             TrainOptions {
-                perceptual: Some(PathBuf::from(DEFAULT_LPIPS_DIR)),
+                perceptual: Some(DEFAULT_LPIPS_DIR.clone()),
                 ..TrainOptions::default()
             }
         );

@@ -251,12 +251,12 @@ impl<'a> Trainer<'a> {
             Some(_) => {}
             None => {
                 let note = format!(
-                    "note: {}: no dataset fingerprint (a run from an older build): cannot \
+                    "{}: no dataset fingerprint (a run from an older build): cannot \
                      check that {} is the dataset it was trained on",
                     state_file.display(),
                     dataset.root.display()
                 );
-                eprintln!("{note}");
+                tracing::warn!("{note}");
                 notes.push(note);
             }
         }

@@ -16,7 +16,7 @@ pub enum LossError {
     Format { path: PathBuf, message: String },
     /// A tensor the architecture needs is absent.
     #[error("{}: tensor `{name}` is missing (expected f32 of shape {expected:?}); \
-             regenerate the file with scripts/lpips_weights.py", path.display())]
+             regenerate the file with `talkin lpips-weights`", path.display())]
     MissingTensor {
         path: PathBuf,
         name: String,

@@ -14,9 +14,11 @@ mod lpips;
 mod perceptual;
 mod pixel;
 mod ssim;
+mod weights_dir;
 
 pub use error::LossError;
 pub use lpips::{Backbone, Lpips};
 pub use perceptual::{PerceptualKind, PerceptualLoss};
 pub use pixel::{mse, seg_cross_entropy};
 pub use ssim::{SSIM_C1, SSIM_C2, SSIM_SIGMA, SSIM_WINDOW, ssim, ssim_loss};
+pub use weights_dir::{DEFAULT_LPIPS_DIR, LPIPS_DIR_ENV, lpips_weights_dir};

@@ -66,12 +66,12 @@ impl PerceptualLoss {
     }
 
     /// When LPIPS was asked for but its file was absent: the message to print, e.g.
-    /// `LPIPS weights not found at assets/lpips/alex.safetensors, falling back to SSIM`.
+    /// `LPIPS weights not found at ~/.cache/talkin/lpips/alex.safetensors, falling back to SSIM`.
     pub fn fallback_reason(&self) -> Option<String> {
         self.missing.as_ref().map(|p| {
             format!(
                 "LPIPS weights not found at {}, falling back to SSIM \
-                 (run scripts/lpips_weights.py to fetch them)",
+                 (run `talkin lpips-weights` to fetch them)",
                 p.display()
             )
         })

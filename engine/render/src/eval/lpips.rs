@@ -32,7 +32,7 @@ impl LpipsScorer {
         if !file.exists() {
             return Ok(Err(format!(
                 "LPIPS not computed: weights not found at {} \
-                 (run `python3 scripts/lpips_weights.py`)",
+                 (run `talkin lpips-weights`)",
                 file.display()
             )));
         }

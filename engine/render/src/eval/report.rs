@@ -33,6 +33,18 @@ pub struct SkippedCrop {
     pub reason: String,
 }
 
+/// A path as text for people: non-UTF-8 bytes become U+FFFD instead of an error.
+fn lossy_path<S: serde::Serializer>(path: &Path, s: S) -> Result<S::Ok, S::Error> {
+    s.serialize_str(&path.to_string_lossy())
+}
+
+fn lossy_path_opt<S: serde::Serializer>(path: &Option<PathBuf>, s: S) -> Result<S::Ok, S::Error> {
+    match path {
+        Some(p) => lossy_path(p, s),
+        None => s.serialize_none(),
+    }
+}
+
 /// One evaluated frame.
 #[derive(Clone, Debug, Serialize)]
 pub struct FrameScore {
@@ -44,6 +56,7 @@ pub struct FrameScore {
     pub rendered_as: String,
     pub time: f64,
     /// The PNG that was scored (when renders were written).
+    #[serde(serialize_with = "lossy_path_opt")]
     pub render: Option<PathBuf>,
     pub psnr: f64,
     pub ssim: Option<f64>,
@@ -60,7 +73,9 @@ pub struct FrameScore {
 #[derive(Clone, Debug, Serialize)]
 pub struct EvalReport {
     /// The run evaluated (set by the caller; the avatar does not know its directory).
+    #[serde(serialize_with = "lossy_path_opt")]
     pub run: Option<PathBuf>,
+    #[serde(serialize_with = "lossy_path")]
     pub dataset: PathBuf,
     /// The split every evaluated frame belongs to; `None` if they mix splits.
     pub split: Option<String>,
@@ -179,7 +194,8 @@ impl EvalReport {
 
     /// The report as pretty JSON.
     pub fn to_json(&self) -> String {
-        serde_json::to_string_pretty(self).expect("finite numbers and strings serialise")
+        serde_json::to_string_pretty(self)
+            .expect("numbers, strings and lossily written paths always serialise")
     }
 
     /// Writes the JSON atomically.

@@ -1,90 +1,139 @@
-//! The occupancy grid's binary file: `TKOG`, version 1 (u32), box min and max (6 x f32),
-//! resolution (3 x u32), then every cell's occupancy (f32) and the bitfield (u64 words),
-//! all little-endian. Reading checks every size against the header.
+//! The occupancy grid's file: safetensors, so any tool that reads safetensors (Python's
+//! `safetensors`, numpy) can open it. Tensors: `aabb` (F32 [2, 3]: min, max),
+//! `resolution` (U32 [3]), `occupancy` (F32 [rx * ry * rz], every cell's value) and
+//! `bitfield` (U64 [ceil(cells / 64)], cell `i` is bit `i % 64` of word `i / 64`); the
+//! header's metadata says `format: talkin occupancy grid v1`. Reading checks every dtype
+//! and shape against the resolution; the grid itself refuses non-finite values.
 
+use std::collections::HashMap;
 use std::path::Path;
 
 use glam::Vec3;
+use safetensors::tensor::TensorView;
+use safetensors::{Dtype, SafeTensors};
 use talkin_grids::OccupancyGrid;
 
 use super::CheckpointError;
 
-const MAGIC: &[u8; 4] = b"TKOG";
-const VERSION: u32 = 1;
-const HEADER: usize = 4 + 4 + 6 * 4 + 3 * 4;
+const FORMAT: &str = "talkin occupancy grid v1";
 
-/// The grid as bytes.
-pub fn grid_to_bytes(grid: &OccupancyGrid) -> Vec<u8> {
+/// The grid as safetensors bytes.
+pub fn grid_to_bytes(grid: &OccupancyGrid) -> Result<Vec<u8>, CheckpointError> {
     let (lo, hi) = grid.aabb();
-    let occupancy = grid.occupancy();
-    let bits = grid.bitfield();
-    let mut out = Vec::with_capacity(HEADER + 4 * occupancy.len() + 8 * bits.len());
-    out.extend_from_slice(MAGIC);
-    out.extend_from_slice(&VERSION.to_le_bytes());
-    for v in lo.to_array().into_iter().chain(hi.to_array()) {
-        out.extend_from_slice(&v.to_le_bytes());
+    let aabb: Vec<u8> = lo
+        .to_array()
+        .into_iter()
+        .chain(hi.to_array())
+        .flat_map(f32::to_le_bytes)
+        .collect();
+    let resolution: Vec<u8> = grid
+        .resolution()
+        .into_iter()
+        .flat_map(u32::to_le_bytes)
+        .collect();
+    let occupancy: Vec<u8> = grid
+        .occupancy()
+        .iter()
+        .flat_map(|v| v.to_le_bytes())
+        .collect();
+    let bitfield: Vec<u8> = grid
+        .bitfield()
+        .iter()
+        .flat_map(|w| w.to_le_bytes())
+        .collect();
+    let internal = |e: safetensors::SafeTensorError| CheckpointError::Format {
+        file: "grid".into(),
+        field: "grid".into(),
+        problem: format!("cannot encode the grid: {e}"),
+    };
+    let views = [
+        ("aabb", TensorView::new(Dtype::F32, vec![2, 3], &aabb)),
+        (
+            "resolution",
+            TensorView::new(Dtype::U32, vec![3], &resolution),
+        ),
+        (
+            "occupancy",
+            TensorView::new(Dtype::F32, vec![grid.occupancy().len()], &occupancy),
+        ),
+        (
+            "bitfield",
+            TensorView::new(Dtype::U64, vec![grid.bitfield().len()], &bitfield),
+        ),
+    ];
+    let mut tensors = Vec::with_capacity(views.len());
+    for (name, view) in views {
+        tensors.push((name, view.map_err(internal)?));
     }
-    for r in grid.resolution() {
-        out.extend_from_slice(&r.to_le_bytes());
-    }
-    for v in occupancy {
-        out.extend_from_slice(&v.to_le_bytes());
-    }
-    for w in bits {
-        out.extend_from_slice(&w.to_le_bytes());
-    }
-    out
+    let metadata = HashMap::from([("format".to_string(), FORMAT.to_string())]);
+    safetensors::serialize(tensors, Some(metadata)).map_err(internal)
 }
 
 /// Reads a grid written by [`grid_to_bytes`]; `file` names it in errors.
 pub fn grid_from_bytes(bytes: &[u8], file: &Path) -> Result<OccupancyGrid, CheckpointError> {
-    let bad = |problem: String| CheckpointError::Format {
+    let bad = |field: &str, problem: String| CheckpointError::Format {
         file: file.to_path_buf(),
-        field: "grid".into(),
+        field: field.into(),
         problem,
     };
-    if bytes.len() < HEADER || &bytes[..4] != MAGIC {
-        return Err(bad(format!(
-            "not an occupancy grid file (expected the `TKOG` magic and a {HEADER}-byte header, \
-             found {} bytes)",
-            bytes.len()
-        )));
+    if bytes.starts_with(super::grid_file_tkog::MAGIC) {
+        return super::grid_file_tkog::grid_from_tkog(bytes, file);
     }
-    let u32_at = |o: usize| u32::from_le_bytes(bytes[o..o + 4].try_into().expect("4 bytes"));
-    let f32_at = |o: usize| f32::from_le_bytes(bytes[o..o + 4].try_into().expect("4 bytes"));
-    let version = u32_at(4);
-    if version != VERSION {
-        return Err(bad(format!(
-            "version {version}, this build reads {VERSION}"
-        )));
-    }
-    let lo = Vec3::new(f32_at(8), f32_at(12), f32_at(16));
-    let hi = Vec3::new(f32_at(20), f32_at(24), f32_at(28));
-    let resolution = [u32_at(32), u32_at(36), u32_at(40)];
+    let st = SafeTensors::deserialize(bytes).map_err(|e| {
+        bad(
+            "grid",
+            format!("not an occupancy grid file (expected safetensors: {e})"),
+        )
+    })?;
+    let tensor = |name: &str, dtype: Dtype, shape: &[usize]| {
+        let view = st
+            .tensor(name)
+            .map_err(|_| bad(name, format!("missing (expected {dtype:?} {shape:?})")))?;
+        if view.dtype() != dtype || view.shape() != shape {
+            return Err(bad(
+                name,
+                format!(
+                    "{:?} {:?}, expected {dtype:?} {shape:?}",
+                    view.dtype(),
+                    view.shape()
+                ),
+            ));
+        }
+        Ok(view.data().to_vec())
+    };
+    let words4 = |b: Vec<u8>| -> Vec<[u8; 4]> {
+        b.chunks_exact(4)
+            .map(|c| [c[0], c[1], c[2], c[3]])
+            .collect()
+    };
+    let aabb: Vec<f32> = words4(tensor("aabb", Dtype::F32, &[2, 3])?)
+        .into_iter()
+        .map(f32::from_le_bytes)
+        .collect();
+    let res: Vec<u32> = words4(tensor("resolution", Dtype::U32, &[3])?)
+        .into_iter()
+        .map(u32::from_le_bytes)
+        .collect();
+    let resolution = [res[0], res[1], res[2]];
     if resolution.iter().any(|&r| r == 0 || r > 1024) {
-        return Err(bad(format!(
-            "resolution {resolution:?}: every axis must be in 1..=1024"
-        )));
+        return Err(bad(
+            "resolution",
+            format!("{resolution:?}: every axis must be in 1..=1024"),
+        ));
     }
     let cells: usize = resolution.iter().map(|&r| r as usize).product();
-    let words = cells.div_ceil(64);
-    let expected = HEADER + 4 * cells + 8 * words;
-    if bytes.len() != expected {
-        return Err(bad(format!(
-            "{} bytes, expected {expected} for a {resolution:?} grid",
-            bytes.len()
-        )));
-    }
-    let occupancy: Vec<f32> = bytes[HEADER..HEADER + 4 * cells]
-        .chunks_exact(4)
-        .map(|c| f32::from_le_bytes(c.try_into().expect("4 bytes")))
+    let occupancy: Vec<f32> = words4(tensor("occupancy", Dtype::F32, &[cells])?)
+        .into_iter()
+        .map(f32::from_le_bytes)
         .collect();
-    let bitfield: Vec<u64> = bytes[HEADER + 4 * cells..]
+    let bitfield: Vec<u64> = tensor("bitfield", Dtype::U64, &[cells.div_ceil(64)])?
         .chunks_exact(8)
-        .map(|c| u64::from_le_bytes(c.try_into().expect("8 bytes")))
+        .map(|c| u64::from_le_bytes([c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7]]))
         .collect();
+    let lo = Vec3::new(aabb[0], aabb[1], aabb[2]);
+    let hi = Vec3::new(aabb[3], aabb[4], aabb[5]);
     OccupancyGrid::from_parts(lo, hi, resolution, occupancy, bitfield)
-        .map_err(|e| bad(e.to_string()))
+        .map_err(|e| bad("grid", e.to_string()))
 }
 
 #[cfg(test)]
@@ -96,21 +145,85 @@ mod tests {
         let mut grid =
             OccupancyGrid::new(Vec3::splat(-1.0), Vec3::new(1.0, 2.0, 0.5), [5, 7, 3]).unwrap();
         grid.mark(&[Vec3::ZERO, Vec3::new(0.9, 1.9, 0.4)]);
-        let bytes = grid_to_bytes(&grid);
-        let file = Path::new("grid-0.bin");
+        let bytes = grid_to_bytes(&grid).unwrap();
+        let file = Path::new("grid-0.safetensors");
         assert_eq!(grid_from_bytes(&bytes, file).unwrap(), grid);
-        // Truncated, wrong magic, NaN occupancy: named errors.
-        for damaged in [
-            bytes[..bytes.len() - 1].to_vec(),
-            [b"XXXX", &bytes[4..]].concat(),
-            {
-                let mut b = bytes.clone();
-                b[HEADER..HEADER + 4].copy_from_slice(&f32::NAN.to_le_bytes());
-                b
-            },
+        // Readable as plain safetensors, with the documented names and shapes.
+        let st = SafeTensors::deserialize(&bytes).unwrap();
+        assert_eq!(st.tensor("occupancy").unwrap().shape(), &[5 * 7 * 3]);
+        assert_eq!(st.tensor("bitfield").unwrap().dtype(), Dtype::U64);
+        // Truncated, not safetensors, a wrong shape, NaN occupancy: named errors.
+        let nan = {
+            let occupancy = vec![f32::NAN; 105];
+            let occ: Vec<u8> = occupancy.iter().flat_map(|v| v.to_le_bytes()).collect();
+            let aabb: Vec<u8> = [-1f32, -1., -1., 1., 2., 0.5]
+                .iter()
+                .flat_map(|v| v.to_le_bytes())
+                .collect();
+            let res: Vec<u8> = [5u32, 7, 3].iter().flat_map(|v| v.to_le_bytes()).collect();
+            let bits = vec![0u8; 16];
+            safetensors::serialize(
+                [
+                    (
+                        "aabb",
+                        TensorView::new(Dtype::F32, vec![2, 3], &aabb).unwrap(),
+                    ),
+                    (
+                        "resolution",
+                        TensorView::new(Dtype::U32, vec![3], &res).unwrap(),
+                    ),
+                    (
+                        "occupancy",
+                        TensorView::new(Dtype::F32, vec![105], &occ).unwrap(),
+                    ),
+                    (
+                        "bitfield",
+                        TensorView::new(Dtype::U64, vec![2], &bits).unwrap(),
+                    ),
+                ],
+                None,
+            )
+            .unwrap()
+        };
+        let wrong_shape = {
+            let aabb = vec![0u8; 4 * 6];
+            let res: Vec<u8> = [5u32, 7, 3].iter().flat_map(|v| v.to_le_bytes()).collect();
+            let occ = vec![0u8; 4 * 104];
+            let bits = vec![0u8; 16];
+            safetensors::serialize(
+                [
+                    (
+                        "aabb",
+                        TensorView::new(Dtype::F32, vec![2, 3], &aabb).unwrap(),
+                    ),
+                    (
+                        "resolution",
+                        TensorView::new(Dtype::U32, vec![3], &res).unwrap(),
+                    ),
+                    (
+                        "occupancy",
+                        TensorView::new(Dtype::F32, vec![104], &occ).unwrap(),
+                    ),
+                    (
+                        "bitfield",
+                        TensorView::new(Dtype::U64, vec![2], &bits).unwrap(),
+                    ),
+                ],
+                None,
+            )
+            .unwrap()
+        };
+        for (damaged, needle) in [
+            (bytes[..bytes.len() - 1].to_vec(), "grid"),
+            (b"XXXX\x01\x00\x00\x00".to_vec(), "safetensors"),
+            (wrong_shape, "occupancy"),
+            (nan, "grid"),
         ] {
             let e = grid_from_bytes(&damaged, file).unwrap_err().to_string();
-            assert!(e.contains("grid-0.bin"), "{e}");
+            assert!(
+                e.contains("grid-0.safetensors") && e.contains(needle),
+                "{e}"
+            );
         }
     }
 }

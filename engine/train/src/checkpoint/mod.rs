@@ -8,7 +8,7 @@
 //!     optimizer.bpk    Adam's moments (absent in inference-only checkpoints)
 //!     config.json      the field's FieldConfig
 //!     subjects.json    background, subject names, rest joints and capsule shells
-//!     grid-<s>.bin     each trained subject's canonical occupancy grid
+//!     grid-<s>.safetensors  each trained subject's canonical occupancy grid
 //!     state.json       step, elapsed time, RNG state, the run's options, the dataset
 //!     manifest.json    size and SHA-256 of every file above (written last)
 //! RUN/checkpoint/step-000250/    the previous checkpoint, kept as a fallback
@@ -21,6 +21,7 @@
 //! damaged; weights that are not finite are refused.
 
 mod grid_file;
+mod grid_file_tkog;
 pub mod manifest;
 pub mod path_json;
 mod subjects_file;
@@ -212,7 +213,7 @@ pub fn save(run: &Path, c: &CheckpointContents) -> Result<PathBuf, CheckpointErr
     write(SUBJECTS_FILE, &subjects)?;
     for (s, slot) in c.subjects.iter().enumerate() {
         if let Some(m) = &slot.model {
-            write(&SubjectsFile::grid_file(s), &grid_to_bytes(&m.grid))?;
+            write(&SubjectsFile::grid_file(s), &grid_to_bytes(&m.grid)?)?;
         }
     }
     let state = serde_json::to_vec_pretty(c.state)
@@ -335,20 +336,17 @@ impl Checkpoint {
                     let mut notes = Vec::new();
                     if latest.is_none() {
                         notes.push(format!(
-                            "warning: {} is missing; loaded the newest complete checkpoint, {}",
+                            "{} is missing; loaded the newest complete checkpoint, {}",
                             root.join(LATEST_FILE).display(),
                             dir.display()
                         ));
                     }
                     notes.extend(failures.iter().map(|e| {
-                        format!(
-                            "warning: {e}; loaded the previous checkpoint, {}",
-                            dir.display()
-                        )
+                        format!("{e}; loaded the previous checkpoint, {}", dir.display())
                     }));
                     notes.append(&mut checkpoint.notes);
                     for note in &notes {
-                        eprintln!("{note}");
+                        tracing::warn!("{note}");
                     }
                     checkpoint.notes = notes;
                     return Ok(checkpoint);
@@ -372,7 +370,7 @@ impl Checkpoint {
         match Manifest::read(&dir)? {
             Some(manifest) => manifest.verify(&dir, &REQUIRED_FILES)?,
             None => notes.push(format!(
-                "note: {}: no {MANIFEST_FILE} (a checkpoint from an older build): its files \
+                "{}: no {MANIFEST_FILE} (a checkpoint from an older build): its files \
                  are not verified",
                 dir.display()
             )),

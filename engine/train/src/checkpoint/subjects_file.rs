@@ -1,5 +1,6 @@
 //! `subjects.json`: the dataset background and, per identity code, the subject's name and
-//! (when trained) its rest joints and capsule shells; the grids live in `grid-<s>.bin`.
+//! (when trained) its rest joints and capsule shells; the grids live in `grid-<s>.safetensors`
+//! (`grid-<s>.bin` in runs from earlier builds, still read).
 
 use std::path::Path;
 
@@ -40,6 +41,11 @@ pub struct ModelEntry {
 impl SubjectsFile {
     /// The grid file of subject `s`.
     pub fn grid_file(s: usize) -> String {
+        format!("grid-{s}.safetensors")
+    }
+
+    /// The grid file of subject `s` in runs written before grids were safetensors.
+    pub fn legacy_grid_file(s: usize) -> String {
         format!("grid-{s}.bin")
     }
 
@@ -136,7 +142,9 @@ impl SubjectsFile {
                             ));
                         }
                     }
-                    if m.grid != SubjectsFile::grid_file(s) {
+                    if m.grid != SubjectsFile::grid_file(s)
+                        && m.grid != SubjectsFile::legacy_grid_file(s)
+                    {
                         return Err(CheckpointError::format(
                             &file,
                             &field("grid"),
