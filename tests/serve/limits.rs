@@ -97,6 +97,7 @@ fn a_client_that_trickles_its_headers_is_cut_off_after_the_header_timeout() {
         }
     }
     let cut = cut.expect("the trickling client was never cut off");
+    eprintln!("trickling client cut off after {cut:?} (header timeout {header:?})");
     assert!(
         cut >= header && cut < header + Duration::from_secs(2),
         "cut off after {cut:?}"
@@ -120,6 +121,7 @@ fn idle_connections_are_closed_after_the_idle_timeout() {
     let t = Instant::now();
     assert!(closed_within(&mut silent, WAIT), "never closed");
     let waited = t.elapsed();
+    eprintln!("silent connection closed after {waited:?} (idle timeout {idle:?})");
     assert!(
         waited >= idle && waited < idle + Duration::from_secs(2),
         "closed after {waited:?}"
@@ -134,6 +136,7 @@ fn idle_connections_are_closed_after_the_idle_timeout() {
     let t = Instant::now();
     assert!(closed_within(&mut kept, WAIT), "never closed");
     let waited = t.elapsed();
+    eprintln!("kept-alive connection closed {waited:?} after its answer (idle timeout {idle:?})");
     assert!(
         waited >= idle / 2 && waited < idle + Duration::from_secs(2),
         "closed after {waited:?}"
@@ -248,6 +251,7 @@ fn shutdown_ends_within_its_grace_period_while_clients_hold_half_sent_requests()
         .expect("shutdown waited on the half-sent requests")
         .unwrap();
     let took = t.elapsed();
+    eprintln!("shutdown with half-sent requests took {took:?} (grace {grace:?})");
     assert!(
         took < grace + Duration::from_secs(2),
         "shutdown took {took:?}"
@@ -290,6 +294,7 @@ fn sigterm_ends_the_cli_server_within_its_grace_period() {
         std::thread::sleep(Duration::from_millis(20));
     };
     assert!(status.success(), "{status}");
+    eprintln!("SIGTERM to exit: {:?} (grace 0.3 s)", t.elapsed());
     assert!(
         t.elapsed() < Duration::from_secs(3),
         "exit took {:?}",
