@@ -1,10 +1,12 @@
 //! The render server over real HTTP on 127.0.0.1: a tiny run trained here, frames equal to
 //! the avatar's own renders, concurrent clients, every class of bad input answered with a
 //! JSON error naming the field (and the server still serving), a full queue's 503, render
-//! timeouts, graceful shutdown by call and by SIGTERM, and (ignored: needs chromium) the
-//! page in a headless browser.
+//! timeouts, graceful shutdown by call and by SIGTERM, the connection limits (`limits`),
+//! and (ignored: needs chromium) the page in a headless browser.
 
 mod common;
+#[path = "serve/limits.rs"]
+mod limits;
 
 use std::io::{BufRead, BufReader, Read};
 use std::net::SocketAddr;
@@ -408,6 +410,58 @@ fn bad_input_is_refused_with_the_field_and_the_server_keeps_serving() {
             400,
             "camera.extrinsics",
         ),
+        (
+            "camera translation 1e300",
+            with(&|b| b["camera"]["extrinsics"][0][3] = json!(1e300)),
+            400,
+            "camera.extrinsics",
+        ),
+        (
+            "camera 2 km away",
+            with(&|b| b["camera"]["extrinsics"][2][3] = json!(2000.0)),
+            400,
+            "camera.extrinsics",
+        ),
+        (
+            "focal 1e300",
+            with(&|b| b["camera"]["intrinsics"][0][0] = json!(1e300)),
+            400,
+            "camera.intrinsics",
+        ),
+        (
+            "negative focal",
+            with(&|b| b["camera"]["intrinsics"][1][1] = json!(-50.0)),
+            400,
+            "camera.intrinsics",
+        ),
+        (
+            "focal of a hundredth of a pixel",
+            with(&|b| b["camera"]["intrinsics"][0][0] = json!(0.01)),
+            400,
+            "camera.intrinsics",
+        ),
+        (
+            "skew 1e12",
+            with(&|b| b["camera"]["intrinsics"][0][1] = json!(1e12)),
+            400,
+            "camera.intrinsics",
+        ),
+        (
+            "principal point far outside the image",
+            with(&|b| b["camera"]["intrinsics"][0][2] = json!(1e9)),
+            400,
+            "camera.intrinsics",
+        ),
+        (
+            "a resize that leaves the focal below a tenth of a pixel",
+            with(&|b| {
+                b["camera"]["intrinsics"][0][0] = json!(0.5);
+                b["width"] = json!(1);
+                b["height"] = json!(1);
+            }),
+            400,
+            "width",
+        ),
     ];
     for (case, body, status, field) in &cases {
         assert_error(case, &post(addr, "/render", body), *status, Some(field));
@@ -472,6 +526,63 @@ fn bad_input_is_refused_with_the_field_and_the_server_keeps_serving() {
     // Still serving, and nothing was rendered for any of it.
     assert_eq!(get(addr, "/health").json()["pool"]["completed"], 0);
     assert_eq!(post(addr, "/render", &frame_body()).status, 200);
+    server.shutdown().unwrap();
+}
+
+/// Cameras at the edges of what a request may ask render (background at worst), never 500.
+#[test]
+fn cameras_at_the_bounds_render() {
+    let server = start(config());
+    let addr = server.addr();
+    let f = &fixture().dataset.frames[0];
+    let (w, h) = (f64::from(f.camera.width), f64::from(f.camera.height));
+    let rotation_and = |t: [f64; 3]| {
+        let mut e = f.camera.extrinsics_rows();
+        for (r, t) in t.iter().enumerate() {
+            e[r][3] = *t;
+        }
+        e
+    };
+    let k = |fx: f64, skew: f64, cx: f64, cy: f64| [[fx, skew, cx], [0.0, fx, cy], [0.0, 0.0, 1.0]];
+    let cases: Vec<(&str, serde_json::Value, serde_json::Value)> = vec![
+        (
+            "999 m away",
+            json!(rotation_and([0.0, 0.0, 999.0])),
+            json!(f.camera.intrinsics_rows()),
+        ),
+        (
+            "at the origin",
+            json!(rotation_and([0.0; 3])),
+            json!(f.camera.intrinsics_rows()),
+        ),
+        (
+            "focal 0.1 px",
+            json!(f.camera.extrinsics_rows()),
+            json!(k(0.1, 0.0, w / 2.0, h / 2.0)),
+        ),
+        (
+            "focal 1e6 px",
+            json!(f.camera.extrinsics_rows()),
+            json!(k(1e6, 1e6, w / 2.0, h / 2.0)),
+        ),
+        (
+            "principal point one image outside",
+            json!(f.camera.extrinsics_rows()),
+            json!(k(50.0, 0.0, -w, 2.0 * h)),
+        ),
+    ];
+    for (case, extrinsics, intrinsics) in cases {
+        let mut body = frame_body();
+        body["camera"]["extrinsics"] = extrinsics;
+        body["camera"]["intrinsics"] = intrinsics;
+        let r = post(addr, "/render", &body);
+        assert_eq!(
+            r.status,
+            200,
+            "{case}: {}",
+            String::from_utf8_lossy(&r.body)
+        );
+    }
     server.shutdown().unwrap();
 }
 
@@ -593,15 +704,48 @@ fn a_slow_render_answers_504_and_the_server_keeps_serving() {
     server.shutdown().unwrap();
 }
 
+/// A `talkin serve` child process, killed if a test ends without stopping it.
+struct CliServer(std::process::Child);
+
+impl Drop for CliServer {
+    fn drop(&mut self) {
+        if let Ok(None) = self.0.try_wait() {
+            let _ = self.0.kill();
+            let _ = self.0.wait();
+        }
+    }
+}
+
+impl std::ops::Deref for CliServer {
+    type Target = std::process::Child;
+    fn deref(&self) -> &Self::Target {
+        &self.0
+    }
+}
+
+impl std::ops::DerefMut for CliServer {
+    fn deref_mut(&mut self) -> &mut Self::Target {
+        &mut self.0
+    }
+}
+
 /// Starts `talkin serve` on a free port and returns it with its address.
-fn spawn_cli(run: &Path) -> (std::process::Child, SocketAddr) {
-    let mut child = Command::new(env!("CARGO_BIN_EXE_talkin"))
-        .args(["serve", "--run"])
-        .arg(run)
-        .args(["--addr", "127.0.0.1:0", "--workers", "1", "--size", "24x32"])
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
+fn spawn_cli(run: &Path) -> (CliServer, SocketAddr) {
+    spawn_cli_with(run, &[])
+}
+
+/// [`spawn_cli`] with more options.
+fn spawn_cli_with(run: &Path, extra: &[&str]) -> (CliServer, SocketAddr) {
+    let mut child = CliServer(
+        Command::new(env!("CARGO_BIN_EXE_talkin"))
+            .args(["serve", "--run"])
+            .arg(run)
+            .args(["--addr", "127.0.0.1:0", "--workers", "1", "--size", "24x32"])
+            .args(extra)
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap(),
+    );
     let mut stderr = BufReader::new(child.stderr.take().unwrap());
     let mut line = String::new();
     stderr.read_line(&mut line).unwrap();

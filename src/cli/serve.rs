@@ -1,7 +1,6 @@
 use std::path::PathBuf;
-use std::time::Duration;
 
-use talkin_serve::{ServeConfig, Server};
+use talkin_serve::{ConfigError, ServeConfig, Server, checked_seconds};
 
 #[derive(clap::Args, Debug)]
 pub struct ServeArgs {
@@ -33,45 +32,90 @@ pub struct LimitArgs {
     /// Default image size (WIDTHxHEIGHT) when a request brings no camera.
     #[arg(long, default_value = "144x192")]
     pub size: String,
+    /// Seconds a client may take from a request's first byte to the end of its headers;
+    /// the connection is closed beyond.
+    #[arg(long, default_value_t = ServeConfig::default().header_timeout.as_secs_f64())]
+    pub header_timeout: f64,
+    /// Seconds a connection may wait for a request (or stay blocked on a client that does
+    /// not read its answer); it is closed beyond.
+    #[arg(long, default_value_t = ServeConfig::default().idle_timeout.as_secs_f64())]
+    pub idle_timeout: f64,
+    /// Connections open at once; one more is answered 503 and closed.
+    #[arg(long, default_value_t = ServeConfig::default().max_connections)]
+    pub max_connections: usize,
+    /// Seconds the requests in flight get to finish on SIGINT/SIGTERM; the connections
+    /// still open after it are dropped (0: at once).
+    #[arg(long, default_value_t = ServeConfig::default().shutdown_grace.as_secs_f64())]
+    pub shutdown_grace: f64,
+}
+
+/// The command-line flag that sets a [`ServeConfig`] field.
+fn flag(field: &str) -> &str {
+    match field {
+        "render_timeout" => "--timeout",
+        "default_width" | "default_height" => "--size",
+        "workers" => "--workers",
+        "queue" => "--queue",
+        "max_pixels" => "--max-pixels",
+        "header_timeout" => "--header-timeout",
+        "idle_timeout" => "--idle-timeout",
+        "max_connections" => "--max-connections",
+        "shutdown_grace" => "--shutdown-grace",
+        other => other,
+    }
 }
 
 impl LimitArgs {
+    /// The server's configuration; every value checked, each error naming its flag.
     pub fn config(&self) -> anyhow::Result<ServeConfig> {
         let (w, h) = self
             .size
             .split_once('x')
             .and_then(|(w, h)| Some((w.parse().ok()?, h.parse().ok()?)))
             .ok_or_else(|| anyhow::anyhow!("--size: expected WIDTHxHEIGHT, found {}", self.size))?;
-        anyhow::ensure!(
-            self.timeout.is_finite() && self.timeout > 0.0,
-            "--timeout: expected positive seconds, found {}",
-            self.timeout
-        );
         let default = ServeConfig::default();
         let config = ServeConfig {
             workers: self.workers.unwrap_or(default.workers),
             queue: self.queue,
             max_pixels: self.max_pixels,
-            render_timeout: Duration::from_secs_f64(self.timeout),
+            render_timeout: checked_seconds("--timeout", self.timeout, false)?,
+            header_timeout: checked_seconds("--header-timeout", self.header_timeout, false)?,
+            idle_timeout: checked_seconds("--idle-timeout", self.idle_timeout, false)?,
+            max_connections: self.max_connections,
+            shutdown_grace: checked_seconds("--shutdown-grace", self.shutdown_grace, true)?,
             default_width: w,
             default_height: h,
             ..default
         };
-        config.validate()?;
+        config.validate().map_err(|e| ConfigError {
+            field: flag(e.field),
+            ..e
+        })?;
         Ok(config)
     }
 }
 
 pub fn run(args: ServeArgs) -> anyhow::Result<()> {
     let config = args.limits.config()?;
-    let (workers, queue) = (config.workers, config.queue);
+    let (workers, queue, grace) = (
+        config.workers,
+        config.queue,
+        config.shutdown_grace.as_secs_f64(),
+    );
     let server = Server::load_and_start(&args.run, &args.addr, config)?;
     eprintln!(
         "serving {} on http://{} ({workers} render threads, queue {queue}); Ctrl-C stops",
         args.run.display(),
         server.addr()
     );
-    server.run_until_signal()?;
-    eprintln!("stopped: in-flight requests finished");
+    let report = server.run_until_signal()?;
+    if report.dropped_connections == 0 {
+        eprintln!("stopped: in-flight requests finished");
+    } else {
+        eprintln!(
+            "stopped: {} connections still open after the {grace} s grace period were dropped",
+            report.dropped_connections
+        );
+    }
     Ok(())
 }

@@ -50,6 +50,9 @@ pub enum RequestError {
         field: Option<String>,
         message: String,
     },
+    /// A route that exists, asked with a method it does not answer: 405 with `Allow`.
+    #[error("{method} is not allowed on {path}; the `Allow` header lists what is")]
+    MethodNotAllowed { method: String, path: String },
     /// Body, image or sequence over the server's limits: 413.
     #[error("{message}")]
     TooLarge {
@@ -62,6 +65,10 @@ pub enum RequestError {
     /// Every worker busy and the queue full: 503 with `Retry-After`.
     #[error("the render queue is full ({queued} waiting); retry in {retry_after_s} s")]
     QueueFull { queued: usize, retry_after_s: u64 },
+    /// The server already holds `--max-connections` connections: 503 with `Retry-After`,
+    /// written on a new connection before it is closed unread.
+    #[error("the server holds its limit of {limit} open connections; retry later")]
+    TooManyConnections { limit: usize },
     /// The server is shutting down: 503.
     #[error("the server is shutting down")]
     ShuttingDown,
@@ -92,9 +99,12 @@ impl RequestError {
         match self {
             Self::Invalid { .. } => StatusCode::BAD_REQUEST,
             Self::NotFound { .. } => StatusCode::NOT_FOUND,
+            Self::MethodNotAllowed { .. } => StatusCode::METHOD_NOT_ALLOWED,
             Self::TooLarge { .. } => StatusCode::PAYLOAD_TOO_LARGE,
             Self::BodyTimeout { .. } => StatusCode::REQUEST_TIMEOUT,
-            Self::QueueFull { .. } | Self::ShuttingDown => StatusCode::SERVICE_UNAVAILABLE,
+            Self::QueueFull { .. } | Self::TooManyConnections { .. } | Self::ShuttingDown => {
+                StatusCode::SERVICE_UNAVAILABLE
+            }
             Self::Timeout { .. } => StatusCode::GATEWAY_TIMEOUT,
             Self::Render(_) => StatusCode::INTERNAL_SERVER_ERROR,
         }
@@ -109,12 +119,16 @@ impl RequestError {
             _ => None,
         }
     }
+
+    /// The response body: `{"error": message, "field": path or null}`.
+    pub fn json(&self) -> serde_json::Value {
+        serde_json::json!({ "error": self.to_string(), "field": self.field() })
+    }
 }
 
 impl IntoResponse for RequestError {
     fn into_response(self) -> Response {
-        let body = serde_json::json!({ "error": self.to_string(), "field": self.field() });
-        let mut response = (self.status(), crate::json::json_body(&body)).into_response();
+        let mut response = (self.status(), crate::json::json_body(&self.json())).into_response();
         if let Self::QueueFull { retry_after_s, .. } = self {
             response
                 .headers_mut()

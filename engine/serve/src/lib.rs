@@ -3,10 +3,12 @@
 //!
 //! Rendering is CPU-bound, so it runs on [`pool::Pool`]'s fixed render threads behind a
 //! bounded queue; the async threads only parse, validate and wait. A full queue answers
-//! 503 with `Retry-After`; bad input answers 400/404/413 with `{"error", "field"}` naming
-//! the JSON path at fault, and the server keeps serving. Shutdown (SIGINT/SIGTERM or
-//! [`Server::shutdown`]) stops accepting, finishes the requests in flight and joins the
-//! render threads.
+//! 503 with `Retry-After`; bad input answers 400/404/405/413 with `{"error", "field"}`
+//! naming the JSON path at fault, and the server keeps serving. Connections are bounded
+//! in number and in how long they may idle or take to send their headers (see
+//! `connections`). Shutdown (SIGINT/SIGTERM or [`Server::shutdown`]) stops accepting,
+//! gives the requests in flight `shutdown_grace` to finish, drops what is left and joins
+//! the render threads that are done.
 //!
 //! Routes: `GET /` (a page with sliders), `GET /health`, `GET /subjects`, `POST /render`,
 //! `POST /render/sequence` (a zip of PNGs). `docs/server-api.md` has the request format.
@@ -17,6 +19,7 @@
 pub mod bench;
 pub mod client;
 mod config;
+mod connections;
 mod encode;
 mod error;
 mod json;
@@ -29,10 +32,11 @@ use std::net::{SocketAddr, TcpListener};
 use std::path::Path;
 use std::sync::Arc;
 use std::thread::JoinHandle;
+use std::time::Instant;
 
-use tokio::sync::Notify;
+use tokio::sync::{Notify, Semaphore};
 
-pub use config::{ConfigError, ServeConfig};
+pub use config::{ConfigError, ServeConfig, checked_seconds};
 pub use error::{RequestError, ServeError};
 pub use subjects::{ServedSubject, default_camera, served_subjects};
 
@@ -45,13 +49,24 @@ struct App {
     subjects: Vec<ServedSubject>,
     config: ServeConfig,
     pool: Pool,
+    /// One permit per connection the server may hold open.
+    connections: Arc<Semaphore>,
+}
+
+/// How a shutdown went.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct ShutdownReport {
+    /// Connections still open when the grace period ended, dropped without an answer.
+    pub dropped_connections: usize,
+    /// Render threads still busy when the grace period ended, left to finish unjoined.
+    pub detached_workers: usize,
 }
 
 /// A running server. Dropping it shuts it down gracefully.
 pub struct Server {
     addr: SocketAddr,
     stop: Arc<Notify>,
-    thread: Option<JoinHandle<Result<(), ServeError>>>,
+    thread: Option<JoinHandle<Result<ShutdownReport, ServeError>>>,
 }
 
 impl Server {
@@ -96,6 +111,7 @@ impl Server {
         let app = Arc::new(App {
             avatar,
             subjects,
+            connections: Arc::new(Semaphore::new(config.max_connections)),
             config,
             pool,
         });
@@ -112,15 +128,28 @@ impl Server {
         let thread = std::thread::Builder::new()
             .name("talkin-serve".into())
             .spawn(move || {
-                let served = runtime.block_on(async {
+                let grace_ends = std::sync::OnceLock::new();
+                let dropped = runtime.block_on(async {
                     let listener = tokio::net::TcpListener::from_std(listener)?;
-                    axum::serve(listener, routes::router(app.clone()))
-                        .with_graceful_shutdown(async move { stopped.notified().await })
-                        .await
+                    let stop = async {
+                        stopped.notified().await;
+                        let _ = grace_ends.set(Instant::now() + app.config.shutdown_grace);
+                    };
+                    let router = routes::router(app.clone());
+                    let permits = app.connections.clone();
+                    Ok::<_, std::io::Error>(
+                        connections::serve(listener, router, &app.config, permits, stop).await,
+                    )
                 });
-                // Every connection is closed: no handler waits on the pool any more.
-                app.pool.shutdown();
-                served.map_err(ServeError::Serve)
+                // Every connection is closed: no handler waits on the pool any more. A
+                // render whose client is gone may still run; it gets what is left of the
+                // grace period.
+                let deadline = grace_ends.get().copied().unwrap_or_else(Instant::now);
+                let detached_workers = app.pool.shutdown_until(deadline);
+                Ok(ShutdownReport {
+                    dropped_connections: dropped.map_err(ServeError::Serve)?,
+                    detached_workers,
+                })
             })
             .map_err(ServeError::Runtime)?;
         Ok(Server {
@@ -135,13 +164,14 @@ impl Server {
         self.addr
     }
 
-    /// Stops accepting, finishes the requests in flight and joins every thread.
-    pub fn shutdown(mut self) -> Result<(), ServeError> {
+    /// Stops accepting, gives the requests in flight the configured grace period to
+    /// finish, drops the connections still open after it, and joins the server's threads.
+    pub fn shutdown(mut self) -> Result<ShutdownReport, ServeError> {
         self.stop_and_join()
     }
 
-    /// Serves until SIGINT or SIGTERM, then shuts down gracefully.
-    pub fn run_until_signal(self) -> Result<(), ServeError> {
+    /// Serves until SIGINT or SIGTERM, then shuts down as [`Server::shutdown`] does.
+    pub fn run_until_signal(self) -> Result<ShutdownReport, ServeError> {
         let runtime = tokio::runtime::Builder::new_current_thread()
             .enable_io()
             .build()
@@ -150,7 +180,7 @@ impl Server {
         self.shutdown()
     }
 
-    fn stop_and_join(&mut self) -> Result<(), ServeError> {
+    fn stop_and_join(&mut self) -> Result<ShutdownReport, ServeError> {
         self.stop.notify_one();
         match self.thread.take() {
             Some(t) => t.join().unwrap_or_else(|_| {
@@ -158,7 +188,7 @@ impl Server {
                     "the server thread panicked",
                 )))
             }),
-            None => Ok(()),
+            None => Ok(ShutdownReport::default()),
         }
     }
 }

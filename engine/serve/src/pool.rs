@@ -6,7 +6,7 @@
 use std::collections::VecDeque;
 use std::sync::{Arc, Condvar, Mutex, MutexGuard};
 use std::thread::JoinHandle;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 /// Work for a render thread. It returns how to hand its result over; the pool counts the
 /// job as completed before it delivers, so a client that holds a reply sees it counted in
@@ -150,6 +150,30 @@ impl Pool {
     }
 }
 
+impl Pool {
+    /// Like [`Pool::shutdown`], but waits for the workers only until `deadline`: a worker
+    /// still rendering then is left to finish on its own (unjoined). Returns how many were.
+    pub fn shutdown_until(&self, deadline: Instant) -> usize {
+        self.shared.lock().closed = true;
+        self.shared.ready.notify_all();
+        let mut threads =
+            std::mem::take(&mut *self.threads.lock().unwrap_or_else(|p| p.into_inner()));
+        loop {
+            let (done, running): (Vec<_>, Vec<_>) =
+                threads.into_iter().partition(|t| t.is_finished());
+            for t in done {
+                let _ = t.join();
+            }
+            let now = Instant::now();
+            if running.is_empty() || now >= deadline {
+                return running.len();
+            }
+            threads = running;
+            std::thread::sleep((deadline - now).min(Duration::from_millis(5)));
+        }
+    }
+}
+
 impl Drop for Pool {
     fn drop(&mut self) {
         self.shutdown();
@@ -171,7 +195,7 @@ fn worker(shared: &Shared) {
                 s = shared.ready.wait(s).unwrap_or_else(|p| p.into_inner());
             }
         };
-        let start = std::time::Instant::now();
+        let start = Instant::now();
         // A panic in one render must not take a worker away for good.
         let deliver = std::panic::catch_unwind(std::panic::AssertUnwindSafe(job));
         {
@@ -256,6 +280,25 @@ mod tests {
         pool.shutdown();
         assert_eq!(*done.lock().unwrap(), 3);
         assert_eq!(pool.stats().completed, 4);
+    }
+
+    #[test]
+    fn shutdown_until_leaves_a_busy_worker_behind_at_the_deadline() {
+        let pool = Pool::new(2, 0).unwrap();
+        let (started_tx, started) = mpsc::channel();
+        let (job, gate) = gated(started_tx);
+        pool.try_submit(job).unwrap();
+        started.recv().unwrap();
+        let t = Instant::now();
+        assert_eq!(pool.shutdown_until(t + Duration::from_millis(50)), 1);
+        assert!(t.elapsed() < Duration::from_secs(5));
+        assert_eq!(
+            pool.try_submit(Box::new(|| Box::new(|| {}))),
+            Err(Refused::Closed)
+        );
+        // The left worker still finishes its job; dropping the pool does not wait for it.
+        gate.send(()).unwrap();
+        drop(pool);
     }
 
     #[test]

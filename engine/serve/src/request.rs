@@ -17,6 +17,19 @@ use talkin_human::camera::{Camera, MAX_SIDE};
 /// a pose (radians, coefficients in a few units, metres) and would only overflow f32.
 pub const PARAM_LIMIT: f64 = 1e3;
 
+/// Farthest a request camera's centre may be from the world origin (metres). The figure
+/// stands within a few metres of it: a camera beyond sees nothing and, far enough out,
+/// overflows the renderer's f32 rays.
+pub const CAMERA_DISTANCE_LIMIT: f64 = 1e3;
+/// Focal lengths (`fx`, `fy`) a request camera may have, in pixels (also after `width` and
+/// `height` rescale it). Below, the view is wider than a half-space; above, a pixel covers
+/// less than a micro-radian.
+pub const FOCAL_RANGE_PX: std::ops::RangeInclusive<f64> = 0.1..=1e6;
+/// Largest magnitude of K's skew, in pixels.
+pub const SKEW_LIMIT_PX: f64 = 1e6;
+/// How far, in image sizes, the principal point may lie beyond the image's edges.
+pub const PRINCIPAL_POINT_MARGIN: f64 = 1.0;
+
 /// How a frame comes back.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Format {
@@ -232,8 +245,8 @@ fn camera(
         }
     };
     let (base, path) = match obj.get("camera").filter(|v| !v.is_null()) {
-        Some(v) => (
-            parse_camera(v, "camera").map_err(|e| match e {
+        Some(v) => {
+            let camera = parse_camera(v, "camera").map_err(|e| match e {
                 Ok(degenerate) => RequestError::invalid(
                     format!("camera.{}", degenerate.field),
                     format!(
@@ -242,13 +255,19 @@ fn camera(
                     ),
                 ),
                 Err(shape) => shape.into(),
-            })?,
-            "camera.width",
-        ),
+            })?;
+            sensible_view(&camera, "camera.extrinsics")?;
+            sensible_intrinsics(&camera, "camera.intrinsics")?;
+            (camera, "camera.width")
+        }
         None => (subject.default_camera, "width"),
     };
     let (field, camera) = match size {
-        Some((w, h)) => ("width", resized(&base, w, h)?),
+        Some((w, h)) => {
+            let camera = resized(&base, w, h)?;
+            sensible_intrinsics(&camera, "width")?;
+            ("width", camera)
+        }
         None => (path, base),
     };
     let pixels = u64::from(camera.width) * u64::from(camera.height);
@@ -262,6 +281,49 @@ fn camera(
         ));
     }
     Ok(camera)
+}
+
+/// Refuses a camera centre beyond [`CAMERA_DISTANCE_LIMIT`] (`field` is the extrinsics').
+fn sensible_view(camera: &Camera, field: &str) -> Result<(), RequestError> {
+    let distance = camera.center_in_world().length();
+    if distance.is_nan() || distance > CAMERA_DISTANCE_LIMIT {
+        return Err(RequestError::invalid(
+            field,
+            format!(
+                "field `{field}`: the camera centre is {distance:.3e} m from the origin, beyond \
+                 the {CAMERA_DISTANCE_LIMIT} m a camera may be"
+            ),
+        ));
+    }
+    Ok(())
+}
+
+/// Refuses focal lengths outside [`FOCAL_RANGE_PX`], a skew beyond [`SKEW_LIMIT_PX`] and a
+/// principal point more than [`PRINCIPAL_POINT_MARGIN`] image sizes outside the image.
+fn sensible_intrinsics(camera: &Camera, field: &str) -> Result<(), RequestError> {
+    let [[fx, skew, cx], [_, fy, cy], _] = camera.intrinsics_rows();
+    let (w, h) = (f64::from(camera.width), f64::from(camera.height));
+    let m = PRINCIPAL_POINT_MARGIN;
+    let problem = if !(FOCAL_RANGE_PX.contains(&fx) && FOCAL_RANGE_PX.contains(&fy)) {
+        format!(
+            "focal lengths fx={fx}, fy={fy} px are outside {}..={} px",
+            FOCAL_RANGE_PX.start(),
+            FOCAL_RANGE_PX.end()
+        )
+    } else if skew.is_nan() || skew.abs() > SKEW_LIMIT_PX {
+        format!("skew {skew} px is beyond {SKEW_LIMIT_PX} px")
+    } else if !((-m * w..=(1.0 + m) * w).contains(&cx) && (-m * h..=(1.0 + m) * h).contains(&cy)) {
+        format!(
+            "principal point ({cx}, {cy}) is more than {m} image size outside the {}x{} image",
+            camera.width, camera.height
+        )
+    } else {
+        return Ok(());
+    };
+    Err(RequestError::invalid(
+        field,
+        format!("field `{field}`: {problem}"),
+    ))
 }
 
 /// The same view at another resolution: K scaled per axis.

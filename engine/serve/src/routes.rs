@@ -7,7 +7,7 @@ use std::time::{Duration, Instant};
 use axum::Router;
 use axum::body::{Body, Bytes};
 use axum::extract::State;
-use axum::http::{HeaderMap, HeaderValue, StatusCode, header};
+use axum::http::{HeaderMap, HeaderValue, Method, StatusCode, Uri, header};
 use axum::response::{Html, IntoResponse, Response};
 use axum::routing::{get, post};
 use serde_json::{Value, json};
@@ -32,6 +32,7 @@ pub(super) fn router(app: Arc<App>) -> Router {
         .route("/render", post(render))
         .route("/render/sequence", post(sequence))
         .fallback(not_found)
+        .method_not_allowed_fallback(method_not_allowed)
         .with_state(app)
 }
 
@@ -48,8 +49,22 @@ async fn not_found() -> RequestError {
     }
 }
 
+/// axum adds the `Allow` header to this answer.
+async fn method_not_allowed(method: Method, uri: Uri) -> RequestError {
+    RequestError::MethodNotAllowed {
+        method: method.to_string(),
+        path: uri.path().to_string(),
+    }
+}
+
 async fn health(State(app): State<Arc<App>>) -> Response {
-    json_body(&json!({ "status": "ok", "pool": app.pool.stats() }))
+    let max = app.config.max_connections;
+    let open = max.saturating_sub(app.connections.available_permits());
+    json_body(&json!({
+        "status": "ok",
+        "pool": app.pool.stats(),
+        "connections": {"open": open, "max": max},
+    }))
 }
 
 async fn subjects(State(app): State<Arc<App>>) -> Response {
@@ -80,6 +95,10 @@ async fn subjects(State(app): State<Arc<App>>) -> Response {
             "max_body_bytes": c.max_body_bytes,
             "max_sequence_frames": c.max_sequence_frames,
             "render_timeout_s": c.render_timeout.as_secs_f64(),
+            "body_timeout_s": c.body_timeout.as_secs_f64(),
+            "header_timeout_s": c.header_timeout.as_secs_f64(),
+            "idle_timeout_s": c.idle_timeout.as_secs_f64(),
+            "max_connections": c.max_connections,
         },
         "formats": ["png", "raw"],
     }))
@@ -90,7 +109,7 @@ async fn render(State(app): State<Arc<App>>, headers: HeaderMap, body: Body) -> 
         let bytes = read_body(&app, &headers, body).await?;
         let req = request::parse_render(&bytes, &app.subjects, &app.config)?;
         let worker_app = app.clone();
-        let encoded = on_pool(&app, app.config.render_timeout, move |_deadline| {
+        let encoded = on_pool(&app, app.config.render_timeout, move |_| {
             let frame = worker_app
                 .avatar
                 .render(req.subject, &req.params, &req.camera, None)?;
@@ -125,10 +144,11 @@ async fn sequence(State(app): State<Arc<App>>, headers: HeaderMap, body: Body) -
         let n = req.frames.len();
         let timeout = app.config.render_timeout * n as u32;
         let worker_app = app.clone();
-        on_pool(&app, timeout, move |deadline| {
+        on_pool(&app, timeout, move |job| {
             let mut pngs = Vec::with_capacity(n);
             for (i, params) in req.frames.iter().enumerate() {
-                if Instant::now() > deadline {
+                // A client that is gone (or was dropped at shutdown) gets no more frames.
+                if Instant::now() > job.deadline || (job.client_gone)() {
                     return Err(RequestError::Timeout {
                         seconds: timeout.as_secs_f64(),
                     });
@@ -211,13 +231,21 @@ async fn read_body(app: &App, headers: &HeaderMap, body: Body) -> Result<Bytes, 
     }
 }
 
+/// What a job on the pool may ask while it runs.
+struct JobClock<'a> {
+    deadline: Instant,
+    /// True once nobody waits for the result (the client disconnected, was answered 504,
+    /// or was dropped at shutdown).
+    client_gone: &'a dyn Fn() -> bool,
+}
+
 /// Runs `work` on a render thread, refusing at once if the pool is full and answering 504
-/// after `timeout`. `work` gets its deadline; a job whose client has given up by the time
-/// a worker reaches it is skipped.
+/// after `timeout`. A job whose client has given up by the time a worker reaches it is
+/// skipped; a longer job can ask its [`JobClock`].
 async fn on_pool<T: Send + 'static>(
     app: &App,
     timeout: Duration,
-    work: impl FnOnce(Instant) -> Result<T, RequestError> + Send + 'static,
+    work: impl FnOnce(&JobClock) -> Result<T, RequestError> + Send + 'static,
 ) -> Result<T, RequestError> {
     let (tx, rx) = oneshot::channel();
     let deadline = Instant::now() + timeout;
@@ -225,7 +253,10 @@ async fn on_pool<T: Send + 'static>(
         if tx.is_closed() {
             return Box::new(|| {});
         }
-        let result = work(deadline);
+        let result = work(&JobClock {
+            deadline,
+            client_gone: &|| tx.is_closed(),
+        });
         Box::new(move || {
             let _ = tx.send(result);
         })
