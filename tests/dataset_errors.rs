@@ -463,15 +463,15 @@ fn progress_is_a_log_line_off_a_terminal_and_quiet_hides_it() {
             .output()
             .unwrap()
     };
+    // (The tiny dataset's joints miss its masks, so inspect exits 1 either way.)
     let loud = run(&["inspect"]);
     let stderr = String::from_utf8_lossy(&loud.stderr);
-    assert_eq!(loud.status.code(), Some(0), "{stderr}");
     assert!(
         stderr.contains("decoding: ") && stderr.contains(" frames ("),
         "{stderr}"
     );
     let quiet = run(&["-q", "inspect"]);
     let stderr = String::from_utf8_lossy(&quiet.stderr);
-    assert_eq!(quiet.status.code(), Some(0), "{stderr}");
+    assert_eq!(quiet.status.code(), loud.status.code(), "{stderr}");
     assert!(!stderr.contains("decoding"), "{stderr}");
 }

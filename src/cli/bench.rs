@@ -196,11 +196,11 @@ fn serve_bench(args: ServeBenchArgs) -> anyhow::Result<()> {
         "--clients and --requests must be positive"
     );
     let mut config = args.limits.config()?;
-    // Every client's request waits instead of being refused: the bench measures latency
-    // under load, not the 503 path.
-    config.queue = config
-        .queue
-        .max(args.clients.iter().copied().max().unwrap_or(1));
+    // Every client's request waits and every client connects instead of being refused:
+    // the bench measures latency under load, not the 503 paths.
+    let most_clients = args.clients.iter().copied().max().unwrap_or(1);
+    config.queue = config.queue.max(most_clients);
+    config.max_connections = config.max_connections.max(most_clients);
     let image = args
         .image
         .clone()

@@ -85,7 +85,15 @@ pub fn plot_psnr_vs_seconds(curves: &[Curve], targets: &[f64]) -> Result<RgbImag
             .y_desc("PSNR (dB)")
             .label_style(("sans-serif", 14))
             .axis_desc_style(("sans-serif", 15))
-            .light_line_style(RGBColor(235, 235, 235))
+            .light_line_style(RGBColor(244, 244, 244))
+            .x_label_formatter(&|x| {
+                if *x >= 1.0 {
+                    format!("{x:.0}")
+                } else {
+                    format!("{x}")
+                }
+            })
+            .y_label_formatter(&|y| format!("{y:.0}"))
             .draw()
             .map_err(e)?;
         let grey = RGBColor(TARGET_COLOUR[0], TARGET_COLOUR[1], TARGET_COLOUR[2]);
