@@ -11,6 +11,7 @@ pub mod array;
 pub mod atomic;
 pub mod dataset;
 pub mod draw;
+pub mod import;
 pub mod inspect;
 pub mod json_shape;
 pub mod motion;
