@@ -8,7 +8,7 @@ mod common;
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
-use std::sync::{Arc, OnceLock};
+use std::sync::OnceLock;
 
 use glam::{DMat3, DVec2, DVec3};
 use talkin::data::array::{ArrayData, NdArray};
@@ -119,7 +119,11 @@ fn write_model(file: &Path, rest: &[DVec3; N_JOINTS]) {
             .wrapping_add(1442695040888963407);
         ((seed >> 11) as f64 / (1u64 << 53) as f64) - 0.5
     };
-    let shapedirs: Vec<f64> = (0..N_JOINTS * 3 * S).map(|_| 0.02 * rnd()).collect();
+    // Expression columns (10..20) are zero: SMPLer-X's expressions then leave the joints
+    // where the scene has them.
+    let shapedirs: Vec<f64> = (0..N_JOINTS * 3 * S)
+        .map(|i| if i % S < 10 { 0.02 * rnd() } else { 0.0 })
+        .collect();
     let mut v_template = Vec::with_capacity(N_JOINTS * 3);
     for (j, r) in rest.iter().enumerate() {
         for k in 0..3 {
@@ -357,19 +361,227 @@ fn humannerf_prepared_wild_centred_joints_give_the_same_bodies() {
     check_frames(&got, 0..22, false, 0.5);
 }
 
-#[allow(dead_code)]
 fn camera_rotation(c: &Camera) -> DMat3 {
     c.camera_from_world.matrix3.into()
 }
 
-#[allow(dead_code)]
+/// A frame's root rotation seen from its camera.
 fn root_in_camera(f: &Frame) -> DVec3 {
     axis_angle_from_rotation(
         camera_rotation(&f.camera) * rotation_from_axis_angle(f.params.global_orient),
     )
 }
 
-#[allow(dead_code)]
-fn shared(v: Value) -> Arc<Value> {
-    Arc::new(v)
+// ---------------------------------------------------------------------------------------
+// SMPLer-X
+
+fn npz_f32(w: &mut NpzWriter, key: &str, shape: &[usize], v: Vec<f64>) {
+    w.array(
+        key,
+        &NdArray::f32(shape, v.iter().map(|&x| x as f32).collect()).unwrap(),
+    )
+    .unwrap();
+}
+
+fn flat(v: &[DVec3]) -> Vec<f64> {
+    v.iter().flat_map(|x| x.to_array()).collect()
+}
+
+struct SmplerxFixture {
+    results: PathBuf,
+    images: PathBuf,
+    masks: PathBuf,
+    model: PathBuf,
+}
+
+/// Writes the scene as SMPLer-X's demo leaves it: `%06d.jpg` frames from 1, one
+/// `smplx/{frame:05}_{id}.npz` and `meta/...json` per person in its virtual crop camera
+/// (plus a smaller second person in frame 1), a last frame without a detection, and
+/// masks from a "matting tool".
+fn write_smplerx(name: &str) -> SmplerxFixture {
+    let dir = common::temp_dir(name);
+    let results = dir.join("results");
+    let (images, masks) = (dir.join("images"), dir.join("masks"));
+    for d in [
+        results.join("smplx"),
+        results.join("meta"),
+        images.clone(),
+        masks.clone(),
+    ] {
+        std::fs::create_dir_all(d).unwrap();
+    }
+    let model = dir.join("SMPLX_NEUTRAL.npz");
+    write_model(&model, &rest());
+    let s = rest();
+    let skeleton = &scene().subjects[0].skeleton;
+    let frames = scene_frames();
+    for (i, f) in frames.iter().enumerate() {
+        let n = i + 1;
+        let rgb = image::open(scene().root.join(&f.image)).unwrap().to_rgb8();
+        rgb.save(images.join(format!("{n:06}.jpg"))).unwrap();
+        std::fs::copy(
+            scene().root.join(&f.mask),
+            masks.join(format!("{n:06}.png")),
+        )
+        .unwrap();
+        // The body in the camera frame, as SMPLer-X predicts it.
+        let re = camera_rotation(&f.camera);
+        let te = f.camera.camera_from_world.translation;
+        let mut cam = f.params.clone();
+        cam.global_orient = root_in_camera(f);
+        cam.transl = re * (s[0] + f.params.transl) + te - s[0];
+        let posed = skeleton.pose(&f.params).joints();
+        let truth: Vec<DVec2> = posed
+            .iter()
+            .map(|p| f.camera.project(*p).unwrap().truncate() - DVec2::splat(0.5))
+            .collect();
+        // process_bbox: the joints' box, widened to 3:4 and enlarged 1.25x.
+        let (lo, hi) = truth
+            .iter()
+            .fold((DVec2::splat(1e9), DVec2::splat(-1e9)), |(a, b), p| {
+                (a.min(*p), b.max(*p))
+            });
+        let c = (lo + hi) / 2.0;
+        let (mut bw, mut bh) = (hi.x - lo.x, hi.y - lo.y);
+        if bw > 0.75 * bh {
+            bh = bw / 0.75;
+        } else {
+            bw = bh * 0.75;
+        }
+        let (bw, bh) = (bw * 1.25, bh * 1.25);
+        let bbox = [c.x - bw / 2.0, c.y - bh / 2.0, bw, bh];
+        let kv = [
+            [5000.0 / 192.0 * bw, 0.0, c.x],
+            [0.0, 5000.0 / 256.0 * bh, c.y],
+            [0.0, 0.0, 1.0],
+        ];
+        // The network's transl: the joints land where the true camera shows them.
+        let mut at_zero = cam.clone();
+        at_zero.transl = DVec3::ZERO;
+        let pts = skeleton.pose(&at_zero).joints();
+        let (tv, _) =
+            talkin::data::import::smplerx::solve_translation(&kv, &pts, &truth, cam.transl);
+        let people: &[(usize, f64)] = if i == 0 {
+            &[(0, 1.0), (1, 0.5)]
+        } else {
+            &[(0, 1.0)]
+        };
+        for &(id, shrink) in people {
+            let stem = format!("{n:05}_{id}");
+            let (ml, mr) = (hands_mean(1.0), hands_mean(-1.0));
+            let mut w = NpzWriter::create(results.join(format!("smplx/{stem}.npz"))).unwrap();
+            npz_f32(
+                &mut w,
+                "global_orient",
+                &[1, 3],
+                cam.global_orient.to_array().to_vec(),
+            );
+            npz_f32(&mut w, "body_pose", &[21, 3], flat(&cam.body_pose));
+            let rel = |h: &[DVec3], m: &[f64]| -> Vec<f64> {
+                flat(h).iter().zip(m).map(|(a, b)| a - b).collect()
+            };
+            npz_f32(
+                &mut w,
+                "left_hand_pose",
+                &[15, 3],
+                rel(&cam.left_hand_pose, &ml),
+            );
+            npz_f32(
+                &mut w,
+                "right_hand_pose",
+                &[15, 3],
+                rel(&cam.right_hand_pose, &mr),
+            );
+            npz_f32(
+                &mut w,
+                "jaw_pose",
+                &[1, 3],
+                cam.jaw_pose.to_array().to_vec(),
+            );
+            w.array(
+                "leye_pose",
+                &NdArray::f64(&[1, 3], cam.leye_pose.to_array().to_vec()).unwrap(),
+            )
+            .unwrap();
+            w.array(
+                "reye_pose",
+                &NdArray::f64(&[1, 3], cam.reye_pose.to_array().to_vec()).unwrap(),
+            )
+            .unwrap();
+            npz_f32(&mut w, "betas", &[1, 10], BETAS.to_vec());
+            npz_f32(&mut w, "expression", &[1, 10], cam.expression.to_vec());
+            npz_f32(
+                &mut w,
+                "transl",
+                &[1, 3],
+                (tv * (2.0 - shrink)).to_array().to_vec(),
+            );
+            w.finish().unwrap();
+            let b = [bbox[0], bbox[1], bbox[2] * shrink, bbox[3] * shrink];
+            let meta = serde_json::json!({
+                "focal": [kv[0][0] * shrink, kv[1][1] * shrink],
+                "princpt": [kv[0][2], kv[1][2]],
+                "bbox": b,
+                "bbox_mmdet": b,
+                "bbox_id": id,
+                "img_path": format!("../demo/images/clip/{n:06}.jpg"),
+            });
+            std::fs::write(
+                results.join(format!("meta/{stem}.json")),
+                serde_json::to_string_pretty(&meta).unwrap(),
+            )
+            .unwrap();
+        }
+    }
+    // A last frame where the detector found nobody: no npz, no json.
+    let n = frames.len() + 1;
+    std::fs::copy(
+        images.join("000001.jpg"),
+        images.join(format!("{n:06}.jpg")),
+    )
+    .unwrap();
+    std::fs::copy(masks.join("000001.png"), masks.join(format!("{n:06}.png"))).unwrap();
+    SmplerxFixture {
+        results,
+        images,
+        masks,
+        model,
+    }
+}
+
+fn smplerx_args<'a>(fx: &'a SmplerxFixture, out: &'a Path, focal: &'a str) -> Vec<&'a str> {
+    vec![
+        "import",
+        "smplerx",
+        p(&fx.results),
+        "--out",
+        p(out),
+        "--images",
+        p(&fx.images),
+        "--masks",
+        p(&fx.masks),
+        "--body-model",
+        p(&fx.model),
+        "--focal",
+        focal,
+        "--fps",
+        "25",
+    ]
+}
+
+#[test]
+fn smplerx_brings_back_poses_joints_and_one_real_camera() {
+    let fx = write_smplerx("import_smplerx");
+    let out = common::temp_dir("import_smplerx_out").join("ds");
+    let focal = format!("{}", scene_frames()[0].camera.intrinsics_rows()[0][0]);
+    let got = import_ok(&smplerx_args(&fx, &out, &focal));
+    assert_joints(&got.subjects[0].skeleton.rest_joints, &rest(), 1e-5);
+    check_frames(&got, 0..N_JOINTS, true, 1.5);
+    for (i, (g, w)) in got.frames.iter().zip(scene_frames()).enumerate() {
+        // The world is the camera frame: the root rotation as the scene's camera sees it.
+        assert!((g.params.global_orient - root_in_camera(w)).length() < 1e-5);
+        assert!((g.time - i as f64 / 25.0).abs() < 1e-9);
+    }
+    let report = std::fs::read_to_string(out.join("import.json")).unwrap();
+    assert!(report.contains("no person"), "{report}");
 }
