@@ -585,3 +585,177 @@ fn smplerx_brings_back_poses_joints_and_one_real_camera() {
     let report = std::fs::read_to_string(out.join("import.json")).unwrap();
     assert!(report.contains("no person"), "{report}");
 }
+
+// ---------------------------------------------------------------------------------------
+// HumanNeRF, wild-video input
+
+/// Writes the scene as HumanNeRF's wild-video input: SMPL without translation, which the
+/// extrinsics carry instead.
+fn write_humannerf_wild(name: &str) -> (PathBuf, PathBuf) {
+    let dir = common::temp_dir(name);
+    for d in ["images", "masks"] {
+        std::fs::create_dir_all(dir.join(d)).unwrap();
+    }
+    let mut meta = serde_json::Map::new();
+    for (i, f) in scene_frames().into_iter().enumerate() {
+        let stem = format!("{i:06}");
+        std::fs::copy(
+            scene().root.join(&f.image),
+            dir.join(format!("images/{stem}.png")),
+        )
+        .unwrap();
+        std::fs::copy(
+            scene().root.join(&f.mask),
+            dir.join(format!("masks/{stem}.png")),
+        )
+        .unwrap();
+        let mut e = f.camera.extrinsics_rows();
+        let t = camera_rotation(&f.camera) * f.params.transl;
+        for r in 0..3 {
+            e[r][3] += t[r];
+        }
+        meta.insert(
+            stem,
+            serde_json::json!({
+                "poses": smpl72(&f.params, f.params.global_orient),
+                "betas": BETAS,
+                "cam_intrinsics": opencv_k(&f.camera),
+                "cam_extrinsics": e,
+            }),
+        );
+    }
+    std::fs::write(
+        dir.join("metadata.json"),
+        serde_json::to_string_pretty(&meta).unwrap(),
+    )
+    .unwrap();
+    let model = dir.join("SMPLX_NEUTRAL.npz");
+    write_model(&model, &rest());
+    (dir, model)
+}
+
+#[test]
+fn humannerf_wild_metadata_brings_back_poses_joints_and_cameras() {
+    let (src, model) = write_humannerf_wild("import_hn_meta");
+    let out = common::temp_dir("import_hn_meta_out").join("ds");
+    let got = import_ok(&[
+        "import",
+        "humannerf",
+        p(&src),
+        "--out",
+        p(&out),
+        "--body-model",
+        p(&model),
+    ]);
+    assert_joints(&got.subjects[0].skeleton.rest_joints, &rest(), 1e-5);
+    check_frames(&got, 0..22, false, 0.5);
+    for (g, w) in got.frames.iter().zip(scene_frames()) {
+        assert!((g.params.global_orient - w.params.global_orient).length() < 1e-5);
+    }
+}
+
+// ---------------------------------------------------------------------------------------
+// PeopleSnapshot (InstantAvatar)
+
+fn npz_scalar(w: &mut NpzWriter, key: &str, v: i64) {
+    w.array(key, &NdArray::new(vec![], ArrayData::I64(vec![v])).unwrap())
+        .unwrap();
+}
+
+/// Writes the scene as InstantAvatar's processed PeopleSnapshot: train, val and test
+/// poses of consecutive frames, 0/1 uint8 masks as .npy.
+fn write_peoplesnapshot(name: &str) -> (PathBuf, PathBuf) {
+    let dir = common::temp_dir(name);
+    for d in ["images", "masks", "poses"] {
+        std::fs::create_dir_all(dir.join(d)).unwrap();
+    }
+    let frames = scene_frames();
+    let c = &frames[0].camera;
+    let mut w = NpzWriter::create(dir.join("cameras.npz")).unwrap();
+    w.array(
+        "intrinsic",
+        &NdArray::f64(&[3, 3], rows(opencv_k(c))).unwrap(),
+    )
+    .unwrap()
+    .array(
+        "extrinsic",
+        &NdArray::f64(&[4, 4], rows(c.extrinsics_rows())).unwrap(),
+    )
+    .unwrap();
+    npz_scalar(&mut w, "height", c.height as i64);
+    npz_scalar(&mut w, "width", c.width as i64);
+    w.finish().unwrap();
+    for (i, f) in frames.iter().enumerate() {
+        assert_eq!(f.camera, *c, "one camera per identity");
+        std::fs::copy(
+            scene().root.join(&f.image),
+            dir.join(format!("images/image_{i:04}.png")),
+        )
+        .unwrap();
+        let mask = image::open(scene().root.join(&f.mask)).unwrap().to_luma8();
+        let (mw, mh) = mask.dimensions();
+        let bits: Vec<u8> = mask.pixels().map(|p| u8::from(p[0] >= 128)).collect();
+        let bytes = talkin::data::npz::npy_bytes(
+            &NdArray::new(vec![mh as usize, mw as usize], ArrayData::U8(bits)).unwrap(),
+        )
+        .unwrap();
+        std::fs::write(dir.join(format!("masks/mask_{i:04}.npy")), bytes).unwrap();
+    }
+    let n = frames.len();
+    let splits = [
+        ("train", 0..n - 2),
+        ("val", n - 2..n - 1),
+        ("test", n - 1..n),
+    ];
+    for (split, range) in splits {
+        let fs = &frames[range];
+        let mut w = NpzWriter::create(dir.join(format!("poses/anim_nerf_{split}.npz"))).unwrap();
+        npz_f32(&mut w, "betas", &[1, 10], BETAS.to_vec());
+        npz_f32(
+            &mut w,
+            "global_orient",
+            &[fs.len(), 3],
+            fs.iter()
+                .flat_map(|f| f.params.global_orient.to_array())
+                .collect(),
+        );
+        npz_f32(
+            &mut w,
+            "body_pose",
+            &[fs.len(), 69],
+            fs.iter()
+                .flat_map(|f| smpl72(&f.params, DVec3::ZERO)[3..].to_vec())
+                .collect(),
+        );
+        npz_f32(
+            &mut w,
+            "transl",
+            &[fs.len(), 3],
+            fs.iter().flat_map(|f| f.params.transl.to_array()).collect(),
+        );
+        w.finish().unwrap();
+    }
+    let model = dir.join("SMPLX_NEUTRAL.npz");
+    write_model(&model, &rest());
+    (dir, model)
+}
+
+#[test]
+fn peoplesnapshot_brings_back_poses_joints_cameras_and_splits() {
+    let (src, model) = write_peoplesnapshot("import_ps");
+    let out = common::temp_dir("import_ps_out").join("ds");
+    let got = import_ok(&[
+        "import",
+        "peoplesnapshot",
+        p(&src),
+        "--out",
+        p(&out),
+        "--body-model",
+        p(&model),
+    ]);
+    assert_joints(&got.subjects[0].skeleton.rest_joints, &rest(), 1e-5);
+    check_frames(&got, 0..22, false, 0.5);
+    let n = got.frames.len();
+    let splits: Vec<&str> = got.frames.iter().map(|f| f.split.name()).collect();
+    assert_eq!(&splits[n - 3..], &["train", "test_same", "test_same"]);
+}
