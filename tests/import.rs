@@ -759,3 +759,234 @@ fn peoplesnapshot_brings_back_poses_joints_cameras_and_splits() {
     let splits: Vec<&str> = got.frames.iter().map(|f| f.split.name()).collect();
     assert_eq!(&splits[n - 3..], &["train", "test_same", "test_same"]);
 }
+
+// ---------------------------------------------------------------------------------------
+// Bad input: one clean message naming file, field and shape; nothing left under --out.
+
+/// Rewrites archive `file` with member `key` replaced (or removed when `None`).
+fn patch_npz(file: &Path, key: &str, value: Option<NdArray>) {
+    let mut contents = talkin::data::npz::Npz::open(file)
+        .unwrap()
+        .read_all()
+        .unwrap();
+    match value {
+        Some(v) => contents.arrays.insert(key.into(), v),
+        None => contents.arrays.remove(key),
+    };
+    let mut w = NpzWriter::create(file).unwrap();
+    for (k, v) in &contents.arrays {
+        w.array(k, v).unwrap();
+    }
+    w.finish().unwrap();
+}
+
+/// Rewrites pickle `file` through `edit`.
+fn patch_pickle(file: &Path, edit: impl FnOnce(&mut Vec<(Value, Value)>)) {
+    let bytes = std::fs::read(file).unwrap();
+    let Value::Dict(mut items) = talkin::data::pickle::parse_pickle(&bytes, file).unwrap() else {
+        panic!("not a dict")
+    };
+    edit(&mut items);
+    std::fs::write(file, write_protocol4(&Value::Dict(items))).unwrap();
+}
+
+fn set_member(frame: &mut Value, key: &str, v: Value) {
+    let Value::Dict(items) = frame else { panic!() };
+    for (k, old) in items.iter_mut() {
+        if k.as_str() == Some(key) {
+            *old = v;
+            return;
+        }
+    }
+    items.push((Value::Str(key.into()), v));
+}
+
+fn f32_nd(shape: &[usize], v: Vec<f64>) -> NdArray {
+    NdArray::f32(shape, v.iter().map(|&x| x as f32).collect()).unwrap()
+}
+
+#[test]
+fn damaged_smplerx_inputs_are_named_and_leave_nothing() {
+    let out_root = common::temp_dir("import_bad_smplerx_out");
+    let out = out_root.join("ds");
+    let focal = "100";
+    let case = |name: &str, damage: &dyn Fn(&SmplerxFixture), needles: &[&str]| {
+        let fx = write_smplerx(&format!("import_bad_smplerx_{name}"));
+        damage(&fx);
+        import_fails(&smplerx_args(&fx, &out, focal), &out, needles);
+    };
+    let npz2 = |fx: &SmplerxFixture| fx.results.join("smplx/00002_0.npz");
+    case(
+        "truncated",
+        &|fx| {
+            let bytes = std::fs::read(npz2(fx)).unwrap();
+            std::fs::write(npz2(fx), &bytes[..bytes.len() / 2]).unwrap();
+        },
+        &["00002_0.npz"],
+    );
+    case(
+        "betas",
+        &|fx| patch_npz(&npz2(fx), "betas", Some(f32_nd(&[1, 9], vec![0.0; 9]))),
+        &["00002_0.npz", "betas", "(1, 10)"],
+    );
+    case(
+        "hands",
+        &|fx| {
+            patch_npz(
+                &npz2(fx),
+                "left_hand_pose",
+                Some(f32_nd(&[12, 3], vec![0.0; 36])),
+            )
+        },
+        &["00002_0.npz", "left_hand_pose", "(15, 3)"],
+    );
+    case(
+        "nan",
+        &|fx| {
+            patch_npz(
+                &npz2(fx),
+                "body_pose",
+                Some(f32_nd(&[21, 3], [vec![f64::NAN], vec![0.0; 62]].concat())),
+            )
+        },
+        &["00002_0.npz", "body_pose", "(21, 3)", "NaN"],
+    );
+    case(
+        "inf",
+        &|fx| {
+            patch_npz(
+                &npz2(fx),
+                "transl",
+                Some(f32_nd(&[1, 3], vec![0.0, f64::INFINITY, 3.0])),
+            )
+        },
+        &["00002_0.npz", "transl", "(1, 3)", "inf"],
+    );
+    case(
+        "camera",
+        &|fx| std::fs::remove_file(fx.results.join("meta/00002_0.json")).unwrap(),
+        &["00002_0.json", "missing"],
+    );
+    case(
+        "mask",
+        &|fx| std::fs::remove_file(fx.masks.join("000002.png")).unwrap(),
+        &["000002.png", "missing", "mask"],
+    );
+    case(
+        "image",
+        &|fx| std::fs::remove_file(fx.images.join("000002.jpg")).unwrap(),
+        &["000002.jpg", "missing"],
+    );
+    case(
+        "model",
+        &|fx| patch_npz(&fx.model, "hands_meanl", None),
+        &["SMPLX_NEUTRAL.npz", "hands_meanl", "(45,)"],
+    );
+    // No masks at all: SMPLer-X writes none, so --masks is required.
+    let fx = write_smplerx("import_bad_smplerx_nomasks");
+    let mut args = smplerx_args(&fx, &out, focal);
+    let at = args.iter().position(|a| *a == "--masks").unwrap();
+    args.drain(at..at + 2);
+    import_fails(&args, &out, &["--masks", "matting"]);
+}
+
+#[test]
+fn damaged_humannerf_and_peoplesnapshot_inputs_are_named_and_leave_nothing() {
+    let out = common::temp_dir("import_bad_hn_out").join("ds");
+    let hn = |name: &str| write_humannerf_prepared(&format!("import_bad_hn_{name}"), false, None);
+    let args = |src: &Path| -> Vec<String> {
+        ["import", "humannerf", p(src), "--out", p(&out)]
+            .map(String::from)
+            .to_vec()
+    };
+    let run = |src: &Path, needles: &[&str]| {
+        let a = args(src);
+        let a: Vec<&str> = a.iter().map(String::as_str).collect();
+        import_fails(&a, &out, needles);
+    };
+    // A frame without a camera.
+    let src = hn("nocam");
+    patch_pickle(&src.join("cameras.pkl"), |items| {
+        items.retain(|(k, _)| k.as_str() != Some("frame_000002"))
+    });
+    run(
+        &src,
+        &["cameras.pkl", "frame_000002", "intrinsics", "(3, 3)"],
+    );
+    // Wrong pose length.
+    let src = hn("poses");
+    patch_pickle(&src.join("mesh_infos.pkl"), |items| {
+        set_member(&mut items[1].1, "poses", f32_array(&[69], vec![0.0; 69]))
+    });
+    run(&src, &["mesh_infos.pkl", "poses", "(72,)", "[69]"]);
+    // NaN in a T-pose joint.
+    let src = hn("nan");
+    patch_pickle(&src.join("mesh_infos.pkl"), |items| {
+        set_member(
+            &mut items[0].1,
+            "tpose_joints",
+            f64_array(&[24, 3], [vec![f64::NAN], vec![0.0; 71]].concat()),
+        )
+    });
+    run(&src, &["mesh_infos.pkl", "tpose_joints", "(24, 3)", "NaN"]);
+    // A missing mask, and a truncated pickle.
+    let src = hn("mask");
+    std::fs::remove_file(src.join("masks/frame_000001.png")).unwrap();
+    run(&src, &["frame_000001.png", "missing", "mask"]);
+    let src = hn("truncated");
+    let bytes = std::fs::read(src.join("cameras.pkl")).unwrap();
+    std::fs::write(src.join("cameras.pkl"), &bytes[..bytes.len() - 40]).unwrap();
+    run(&src, &["cameras.pkl"]);
+
+    // PeopleSnapshot: wrong betas, a missing npy mask, a model file without a key.
+    let (src, model) = write_peoplesnapshot("import_bad_ps_betas");
+    patch_npz(
+        &src.join("poses/anim_nerf_train.npz"),
+        "betas",
+        Some(f32_nd(&[1, 8], vec![0.0; 8])),
+    );
+    let ps = |src: &Path, model: &Path, needles: &[&str]| {
+        import_fails(
+            &[
+                "import",
+                "peoplesnapshot",
+                p(src),
+                "--out",
+                p(&out),
+                "--body-model",
+                p(model),
+            ],
+            &out,
+            needles,
+        )
+    };
+    ps(&src, &model, &["anim_nerf_train.npz", "betas", "(1, 10)"]);
+    let (src, model) = write_peoplesnapshot("import_bad_ps_mask");
+    let last = scene_frames().len() - 1;
+    std::fs::remove_file(src.join(format!("masks/mask_{last:04}.npy"))).unwrap();
+    ps(&src, &model, &["masks", "required"]);
+    let (src, model) = write_peoplesnapshot("import_bad_ps_model");
+    patch_npz(&model, "J_regressor", None);
+    ps(
+        &src,
+        &model,
+        &["SMPLX_NEUTRAL.npz", "J_regressor", "(55, 55)"],
+    );
+}
+
+#[test]
+fn a_non_empty_out_is_refused_and_kept() {
+    let src = write_humannerf_prepared("import_out_busy", false, None);
+    let out = common::temp_dir("import_out_busy_out");
+    std::fs::write(out.join("keep.txt"), "mine").unwrap();
+    let o = talkin(&["import", "humannerf", p(&src), "--out", p(&out)]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("not empty"), "{}", stderr(&o));
+    assert_eq!(
+        std::fs::read_to_string(out.join("keep.txt")).unwrap(),
+        "mine"
+    );
+    // An empty directory is fine.
+    std::fs::remove_file(out.join("keep.txt")).unwrap();
+    import_ok(&["import", "humannerf", p(&src), "--out", p(&out)]);
+}

@@ -159,3 +159,21 @@ pub(crate) fn json_numbers(
     }
     Ok(out)
 }
+
+/// Array `key` of an open archive: present, of shape `dims`, finite.
+pub(crate) fn npz_f64(
+    npz: &mut crate::npz::Npz,
+    key: &str,
+    dims: &[Dim],
+) -> Result<(Vec<f64>, Vec<usize>), ImportError> {
+    let file = npz.file().to_path_buf();
+    let a = npz.get(key)?.ok_or_else(|| {
+        ImportError::field(
+            &file,
+            key,
+            format!("missing (expected an array of shape {})", shape_text(dims)),
+        )
+    })?;
+    let v = checked_f64(&a, &file, key, dims)?;
+    Ok((v, a.shape().to_vec()))
+}

@@ -64,15 +64,10 @@ struct Poses {
 fn read_poses(file: &Path) -> Result<Poses, ImportError> {
     let mut npz = Npz::open(file)?;
     let has_thetas = npz.contains("thetas");
-    let mut get = |key: &str, dims: &[Dim]| -> Result<(Vec<f64>, Vec<usize>), ImportError> {
-        let a = npz.read_checked(key, dims)?;
-        let shape = a.shape().to_vec();
-        Ok((super::error::checked_f64(&a, file, key, dims)?, shape))
-    };
-    let (betas, _) = match get("betas", &[Dim::Is(1), Dim::Is(10)]) {
-        Ok(b) => b,
-        Err(ImportError::Npz(crate::npz::NpzError::Shape { .. })) => get("betas", &[Dim::Is(10)])?,
-        Err(e) => return Err(e),
+    let mut get = |key: &str, dims: &[Dim]| super::error::npz_f64(&mut npz, key, dims);
+    let (betas, _) = match npz_shape(file, "betas")? {
+        Some(s) if s.len() == 1 => get("betas", &[Dim::Is(10)])?,
+        _ => get("betas", &[Dim::Is(1), Dim::Is(10)])?,
     };
     let (transl, shape) = get("transl", &[Dim::Any("N"), Dim::Is(3)])?;
     let n = shape[0];
@@ -95,6 +90,11 @@ fn read_poses(file: &Path) -> Result<Poses, ImportError> {
             .map(|c| DVec3::new(c[0], c[1], c[2]))
             .collect(),
     })
+}
+
+/// The shape of array `key` of `file`, if present.
+fn npz_shape(file: &Path, key: &str) -> Result<Option<Vec<usize>>, ImportError> {
+    Ok(Npz::open(file)?.get(key)?.map(|a| a.shape().to_vec()))
 }
 
 fn sorted_files(dir: &Path, ext: &str) -> Result<Vec<PathBuf>, ImportError> {
@@ -121,8 +121,7 @@ pub fn read(opts: &ImportOptions) -> Result<Source, ImportError> {
     let cam_file = opts.src.join("cameras.npz");
     let mut cams = Npz::open(&cam_file)?;
     let mut cam = |key: &str, dims: &[Dim]| -> Result<Vec<f64>, ImportError> {
-        let a = cams.read_checked(key, dims)?;
-        super::error::checked_f64(&a, &cam_file, key, dims)
+        Ok(super::error::npz_f64(&mut cams, key, dims)?.0)
     };
     let k = mat3(&cam("intrinsic", &[Dim::Is(3), Dim::Is(3)])?);
     let e = mat4(&cam("extrinsic", &[Dim::Is(4), Dim::Is(4)])?);

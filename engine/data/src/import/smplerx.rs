@@ -73,6 +73,16 @@ pub fn read(opts: &ImportOptions) -> Result<Source, ImportError> {
             "holds no numbered frames (%06d.jpg)",
         ));
     }
+    let numbers: std::collections::HashSet<u64> = images.iter().map(|i| i.0).collect();
+    if let Some((n, d)) = detections.iter().find(|(n, _)| !numbers.contains(n)) {
+        return Err(ImportError::file(
+            &images_dir.join(format!("{n:06}.jpg")),
+            format!(
+                "missing: {} has a detection for frame {n} but --images has no such frame",
+                d.npz.display()
+            ),
+        ));
+    }
     let fps = opts.fps();
     let mut skipped = Vec::new();
     let mut raws = Vec::new();
@@ -228,8 +238,7 @@ fn read_detection(model: &SmplxModel, d: &Detection) -> Result<Raw, ImportError>
     let mut npz = Npz::open(&d.npz)?;
     let mut read = |key: &str, rows: usize, cols: usize| -> Result<Vec<f64>, ImportError> {
         let dims = [Dim::Is(rows), Dim::Is(cols)];
-        let a = npz.read_checked(key, &dims)?;
-        super::error::checked_f64(&a, &d.npz, key, &dims)
+        Ok(super::error::npz_f64(&mut npz, key, &dims)?.0)
     };
     let v = |x: &[f64], j: usize| DVec3::new(x[3 * j], x[3 * j + 1], x[3 * j + 2]);
     let global = read("global_orient", 1, 3)?;
