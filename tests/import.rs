@@ -13,6 +13,7 @@ use std::sync::OnceLock;
 use glam::{DMat3, DVec2, DVec3};
 use talkin::data::array::{ArrayData, NdArray};
 use talkin::data::dataset::{Dataset, Frame};
+use talkin::data::import::undistort;
 use talkin::data::npz::NpzWriter;
 use talkin::data::pickle::{Value, write_protocol4};
 use talkin::human::body::{
@@ -239,34 +240,74 @@ fn assert_joints(got: &[DVec3], want: &[DVec3], tol: f64) {
 /// Writes the scene as HumanNeRF's prepare scripts do: ZJU's (raw joints, `distortions`)
 /// or the wild script's (pelvis-centred joints). Returns the folder.
 fn write_humannerf_prepared(name: &str, centred: bool, distortion: Option<[f64; 5]>) -> PathBuf {
+    write_humannerf_prepared_from(scene(), &scene_frames(), name, centred, distortion)
+}
+
+fn write_humannerf_prepared_from(
+    ds: &Dataset,
+    frames: &[&Frame],
+    name: &str,
+    centred: bool,
+    distortion: Option<[f64; 5]>,
+) -> PathBuf {
     let dir = common::temp_dir(name);
     for d in ["images", "masks"] {
         std::fs::create_dir_all(dir.join(d)).unwrap();
     }
-    let s = rest();
+    let s = ds.subjects[0].skeleton.rest_joints;
     let s0 = s[0];
     let origin = if centred { s0 } else { DVec3::ZERO };
     let tpose: Vec<f64> = smpl24(&s.map(|j| j - origin));
     let mut cameras = Vec::new();
     let mut meshes = Vec::new();
-    for (i, f) in scene_frames().into_iter().enumerate() {
+    for (i, f) in frames.iter().enumerate() {
         let stem = format!("frame_{i:06}");
-        std::fs::copy(
-            scene().root.join(&f.image),
+        let (image, mask) = (
             dir.join(format!("images/{stem}.png")),
-        )
-        .unwrap();
-        std::fs::copy(
-            scene().root.join(&f.mask),
             dir.join(format!("masks/{stem}.png")),
-        )
-        .unwrap();
+        );
+        match distortion {
+            None => {
+                std::fs::copy(ds.root.join(&f.image), &image).unwrap();
+                std::fs::copy(ds.root.join(&f.mask), &mask).unwrap();
+            }
+            Some(d) => {
+                // What the lens recorded: each stored pixel shows the undistorted scene
+                // where the distortion sends it.
+                let k = opencv_k(&f.camera);
+                let rgb = image::open(ds.root.join(&f.image)).unwrap().to_rgb8();
+                let m = image::open(ds.root.join(&f.mask)).unwrap().to_luma8();
+                let (w, h) = rgb.dimensions();
+                let at = |x: u32, y: u32| {
+                    undistort::undistort_point(&k, &d, DVec2::new(x as f64, y as f64))
+                };
+                image::RgbImage::from_fn(w, h, |x, y| {
+                    let q = at(x, y).round();
+                    let (qx, qy) = (
+                        q.x.clamp(0.0, w as f64 - 1.0),
+                        q.y.clamp(0.0, h as f64 - 1.0),
+                    );
+                    *rgb.get_pixel(qx as u32, qy as u32)
+                })
+                .save(&image)
+                .unwrap();
+                image::GrayImage::from_fn(w, h, |x, y| {
+                    let q = at(x, y).round();
+                    if q.x < 0.0 || q.y < 0.0 || q.x > w as f64 - 1.0 || q.y > h as f64 - 1.0 {
+                        return image::Luma([0]);
+                    }
+                    *m.get_pixel(q.x as u32, q.y as u32)
+                })
+                .save(&mask)
+                .unwrap();
+            }
+        }
         let g = f.params.global_orient;
         let r = rotation_from_axis_angle(g);
         let mut rootless = f.params.clone();
         rootless.global_orient = DVec3::ZERO;
         rootless.transl = DVec3::ZERO;
-        let posed = scene().subjects[0].skeleton.pose(&rootless).joints();
+        let posed = ds.subjects[0].skeleton.pose(&rootless).joints();
         // x_world = R(Rh) x_body + Th; x_body is SMPL without the root (pelvis at S0).
         let th = if centred {
             s0 + f.params.transl
@@ -989,4 +1030,43 @@ fn a_non_empty_out_is_refused_and_kept() {
     // An empty directory is fine.
     std::fs::remove_file(out.join("keep.txt")).unwrap();
     import_ok(&["import", "humannerf", p(&src), "--out", p(&out)]);
+}
+
+#[test]
+fn humannerf_zju_distortion_is_removed_from_images_and_masks() {
+    // Strong enough to move the image corners by about 15% of their radius.
+    let c = &scene_frames()[0].camera;
+    let r2 = (c.width as f64 / 2.0).powi(2) + (c.height as f64 / 2.0).powi(2);
+    let k1 = -0.15 * c.intrinsics_rows()[0][0].powi(2) / r2;
+    let d = [k1, 0.0, 0.002, -0.001, 0.0];
+    let src = write_humannerf_prepared("import_hn_distorted", false, Some(d));
+    let out = common::temp_dir("import_hn_distorted_out").join("ds");
+    let got = import_ok(&["import", "humannerf", p(&src), "--out", p(&out)]);
+    check_frames(&got, 0..22, false, 0.5);
+    let report = std::fs::read_to_string(out.join("import.json")).unwrap();
+    assert!(report.contains("\"undistorted\": true"), "{report}");
+    // The masks come back where the scene has them; the distorted ones are elsewhere.
+    let mismatch = |a: &Path, b: &Path| {
+        let (a, b) = (
+            image::open(a).unwrap().to_luma8(),
+            image::open(b).unwrap().to_luma8(),
+        );
+        let n = a
+            .pixels()
+            .zip(b.pixels())
+            .filter(|(x, y)| (x[0] >= 128) != (y[0] >= 128))
+            .count();
+        n as f64 / (a.width() * a.height()) as f64
+    };
+    for (i, (g, w)) in got.frames.iter().zip(scene_frames()).enumerate() {
+        let back = mismatch(&out.join(&g.mask), &scene().root.join(&w.mask));
+        let stored = mismatch(
+            &src.join(format!("masks/frame_{i:06}.png")),
+            &scene().root.join(&w.mask),
+        );
+        assert!(
+            back < 0.02 && stored > 2.0 * back,
+            "frame {i}: {back} after, {stored} stored"
+        );
+    }
 }
