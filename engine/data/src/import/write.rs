@@ -56,7 +56,7 @@ pub(crate) fn write(
         .frames
         .into_iter()
         .enumerate()
-        .filter(|(i, _)| i % opts.every == 0)
+        .filter(|(i, _)| i.is_multiple_of(opts.every))
         .map(|(_, f)| f)
         .collect();
     if kept.is_empty() {
@@ -69,7 +69,7 @@ pub(crate) fn write(
         None => Some(super::DEFAULT_TEST_EVERY),
     };
     let split_of = |k: usize, f: &SourceFrame| match test_every {
-        Some(n) if n > 0 && (k + 1) % n == 0 => Split::TestSame,
+        Some(n) if n > 0 && (k + 1).is_multiple_of(n) => Split::TestSame,
         Some(_) => Split::Train,
         None => f.split.unwrap_or(Split::Train),
     };
