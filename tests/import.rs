@@ -403,7 +403,7 @@ fn humannerf_prepared_wild_centred_joints_give_the_same_bodies() {
 }
 
 fn camera_rotation(c: &Camera) -> DMat3 {
-    c.camera_from_world.matrix3.into()
+    c.camera_from_world.matrix3
 }
 
 /// A frame's root rotation seen from its camera.
