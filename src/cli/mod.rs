@@ -4,6 +4,7 @@ mod adapt;
 mod bench;
 mod demo;
 mod eval;
+mod import;
 mod inspect;
 mod lpips;
 mod render;
@@ -31,6 +32,8 @@ pub struct Cli {
 enum Command {
     /// Generate the built-in synthetic talking-human dataset.
     Synth(synth::SynthArgs),
+    /// Convert what a fitter wrote (SMPLer-X, HumanNeRF, PeopleSnapshot) into a dataset.
+    Import(import::ImportArgs),
     /// Validate a dataset, print a summary, optionally write a contact sheet and joints.
     Inspect(inspect::InspectArgs),
     /// Benchmarks that report speed next to what it costs.
@@ -56,6 +59,7 @@ enum Command {
 pub fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Synth(a) => synth::run(a),
+        Command::Import(a) => import::run(a),
         Command::Inspect(a) => inspect::run(a),
         Command::Demo(a) => demo::run(a),
         Command::Bench(a) => bench::run(a),

@@ -21,7 +21,21 @@ impl Dataset {
         let file = root.join(INDEX_FILE);
         let text = std::fs::read_to_string(&file).map_err(|source| DatasetError::Io {
             file: file.clone(),
-            source,
+            source: match crate::import::detect_layout(&root) {
+                // A fitter's output rather than a dataset: say how to convert it.
+                Some((format, what)) if source.kind() == std::io::ErrorKind::NotFound => {
+                    std::io::Error::new(
+                        source.kind(),
+                        format!(
+                            "no dataset.json here, but the folder holds {what}: convert it with \
+                             `talkin import {} {} --out DATASET` (see docs/bring-your-own-video.md)",
+                            format.name(),
+                            root.display()
+                        ),
+                    )
+                }
+                _ => source,
+            },
         })?;
         let dataset = Dataset::from_json_str(&text, &root)?;
         dataset.check_image_headers()?;
