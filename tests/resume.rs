@@ -3,8 +3,8 @@
 //!
 //! Its own test binary, so no other trainer runs in the process: two trainers in one
 //! process were seen to perturb each other's results (by ~3e-2 in a render, not
-//! reproducible alone; the device RNG is now locked around every draw, the cause was not
-//! found in this session), which a one-run-per-process CLI never meets.
+//! reproducible alone; the device RNG is locked around every draw, and the cause has not
+//! been found), which a one-run-per-process CLI never meets.
 
 mod common;
 

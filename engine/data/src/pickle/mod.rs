@@ -27,6 +27,8 @@
 //! assert_eq!(k.as_array().unwrap().shape(), &[3, 3]);
 //! ```
 
+mod numpy;
+mod opcodes;
 mod read;
 mod write;
 
