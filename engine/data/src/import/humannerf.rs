@@ -69,6 +69,71 @@ fn v3(x: &[f64]) -> DVec3 {
     DVec3::new(x[0], x[1], x[2])
 }
 
+/// One frame of the prepared layout, as its pickles hold it.
+struct Raw {
+    stem: String,
+    image: std::path::PathBuf,
+    k: Vec<f64>,
+    e: Vec<f64>,
+    d: Option<Vec<f64>>,
+    rh: DVec3,
+    th: DVec3,
+    poses: Vec<f64>,
+    tpose: Vec<f64>,
+}
+
+/// Every frame's camera and body from `cameras.pkl` and `mesh_infos.pkl`.
+fn read_prepared_frames(
+    opts: &ImportOptions,
+    (cam_file, cameras): (&Path, &Value),
+    (mesh_file, meshes): (&Path, &Value),
+) -> Result<Vec<Raw>, ImportError> {
+    let images = frame_images(opts)?;
+    let mut raws = Vec::with_capacity(images.len());
+    for (stem, image) in &images {
+        let cam = lookup(
+            cameras,
+            cam_file,
+            stem,
+            "{'intrinsics': (3, 3), 'extrinsics': (4, 4)}",
+        )?;
+        let mesh = lookup(
+            meshes,
+            mesh_file,
+            stem,
+            "{'Rh': (3,), 'Th': (3,), 'poses': (72,), 'tpose_joints': (24, 3)}",
+        )?;
+        let d = match cam.get("distortions") {
+            None | Some(Value::None) => None,
+            Some(_) => Some(pickle_array(
+                cam,
+                cam_file,
+                stem,
+                "distortions",
+                &[Dim::Is(5)],
+            )?),
+        };
+        raws.push(Raw {
+            stem: stem.clone(),
+            image: image.clone(),
+            k: pickle_array(cam, cam_file, stem, "intrinsics", &[Dim::Is(3), Dim::Is(3)])?,
+            e: pickle_array(cam, cam_file, stem, "extrinsics", &[Dim::Is(4), Dim::Is(4)])?,
+            d,
+            rh: v3(&pickle_array(mesh, mesh_file, stem, "Rh", &[Dim::Is(3)])?),
+            th: v3(&pickle_array(mesh, mesh_file, stem, "Th", &[Dim::Is(3)])?),
+            poses: pickle_array(mesh, mesh_file, stem, "poses", &[Dim::Is(72)])?,
+            tpose: pickle_array(
+                mesh,
+                mesh_file,
+                stem,
+                "tpose_joints",
+                &[Dim::Is(24), Dim::Is(3)],
+            )?,
+        });
+    }
+    Ok(raws)
+}
+
 fn read_prepared(opts: &ImportOptions) -> Result<Source, ImportError> {
     let cam_file = opts.src.join("cameras.pkl");
     let mesh_file = opts.src.join("mesh_infos.pkl");
@@ -82,72 +147,7 @@ fn read_prepared(opts: &ImportOptions) -> Result<Source, ImportError> {
             ));
         }
     }
-    let images = frame_images(opts)?;
-    struct Raw {
-        stem: String,
-        image: std::path::PathBuf,
-        k: Vec<f64>,
-        e: Vec<f64>,
-        d: Option<Vec<f64>>,
-        rh: DVec3,
-        th: DVec3,
-        poses: Vec<f64>,
-        tpose: Vec<f64>,
-    }
-    let mut raws = Vec::with_capacity(images.len());
-    for (stem, image) in &images {
-        let cam = lookup(
-            &cameras,
-            &cam_file,
-            stem,
-            "{'intrinsics': (3, 3), 'extrinsics': (4, 4)}",
-        )?;
-        let mesh = lookup(
-            &meshes,
-            &mesh_file,
-            stem,
-            "{'Rh': (3,), 'Th': (3,), 'poses': (72,), 'tpose_joints': (24, 3)}",
-        )?;
-        let d = match cam.get("distortions") {
-            None | Some(Value::None) => None,
-            Some(_) => Some(pickle_array(
-                cam,
-                &cam_file,
-                stem,
-                "distortions",
-                &[Dim::Is(5)],
-            )?),
-        };
-        raws.push(Raw {
-            stem: stem.clone(),
-            image: image.clone(),
-            k: pickle_array(
-                cam,
-                &cam_file,
-                stem,
-                "intrinsics",
-                &[Dim::Is(3), Dim::Is(3)],
-            )?,
-            e: pickle_array(
-                cam,
-                &cam_file,
-                stem,
-                "extrinsics",
-                &[Dim::Is(4), Dim::Is(4)],
-            )?,
-            d,
-            rh: v3(&pickle_array(mesh, &mesh_file, stem, "Rh", &[Dim::Is(3)])?),
-            th: v3(&pickle_array(mesh, &mesh_file, stem, "Th", &[Dim::Is(3)])?),
-            poses: pickle_array(mesh, &mesh_file, stem, "poses", &[Dim::Is(72)])?,
-            tpose: pickle_array(
-                mesh,
-                &mesh_file,
-                stem,
-                "tpose_joints",
-                &[Dim::Is(24), Dim::Is(3)],
-            )?,
-        });
-    }
+    let raws = read_prepared_frames(opts, (&cam_file, &cameras), (&mesh_file, &meshes))?;
     // One skeleton per subject: the mean of the frames' T-pose joints (one body shape in
     // practice; the wild script recomputes them per frame).
     let body: [DVec3; N_BODY_JOINTS] = std::array::from_fn(|j| {

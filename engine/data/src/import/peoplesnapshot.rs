@@ -112,27 +112,21 @@ fn sorted_files(dir: &Path, ext: &str) -> Result<Vec<PathBuf>, ImportError> {
     Ok(out)
 }
 
-pub fn read(opts: &ImportOptions) -> Result<Source, ImportError> {
-    let model = load_model(opts)?.ok_or_else(|| {
-        ImportError::Usage(
-            "peoplesnapshot gives betas, not joints: --body-model SMPLX_NEUTRAL.npz is required to build the rest joints".into(),
-        )
-    })?;
-    let cam_file = opts.src.join("cameras.npz");
-    let mut cams = Npz::open(&cam_file)?;
-    let mut cam = |key: &str, dims: &[Dim]| -> Result<Vec<f64>, ImportError> {
-        Ok(super::error::npz_f64(&mut cams, key, dims)?.0)
-    };
-    let k = mat3(&cam("intrinsic", &[Dim::Is(3), Dim::Is(3)])?);
-    let e = mat4(&cam("extrinsic", &[Dim::Is(4), Dim::Is(4)])?);
-    let images = sorted_files(
-        &opts.images.clone().unwrap_or(opts.src.join("images")),
-        "png",
-    )?;
-    let masks = match opts.masks {
-        Some(_) => Vec::new(),
-        None => sorted_files(&opts.src.join("masks"), "npy")?,
-    };
+/// A frame to import: (image index, split, pose set, row in the set).
+type Row = (usize, Option<Split>, usize, usize);
+
+/// What [`split_rows`] finds.
+struct SplitRows {
+    sets: Vec<Poses>,
+    rows: Vec<Row>,
+    notes: Vec<String>,
+    skipped: Vec<Skipped>,
+}
+
+/// The pose sets and which image each row belongs to: InstantAvatar's train, val and
+/// test files with its ranges (or consecutive), else a single `poses.npz`; sorted by
+/// image. Also the notes and the frames skipped.
+fn split_rows(opts: &ImportOptions) -> Result<SplitRows, ImportError> {
     let poses_dir = opts.src.join("poses");
     let split_files: Vec<(Split, PathBuf)> = [
         (Split::Train, "train"),
@@ -145,7 +139,7 @@ pub fn read(opts: &ImportOptions) -> Result<Source, ImportError> {
     let mut notes = Vec::new();
     let mut skipped = Vec::new();
     // (image index, split, poses row).
-    let mut rows: Vec<(usize, Option<Split>, usize, usize)> = Vec::new();
+    let mut rows: Vec<Row> = Vec::new();
     let mut sets: Vec<Poses> = Vec::new();
     if split_files.iter().all(|(_, f)| f.is_file()) {
         for (_, f) in &split_files {
@@ -211,6 +205,41 @@ pub fn read(opts: &ImportOptions) -> Result<Source, ImportError> {
         sets.push(set);
     }
     rows.sort_by_key(|r| r.0);
+    Ok(SplitRows {
+        sets,
+        rows,
+        notes,
+        skipped,
+    })
+}
+
+pub fn read(opts: &ImportOptions) -> Result<Source, ImportError> {
+    let model = load_model(opts)?.ok_or_else(|| {
+        ImportError::Usage(
+            "peoplesnapshot gives betas, not joints: --body-model SMPLX_NEUTRAL.npz is required to build the rest joints".into(),
+        )
+    })?;
+    let cam_file = opts.src.join("cameras.npz");
+    let mut cams = Npz::open(&cam_file)?;
+    let mut cam = |key: &str, dims: &[Dim]| -> Result<Vec<f64>, ImportError> {
+        Ok(super::error::npz_f64(&mut cams, key, dims)?.0)
+    };
+    let k = mat3(&cam("intrinsic", &[Dim::Is(3), Dim::Is(3)])?);
+    let e = mat4(&cam("extrinsic", &[Dim::Is(4), Dim::Is(4)])?);
+    let images = sorted_files(
+        &opts.images.clone().unwrap_or(opts.src.join("images")),
+        "png",
+    )?;
+    let masks = match opts.masks {
+        Some(_) => Vec::new(),
+        None => sorted_files(&opts.src.join("masks"), "npy")?,
+    };
+    let SplitRows {
+        sets,
+        rows,
+        mut notes,
+        skipped,
+    } = split_rows(opts)?;
     let betas = &sets[0].betas;
     let rest_joints = model.rest_joints(betas)?;
     let fps = opts.fps();

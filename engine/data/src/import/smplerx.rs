@@ -37,7 +37,8 @@ struct Detection {
     area: f64,
 }
 
-pub fn read(opts: &ImportOptions) -> Result<Source, ImportError> {
+/// The model file, the frames and the masks SMPLer-X's results need beside them.
+fn required_inputs(opts: &ImportOptions) -> Result<(SmplxModel, &Path), ImportError> {
     let model = load_model(opts)?.ok_or_else(|| {
         ImportError::Usage(
             "smplerx needs --body-model SMPLX_NEUTRAL.npz: the rest joints come from its betas and its hands are relative to the model's mean hand".into(),
@@ -51,6 +52,11 @@ pub fn read(opts: &ImportOptions) -> Result<Source, ImportError> {
             "smplerx needs --masks DIR: SMPLer-X writes no masks; give one 8-bit PNG per frame from a matting tool (same stem as the frame)".into(),
         ));
     }
+    Ok((model, images_dir))
+}
+
+pub fn read(opts: &ImportOptions) -> Result<Source, ImportError> {
+    let (model, images_dir) = required_inputs(opts)?;
     let smplx_dir = opts.src.join("smplx");
     let meta_dir = opts.src.join("meta");
     for d in [&smplx_dir, &meta_dir] {
@@ -62,27 +68,7 @@ pub fn read(opts: &ImportOptions) -> Result<Source, ImportError> {
         }
     }
     let detections = detections(&smplx_dir, &meta_dir)?;
-    let mut images: Vec<(u64, String, PathBuf)> = super::images_by_stem(images_dir)?
-        .into_iter()
-        .filter_map(|(stem, path)| stem.parse::<u64>().ok().map(|n| (n, stem, path)))
-        .collect();
-    images.sort();
-    if images.is_empty() {
-        return Err(ImportError::file(
-            images_dir,
-            "holds no numbered frames (%06d.jpg)",
-        ));
-    }
-    let numbers: std::collections::HashSet<u64> = images.iter().map(|i| i.0).collect();
-    if let Some((n, d)) = detections.iter().find(|(n, _)| !numbers.contains(n)) {
-        return Err(ImportError::file(
-            &images_dir.join(format!("{n:06}.jpg")),
-            format!(
-                "missing: {} has a detection for frame {n} but --images has no such frame",
-                d.npz.display()
-            ),
-        ));
-    }
+    let images = numbered_images(images_dir, &detections)?;
     let fps = opts.fps();
     let mut skipped = Vec::new();
     let mut raws = Vec::new();
@@ -177,6 +163,36 @@ pub fn read(opts: &ImportOptions) -> Result<Source, ImportError> {
         skipped,
         notes,
     })
+}
+
+/// The numbered frames in `images_dir` (`%06d.jpg`), sorted; every detection must have
+/// its frame.
+fn numbered_images(
+    images_dir: &Path,
+    detections: &BTreeMap<u64, Detection>,
+) -> Result<Vec<(u64, String, PathBuf)>, ImportError> {
+    let mut images: Vec<(u64, String, PathBuf)> = super::images_by_stem(images_dir)?
+        .into_iter()
+        .filter_map(|(stem, path)| stem.parse::<u64>().ok().map(|n| (n, stem, path)))
+        .collect();
+    images.sort();
+    if images.is_empty() {
+        return Err(ImportError::file(
+            images_dir,
+            "holds no numbered frames (%06d.jpg)",
+        ));
+    }
+    let numbers: std::collections::HashSet<u64> = images.iter().map(|i| i.0).collect();
+    if let Some((n, d)) = detections.iter().find(|(n, _)| !numbers.contains(n)) {
+        return Err(ImportError::file(
+            &images_dir.join(format!("{n:06}.jpg")),
+            format!(
+                "missing: {} has a detection for frame {n} but --images has no such frame",
+                d.npz.display()
+            ),
+        ));
+    }
+    Ok(images)
 }
 
 /// The largest detection of every frame (as SMPLer-X's own render.py picks it).
