@@ -153,66 +153,32 @@ mod tests {
         assert_eq!(st.tensor("occupancy").unwrap().shape(), &[5 * 7 * 3]);
         assert_eq!(st.tensor("bitfield").unwrap().dtype(), Dtype::U64);
         // Truncated, not safetensors, a wrong shape, NaN occupancy: named errors.
-        let nan = {
-            let occupancy = vec![f32::NAN; 105];
-            let occ: Vec<u8> = occupancy.iter().flat_map(|v| v.to_le_bytes()).collect();
+        // A 5x7x3 grid file whose occupancy holds `cells` copies of `value`.
+        let file_with = |cells: usize, value: f32| {
             let aabb: Vec<u8> = [-1f32, -1., -1., 1., 2., 0.5]
                 .iter()
                 .flat_map(|v| v.to_le_bytes())
                 .collect();
             let res: Vec<u8> = [5u32, 7, 3].iter().flat_map(|v| v.to_le_bytes()).collect();
+            let occ: Vec<u8> = vec![value; cells]
+                .iter()
+                .flat_map(|v| v.to_le_bytes())
+                .collect();
             let bits = vec![0u8; 16];
+            let view =
+                |dtype, shape: Vec<usize>, data| TensorView::new(dtype, shape, data).unwrap();
             safetensors::serialize(
                 [
-                    (
-                        "aabb",
-                        TensorView::new(Dtype::F32, vec![2, 3], &aabb).unwrap(),
-                    ),
-                    (
-                        "resolution",
-                        TensorView::new(Dtype::U32, vec![3], &res).unwrap(),
-                    ),
-                    (
-                        "occupancy",
-                        TensorView::new(Dtype::F32, vec![105], &occ).unwrap(),
-                    ),
-                    (
-                        "bitfield",
-                        TensorView::new(Dtype::U64, vec![2], &bits).unwrap(),
-                    ),
+                    ("aabb", view(Dtype::F32, vec![2, 3], &aabb)),
+                    ("resolution", view(Dtype::U32, vec![3], &res)),
+                    ("occupancy", view(Dtype::F32, vec![cells], &occ)),
+                    ("bitfield", view(Dtype::U64, vec![2], &bits)),
                 ],
                 None,
             )
             .unwrap()
         };
-        let wrong_shape = {
-            let aabb = vec![0u8; 4 * 6];
-            let res: Vec<u8> = [5u32, 7, 3].iter().flat_map(|v| v.to_le_bytes()).collect();
-            let occ = vec![0u8; 4 * 104];
-            let bits = vec![0u8; 16];
-            safetensors::serialize(
-                [
-                    (
-                        "aabb",
-                        TensorView::new(Dtype::F32, vec![2, 3], &aabb).unwrap(),
-                    ),
-                    (
-                        "resolution",
-                        TensorView::new(Dtype::U32, vec![3], &res).unwrap(),
-                    ),
-                    (
-                        "occupancy",
-                        TensorView::new(Dtype::F32, vec![104], &occ).unwrap(),
-                    ),
-                    (
-                        "bitfield",
-                        TensorView::new(Dtype::U64, vec![2], &bits).unwrap(),
-                    ),
-                ],
-                None,
-            )
-            .unwrap()
-        };
+        let (nan, wrong_shape) = (file_with(105, f32::NAN), file_with(104, 0.0));
         for (damaged, needle) in [
             (bytes[..bytes.len() - 1].to_vec(), "grid"),
             (b"XXXX\x01\x00\x00\x00".to_vec(), "safetensors"),
