@@ -84,10 +84,7 @@ impl Server {
         config: ServeConfig,
     ) -> Result<Server, ServeError> {
         config.validate()?;
-        let avatar = Avatar::load(run).map_err(|source| ServeError::Avatar {
-            run: run.to_path_buf(),
-            source,
-        })?;
+        // The small file first: a wrong path is reported without loading the run.
         let model = body_model
             .map(|file| {
                 SmplxModel::load(file).map_err(|source| ServeError::BodyModel {
@@ -96,6 +93,10 @@ impl Server {
                 })
             })
             .transpose()?;
+        let avatar = Avatar::load(run).map_err(|source| ServeError::Avatar {
+            run: run.to_path_buf(),
+            source,
+        })?;
         Server::start_with_body_model(Arc::new(avatar), model.map(Arc::new), addr, config)
     }
 
