@@ -2,11 +2,14 @@
 //! the avatar's own renders, concurrent clients, every class of bad input answered with a
 //! JSON error naming the field (and the server still serving), a full queue's 503, render
 //! timeouts, graceful shutdown by call and by SIGTERM, the connection limits (`limits`),
+//! posted BEAT2/AMASS motion files (`motion`),
 //! and (ignored: needs chromium) the page in a headless browser.
 
 mod common;
 #[path = "serve/limits.rs"]
 mod limits;
+#[path = "serve/motion.rs"]
+mod motion;
 
 use std::io::{BufRead, BufReader, Read};
 use std::net::SocketAddr;

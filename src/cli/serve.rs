@@ -10,6 +10,11 @@ pub struct ServeArgs {
     /// Address to listen on (port 0 picks a free one).
     #[arg(long, default_value = "127.0.0.1:8080")]
     pub addr: String,
+    /// The SMPL-X model file (SMPLX_NEUTRAL.npz, ...) for posted motion files: adds its
+    /// mean hand to BEAT2's hand poses and places a motion by the performer's rest pelvis,
+    /// as `render --motion --body-model` does. Loaded once at start.
+    #[arg(long)]
+    pub body_model: Option<PathBuf>,
     #[command(flatten)]
     pub limits: LimitArgs,
 }
@@ -26,6 +31,9 @@ pub struct LimitArgs {
     /// Largest image a request may ask for, in pixels (413 beyond).
     #[arg(long, default_value_t = ServeConfig::default().max_pixels)]
     pub max_pixels: u64,
+    /// Largest request body in bytes, a posted motion file included (413 beyond).
+    #[arg(long, default_value_t = ServeConfig::default().max_body_bytes)]
+    pub max_body_bytes: usize,
     /// Seconds a request may wait for and spend in one frame's render (504 beyond).
     #[arg(long, default_value_t = ServeConfig::default().render_timeout.as_secs_f64())]
     pub timeout: f64,
@@ -57,6 +65,7 @@ fn flag(field: &str) -> &str {
         "workers" => "--workers",
         "queue" => "--queue",
         "max_pixels" => "--max-pixels",
+        "max_body_bytes" => "--max-body-bytes",
         "header_timeout" => "--header-timeout",
         "idle_timeout" => "--idle-timeout",
         "max_connections" => "--max-connections",
@@ -78,6 +87,7 @@ impl LimitArgs {
             workers: self.workers.unwrap_or(default.workers),
             queue: self.queue,
             max_pixels: self.max_pixels,
+            max_body_bytes: self.max_body_bytes,
             render_timeout: checked_seconds("--timeout", self.timeout, false)?,
             header_timeout: checked_seconds("--header-timeout", self.header_timeout, false)?,
             idle_timeout: checked_seconds("--idle-timeout", self.idle_timeout, false)?,
@@ -102,7 +112,7 @@ pub fn run(args: ServeArgs) -> anyhow::Result<()> {
         config.queue,
         config.shutdown_grace.as_secs_f64(),
     );
-    let server = Server::load_and_start(&args.run, &args.addr, config)?;
+    let server = Server::load_and_start(&args.run, args.body_model.as_deref(), &args.addr, config)?;
     eprintln!(
         "serving {} on http://{} ({workers} render threads, queue {queue}); Ctrl-C stops",
         args.run.display(),

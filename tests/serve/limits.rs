@@ -373,6 +373,12 @@ fn the_cli_refuses_bad_options_naming_the_flag_without_panicking() {
         (&["--max-pixels", "0"], "--max-pixels"),
         (&["--size", "0x0"], "--size"),
         (&["--size", "99999999999x1"], "--size"),
+        (&["--max-body-bytes", "0"], "--max-body-bytes"),
+        // The model file is read before the run, so a bad one is named first.
+        (
+            &["--body-model", "/nonexistent/SMPLX_NEUTRAL.npz"],
+            "body model /nonexistent/SMPLX_NEUTRAL.npz",
+        ),
     ];
     for (args, flag) in cases {
         let (code, stderr) = serve_cli(args);

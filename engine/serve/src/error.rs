@@ -20,6 +20,12 @@ pub enum ServeError {
         #[source]
         source: AvatarError,
     },
+    #[error("loading the body model {}: {source}", file.display())]
+    BodyModel {
+        file: PathBuf,
+        #[source]
+        source: talkin_data::smplx_model::ModelError,
+    },
     #[error("the avatar has no trained subject to serve")]
     NoSubjects,
     #[error("binding {addr}: {source}")]

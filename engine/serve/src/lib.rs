@@ -11,7 +11,8 @@
 //! the render threads that are done.
 //!
 //! Routes: `GET /` (a page with sliders), `GET /health`, `GET /subjects`, `POST /render`,
-//! `POST /render/sequence` (a zip of PNGs). `docs/server-api.md` has the request format.
+//! `POST /render/sequence` (a zip of PNGs, for a JSON list of poses or a posted BEAT2/AMASS
+//! motion file, see [`motion`]). `docs/server-api.md` has the request format.
 //!
 //! The only crate with tokio and axum; it must not know about training or datasets
 //! beyond reading poses: it renders what `talkin-render` loads.
@@ -23,6 +24,7 @@ mod connections;
 mod encode;
 mod error;
 mod json;
+pub mod motion;
 pub mod pool;
 pub mod request;
 mod routes;
@@ -41,11 +43,14 @@ pub use error::{RequestError, ServeError};
 pub use subjects::{ServedSubject, default_camera, served_subjects};
 
 use pool::Pool;
+use talkin_data::smplx_model::SmplxModel;
 use talkin_render::avatar::Avatar;
 
 /// What every handler shares.
 struct App {
     avatar: Arc<Avatar>,
+    /// The SMPL-X model file for motion files (mean hands, the performer's rest pelvis).
+    body_model: Option<Arc<SmplxModel>>,
     subjects: Vec<ServedSubject>,
     config: ServeConfig,
     pool: Pool,
@@ -70,24 +75,46 @@ pub struct Server {
 }
 
 impl Server {
-    /// Loads the newest checkpoint of `run` and starts serving it on `addr`.
+    /// Loads the newest checkpoint of `run` (and the SMPL-X `body_model` file, if given,
+    /// for posted motion files) and starts serving it on `addr`.
     pub fn load_and_start(
         run: &Path,
+        body_model: Option<&Path>,
         addr: &str,
         config: ServeConfig,
     ) -> Result<Server, ServeError> {
         config.validate()?;
+        // The small file first: a wrong path is reported without loading the run.
+        let model = body_model
+            .map(|file| {
+                SmplxModel::load(file).map_err(|source| ServeError::BodyModel {
+                    file: file.to_path_buf(),
+                    source,
+                })
+            })
+            .transpose()?;
         let avatar = Avatar::load(run).map_err(|source| ServeError::Avatar {
             run: run.to_path_buf(),
             source,
         })?;
-        Server::start(Arc::new(avatar), addr, config)
+        Server::start_with_body_model(Arc::new(avatar), model.map(Arc::new), addr, config)
     }
 
     /// Serves `avatar` on `addr` (`127.0.0.1:0` picks a free port; see [`Server::addr`]).
     /// Returns once the socket is bound.
     pub fn start(
         avatar: Arc<Avatar>,
+        addr: &str,
+        config: ServeConfig,
+    ) -> Result<Server, ServeError> {
+        Server::start_with_body_model(avatar, None, addr, config)
+    }
+
+    /// [`Server::start`] with the SMPL-X model posted motion files are prepared with
+    /// (without one, hands stored relative to the mean hand are used as given, with a note).
+    pub fn start_with_body_model(
+        avatar: Arc<Avatar>,
+        body_model: Option<Arc<SmplxModel>>,
         addr: &str,
         config: ServeConfig,
     ) -> Result<Server, ServeError> {
@@ -110,6 +137,7 @@ impl Server {
         let pool = Pool::new(config.workers, config.queue).map_err(ServeError::Runtime)?;
         let app = Arc::new(App {
             avatar,
+            body_model,
             subjects,
             connections: Arc::new(Semaphore::new(config.max_connections)),
             config,

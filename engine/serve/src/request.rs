@@ -182,7 +182,7 @@ fn only_keys<'a>(doc: &'a Value, known: &[&str]) -> Result<&'a Map<String, Value
     Ok(obj)
 }
 
-fn subject<'a>(
+pub(crate) fn subject<'a>(
     obj: &Map<String, Value>,
     subjects: &'a [ServedSubject],
 ) -> Result<&'a ServedSubject, RequestError> {
@@ -208,7 +208,7 @@ fn subject<'a>(
 
 /// The request's camera (or the subject's default), resized to `width` x `height` if
 /// given, within the server's pixel limit.
-fn camera(
+pub(crate) fn camera(
     obj: &Map<String, Value>,
     subject: &ServedSubject,
     config: &ServeConfig,
@@ -346,6 +346,12 @@ fn resized(camera: &Camera, width: u32, height: u32) -> Result<Camera, RequestEr
 /// One dataset `params` object at `path`, every value within [`PARAM_LIMIT`].
 fn params(v: &Value, path: &str) -> Result<FrameParams, RequestError> {
     let p = FrameParams::from_json(v, path)?;
+    check_params(&p, path)?;
+    Ok(p)
+}
+
+/// Refuses a frame with a value beyond [`PARAM_LIMIT`] (or NaN), naming `path.<field>[i]`.
+pub(crate) fn check_params(p: &FrameParams, path: &str) -> Result<(), RequestError> {
     let vec3 = |name: &str, x: glam::DVec3| check(&format!("{path}.{name}"), &x.to_array());
     let rows = |name: &str, r: &[glam::DVec3]| -> Result<(), RequestError> {
         for (i, x) in r.iter().enumerate() {
@@ -361,12 +367,14 @@ fn params(v: &Value, path: &str) -> Result<FrameParams, RequestError> {
     rows("left_hand_pose", &p.left_hand_pose)?;
     rows("right_hand_pose", &p.right_hand_pose)?;
     check(&format!("{path}.expression"), &p.expression)?;
-    vec3("transl", p.transl)?;
-    Ok(p)
+    vec3("transl", p.transl)
 }
 
 fn check(field: &str, values: &[f64]) -> Result<(), RequestError> {
-    match values.iter().position(|x| x.abs() > PARAM_LIMIT) {
+    match values
+        .iter()
+        .position(|x| x.is_nan() || x.abs() > PARAM_LIMIT)
+    {
         Some(i) => {
             let field = format!("{field}[{i}]");
             Err(RequestError::invalid(

@@ -16,6 +16,7 @@ use tokio::sync::oneshot;
 use super::App;
 use super::encode::{self, Encoded};
 use super::error::RequestError;
+use super::motion;
 use super::pool::{Job, Refused};
 use super::request::{self, Format};
 use crate::json::json_body;
@@ -106,7 +107,7 @@ async fn subjects(State(app): State<Arc<App>>) -> Response {
 
 async fn render(State(app): State<Arc<App>>, headers: HeaderMap, body: Body) -> Response {
     let result = async {
-        let bytes = read_body(&app, &headers, body).await?;
+        let bytes = read_body(&app, &headers, body, None).await?;
         let req = request::parse_render(&bytes, &app.subjects, &app.config)?;
         let worker_app = app.clone();
         let encoded = on_pool(&app, app.config.render_timeout, move |_| {
@@ -128,61 +129,153 @@ async fn render(State(app): State<Arc<App>>, headers: HeaderMap, body: Body) -> 
     }
 }
 
-async fn sequence(State(app): State<Arc<App>>, headers: HeaderMap, body: Body) -> Response {
-    let result = async {
-        let bytes = read_body(&app, &headers, body).await?;
-        let req = request::parse_sequence(&bytes, &app.subjects, &app.config)?;
-        let mut req = req;
-        if req.smooth {
-            // The paper's test-time filter over the posted sequence (one camera).
-            req.frames = talkin_human::smooth::smooth_params(
-                &req.frames,
-                &talkin_human::smooth::Smoothing::PAPER,
-            )
-            .map_err(|e| RequestError::invalid("frames", e.to_string()))?;
-        }
-        let n = req.frames.len();
-        let timeout = app.config.render_timeout * n as u32;
-        let worker_app = app.clone();
-        on_pool(&app, timeout, move |job| {
-            let mut pngs = Vec::with_capacity(n);
-            for (i, params) in req.frames.iter().enumerate() {
-                // A client that is gone (or was dropped at shutdown) gets no more frames.
-                if Instant::now() > job.deadline || (job.client_gone)() {
-                    return Err(RequestError::Timeout {
-                        seconds: timeout.as_secs_f64(),
-                    });
-                }
-                let frame = worker_app
-                    .avatar
-                    .render(req.subject, params, &req.camera, None)
-                    .map_err(|e| match RequestError::from(e) {
-                        RequestError::Invalid { message, .. } => {
-                            RequestError::invalid(format!("frames[{i}]"), message)
-                        }
-                        other => other,
-                    })?;
-                pngs.push(encode::png(&frame)?.bytes);
-            }
-            encode::zip_frames(&pngs)
-        })
-        .await
-    }
-    .await;
+async fn sequence(
+    State(app): State<Arc<App>>,
+    uri: Uri,
+    headers: HeaderMap,
+    body: Body,
+) -> Response {
+    let content_type = headers
+        .get(header::CONTENT_TYPE)
+        .and_then(|v| v.to_str().ok());
+    let result = if motion::is_motion(content_type) {
+        motion_sequence(app, uri.query(), &headers, body).await
+    } else {
+        json_sequence(app, &headers, body).await
+    };
     match result {
-        Ok(zip) => (
-            [
-                (header::CONTENT_TYPE, "application/zip"),
-                (
-                    header::CONTENT_DISPOSITION,
-                    "attachment; filename=\"frames.zip\"",
-                ),
-            ],
-            zip,
-        )
-            .into_response(),
+        Ok((zip, notes)) => {
+            let mut response = (
+                [
+                    (header::CONTENT_TYPE, "application/zip"),
+                    (
+                        header::CONTENT_DISPOSITION,
+                        "attachment; filename=\"frames.zip\"",
+                    ),
+                ],
+                zip,
+            )
+                .into_response();
+            if !notes.is_empty() {
+                // Header values are visible ASCII; anything else reads `?`.
+                let text: String = notes
+                    .join("; ")
+                    .chars()
+                    .map(|c| {
+                        if c.is_ascii_graphic() || c == ' ' {
+                            c
+                        } else {
+                            '?'
+                        }
+                    })
+                    .collect();
+                if let Ok(v) = HeaderValue::from_str(&text) {
+                    response.headers_mut().insert(NOTES_HEADER, v);
+                }
+            }
+            response
+        }
         Err(e) => e.into_response(),
     }
+}
+
+/// The response header carrying a motion's notes (what was assumed or left as given).
+pub const NOTES_HEADER: &str = "x-talkin-notes";
+
+/// The JSON form: `{subject, frames, ...}`.
+async fn json_sequence(
+    app: Arc<App>,
+    headers: &HeaderMap,
+    body: Body,
+) -> Result<(Vec<u8>, Vec<String>), RequestError> {
+    let bytes = read_body(&app, headers, body, None).await?;
+    let mut req = request::parse_sequence(&bytes, &app.subjects, &app.config)?;
+    if req.smooth {
+        req.frames = smooth(&req.frames, "frames")?;
+    }
+    let zip = render_frames(app, req.subject, req.frames, req.camera, "frames").await?;
+    Ok((zip, Vec::new()))
+}
+
+/// The motion-file form: the body is a BEAT2 or AMASS `.npz`, the options are the query's.
+async fn motion_sequence(
+    app: Arc<App>,
+    query: Option<&str>,
+    headers: &HeaderMap,
+    body: Body,
+) -> Result<(Vec<u8>, Vec<String>), RequestError> {
+    let q = motion::parse_query(query, &app.subjects, &app.config)?;
+    let bytes = read_body(&app, headers, body, Some("motion")).await?;
+    let reader = app.clone();
+    let q2 = q.clone();
+    // Reading and preparing touch the disk and the CPU: off the async threads.
+    let (mut frames, notes) = tokio::task::spawn_blocking(move || {
+        let motion = motion::read_bytes(&bytes, q2.layout)?;
+        let subject = reader.avatar.subjects[q2.subject]
+            .model
+            .as_ref()
+            .ok_or_else(|| RequestError::Render("a served subject has no model".into()))?;
+        motion::prepare(
+            &motion,
+            &q2,
+            &subject.skeleton,
+            reader.body_model.as_deref(),
+            &reader.config,
+        )
+    })
+    .await
+    .map_err(|e| RequestError::Render(format!("reading the motion: {e}")))??;
+    if q.smooth {
+        frames = smooth(&frames, "motion")?;
+    }
+    let zip = render_frames(app, q.subject, frames, q.camera, "motion").await?;
+    Ok((zip, notes))
+}
+
+/// The paper's test-time filter over a sequence (one camera).
+fn smooth(
+    frames: &[talkin_human::body::FrameParams],
+    field: &str,
+) -> Result<Vec<talkin_human::body::FrameParams>, RequestError> {
+    talkin_human::smooth::smooth_params(frames, &talkin_human::smooth::Smoothing::PAPER)
+        .map_err(|e| RequestError::invalid(field, e.to_string()))
+}
+
+/// Renders `frames` on the pool, one after the other, into a zip of PNGs; a frame's bad
+/// input is refused as `field[i]`.
+async fn render_frames(
+    app: Arc<App>,
+    subject: usize,
+    frames: Vec<talkin_human::body::FrameParams>,
+    camera: talkin_human::camera::Camera,
+    field: &'static str,
+) -> Result<Vec<u8>, RequestError> {
+    let n = frames.len();
+    let timeout = app.config.render_timeout * n as u32;
+    let worker_app = app.clone();
+    on_pool(&app, timeout, move |job| {
+        let mut pngs = Vec::with_capacity(n);
+        for (i, params) in frames.iter().enumerate() {
+            // A client that is gone (or was dropped at shutdown) gets no more frames.
+            if Instant::now() > job.deadline || (job.client_gone)() {
+                return Err(RequestError::Timeout {
+                    seconds: timeout.as_secs_f64(),
+                });
+            }
+            let frame = worker_app
+                .avatar
+                .render(subject, params, &camera, None)
+                .map_err(|e| match RequestError::from(e) {
+                    RequestError::Invalid { message, .. } => {
+                        RequestError::invalid(format!("{field}[{i}]"), message)
+                    }
+                    other => other,
+                })?;
+            pngs.push(encode::png(&frame)?.bytes);
+        }
+        encode::zip_frames(&pngs)
+    })
+    .await
 }
 
 fn image_response(e: Encoded) -> Response {
@@ -204,10 +297,16 @@ fn image_response(e: Encoded) -> Response {
 
 /// The whole body, refusing more than the limit (by `Content-Length` up front, or while
 /// reading a body sent without one) and clients that send too slowly.
-async fn read_body(app: &App, headers: &HeaderMap, body: Body) -> Result<Bytes, RequestError> {
+/// `field` names the body in refusals (`motion` for a motion file; none for JSON).
+async fn read_body(
+    app: &App,
+    headers: &HeaderMap,
+    body: Body,
+    field: Option<&str>,
+) -> Result<Bytes, RequestError> {
     let limit = app.config.max_body_bytes;
     let too_large = || RequestError::TooLarge {
-        field: None,
+        field: field.map(str::to_string),
         message: format!("the request body is over the {limit} bytes this server reads"),
     };
     let declared = headers
@@ -224,7 +323,7 @@ async fn read_body(app: &App, headers: &HeaderMap, body: Body) -> Result<Bytes, 
         // no answer matters.
         Ok(Err(e)) if e.to_string().contains("length limit") => Err(too_large()),
         Ok(Err(e)) => Err(RequestError::Invalid {
-            field: None,
+            field: field.map(str::to_string),
             message: format!("reading the request body: {e}"),
         }),
         Ok(Ok(bytes)) => Ok(bytes),

@@ -1,0 +1,258 @@
+//! `POST /render/sequence` with a motion file as the body: BEAT2 and AMASS `.npz` files
+//! written as the tools write them come back as the same zip the JSON form gives for the
+//! same prepared poses (also resampled), with the motion's notes in `X-Talkin-Notes`; bad
+//! files, bad query values and oversized bodies are refused with the field named.
+
+use std::io::Read;
+use std::net::SocketAddr;
+use std::path::Path;
+
+use serde_json::{Value, json};
+use talkin::data::array::{ArrayData, NdArray};
+use talkin::data::motion::{Prepare, read_motion};
+use talkin::data::npz::NpzWriter;
+use talkin::data::params_json::ParamsJson;
+use talkin::serve::client::{self, HttpResponse};
+
+use super::{WAIT, assert_error, config, fixture, post, start, subject};
+
+fn text(s: &str) -> NdArray {
+    NdArray::new(vec![], ArrayData::Str(vec![s.into()])).unwrap()
+}
+
+/// Small pose values that differ per frame and column.
+fn poses(n: usize, cols: usize) -> Vec<f32> {
+    (0..n * cols)
+        .map(|k| ((k * 7) % 23) as f32 * 0.01 - 0.1)
+        .collect()
+}
+
+/// A BEAT2 file of `n` frames at 30 fps (as BEAT2's own files: f4 poses, f8 trans and
+/// expressions, an int frame rate, text model and gender), written to `file`.
+fn write_beat2(file: &Path, n: usize, poses: Vec<f32>) {
+    let t: Vec<f64> = (0..n).flat_map(|i| [0.01 * i as f64, 1.2, 0.0]).collect();
+    let mut w = NpzWriter::create(file).unwrap();
+    w.array("betas", &NdArray::f32(&[300], vec![0.0; 300]).unwrap())
+        .unwrap()
+        .array("poses", &NdArray::f32(&[n, 165], poses).unwrap())
+        .unwrap()
+        .array(
+            "expressions",
+            &NdArray::f64(&[n, 100], vec![0.01; n * 100]).unwrap(),
+        )
+        .unwrap()
+        .array("trans", &NdArray::f64(&[n, 3], t).unwrap())
+        .unwrap()
+        .array("model", &text("smplx2020"))
+        .unwrap()
+        .array("gender", &text("neutral"))
+        .unwrap()
+        .array(
+            "mocap_frame_rate",
+            &NdArray::new(vec![], ArrayData::I32(vec![30])).unwrap(),
+        )
+        .unwrap();
+    w.finish().unwrap();
+}
+
+/// An AMASS SMPL-X file of `n` frames at 60 fps (z up).
+fn write_amass(file: &Path, n: usize) {
+    let p: Vec<f64> = poses(n, 165).iter().map(|&x| f64::from(x)).collect();
+    let mut w = NpzWriter::create(file).unwrap();
+    w.array("poses", &NdArray::f64(&[n, 165], p).unwrap())
+        .unwrap()
+        .array("trans", &NdArray::f64(&[n, 3], vec![0.1; 3 * n]).unwrap())
+        .unwrap()
+        .array("betas", &NdArray::f64(&[16], vec![0.0; 16]).unwrap())
+        .unwrap()
+        .array("surface_model_type", &text("smplx"))
+        .unwrap()
+        .array("mocap_frame_rate", &NdArray::f64(&[], vec![60.0]).unwrap())
+        .unwrap();
+    w.finish().unwrap();
+}
+
+/// `name` in a directory shared by this file's tests (each test names its own files).
+fn file(name: &str) -> std::path::PathBuf {
+    static DIR: std::sync::OnceLock<std::path::PathBuf> = std::sync::OnceLock::new();
+    DIR.get_or_init(|| crate::common::temp_dir("serve_motion"))
+        .join(name)
+}
+
+/// A BEAT2 file of `n` frames named after `tag`, and its bytes.
+fn beat2(tag: &str, n: usize) -> (std::path::PathBuf, Vec<u8>) {
+    let f = file(&format!("{tag}_beat2_{n}.npz"));
+    write_beat2(&f, n, poses(n, 165));
+    let bytes = std::fs::read(&f).unwrap();
+    (f, bytes)
+}
+
+/// Posts `body` as `content_type` to `/render/sequence?query`.
+fn post_motion(addr: SocketAddr, query: &str, content_type: &str, body: &[u8]) -> HttpResponse {
+    let head = format!(
+        "POST /render/sequence?{query} HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\n\
+         Content-Type: {content_type}\r\nContent-Length: {}\r\n\r\n",
+        body.len()
+    );
+    let mut wire = head.into_bytes();
+    wire.extend_from_slice(body);
+    client::send_raw(addr, &wire, WAIT).unwrap()
+}
+
+fn pngs(r: &HttpResponse) -> Vec<Vec<u8>> {
+    assert_eq!(r.status, 200, "{}", String::from_utf8_lossy(&r.body));
+    assert_eq!(r.header("content-type"), Some("application/zip"));
+    let mut zip = zip::ZipArchive::new(std::io::Cursor::new(r.body.clone())).unwrap();
+    (0..zip.len())
+        .map(|i| {
+            let mut png = Vec::new();
+            zip.by_name(&format!("frame_{i:05}.png"))
+                .unwrap()
+                .read_to_end(&mut png)
+                .unwrap();
+            png
+        })
+        .collect()
+}
+
+/// The JSON form's frames for `file` prepared as `talkin render --motion` prepares it.
+fn json_form_pngs(addr: SocketAddr, file: &Path, fps: Option<f64>) -> Vec<Vec<u8>> {
+    let (_, model) = fixture().avatar.subject(&subject()).unwrap();
+    let prepared = read_motion(file, None)
+        .unwrap()
+        .prepare(&Prepare {
+            subject: &model.skeleton,
+            model: None,
+            fps,
+            keep_trans: false,
+        })
+        .unwrap();
+    let frames: Vec<Value> = prepared.frames.iter().map(|p| p.to_json()).collect();
+    pngs(&post(
+        addr,
+        "/render/sequence",
+        &json!({"subject": subject(), "frames": frames}),
+    ))
+}
+
+#[test]
+fn motion_files_render_as_the_json_form_of_their_prepared_poses() {
+    let server = start(config());
+    let addr = server.addr();
+    let q = format!("subject={}", subject());
+
+    // BEAT2, 5 frames at the file's 30 fps: the notes say the hands are kept as given.
+    let (f, bytes) = beat2("good", 5);
+    let r = post_motion(addr, &q, "application/octet-stream", &bytes);
+    let got = pngs(&r);
+    assert_eq!(got.len(), 5);
+    assert_eq!(got, json_form_pngs(addr, &f, None));
+    let notes = r.header("x-talkin-notes").unwrap_or_default();
+    assert!(notes.contains("mean hand"), "{notes:?}");
+
+    // Resampled to 15 fps: frames at 0, 2 and 4.
+    let r = post_motion(addr, &format!("{q}&fps=15"), "application/x-npz", &bytes);
+    let got = pngs(&r);
+    assert_eq!(got.len(), 3);
+    assert_eq!(got, json_form_pngs(addr, &f, Some(15.0)));
+
+    // AMASS, z up, absolute hands: no notes.
+    let a = file("amass.npz");
+    write_amass(&a, 4);
+    let r = post_motion(addr, &q, "application/zip", &std::fs::read(&a).unwrap());
+    let got = pngs(&r);
+    assert_eq!(got.len(), 4);
+    assert_eq!(got, json_form_pngs(addr, &a, None));
+    assert_eq!(r.header("x-talkin-notes"), None);
+
+    // The JSON form is unchanged beside it.
+    let f0 = fixture().dataset.frames[0].params.to_json();
+    let r = post(
+        addr,
+        "/render/sequence",
+        &json!({"subject": subject(), "frames": [f0.clone(), f0]}),
+    );
+    assert_eq!(pngs(&r).len(), 2);
+    server.shutdown().unwrap();
+}
+
+#[test]
+fn bad_motion_requests_are_refused_naming_the_field() {
+    let server = start(config());
+    let addr = server.addr();
+    let q = format!("subject={}", subject());
+    let (_, bytes) = beat2("bad", 5);
+    let octet = "application/octet-stream";
+    let refused = |case: &str, query: &str, body: &[u8], status: u16, field: &str| {
+        let r = post_motion(addr, query, octet, body);
+        assert_error(case, &r, status, Some(field));
+    };
+
+    refused("truncated", &q, &bytes[..bytes.len() / 2], 400, "motion");
+    refused("not a zip", &q, b"hello", 400, "motion");
+    let mut nan = poses(3, 165);
+    nan[165 + 4] = f32::NAN;
+    let f = file("nan.npz");
+    write_beat2(&f, 3, nan);
+    refused(
+        "NaN pose",
+        &q,
+        &std::fs::read(&f).unwrap(),
+        400,
+        "motion.poses",
+    );
+    let mut huge = poses(3, 165);
+    huge[3] = 1e9;
+    write_beat2(&f, 3, huge);
+    refused(
+        "huge pose",
+        &q,
+        &std::fs::read(&f).unwrap(),
+        400,
+        "motion[0].body_pose[0][0]",
+    );
+    refused("unknown subject", "subject=nobody", &bytes, 404, "subject");
+    refused("no subject", "fps=15", &bytes, 400, "subject");
+    for fps in ["0", "-3", "NaN", "inf", "1e12", "fast"] {
+        refused(
+            &format!("fps={fps}"),
+            &format!("{q}&fps={fps}"),
+            &bytes,
+            400,
+            "fps",
+        );
+    }
+    refused("layout", &format!("{q}&layout=bvh"), &bytes, 400, "layout");
+    refused(
+        "keep_trans",
+        &format!("{q}&keep_trans=maybe"),
+        &bytes,
+        400,
+        "keep_trans",
+    );
+    refused("typo", &format!("{q}&widht=10"), &bytes, 400, "widht");
+    refused(
+        "width alone",
+        &format!("{q}&width=10"),
+        &bytes,
+        400,
+        "height",
+    );
+    refused(
+        "too wide",
+        &format!("{q}&width=64&height=128"),
+        &bytes,
+        413,
+        "width",
+    );
+    // Frames over max_sequence_frames (12): in the file, or after resampling.
+    let (_, long) = beat2("bad", 13);
+    refused("13 frames", &q, &long, 413, "motion");
+    refused("resampled", &format!("{q}&fps=90"), &bytes, 413, "fps");
+    // A body over max_body_bytes (64 KiB).
+    refused("oversized", &q, &vec![0u8; 80 << 10], 413, "motion");
+
+    // Still serving.
+    assert_eq!(pngs(&post_motion(addr, &q, octet, &bytes)).len(), 5);
+    server.shutdown().unwrap();
+}
