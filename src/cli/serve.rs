@@ -113,16 +113,16 @@ pub fn run(args: ServeArgs) -> anyhow::Result<()> {
         config.shutdown_grace.as_secs_f64(),
     );
     let server = Server::load_and_start(&args.run, args.body_model.as_deref(), &args.addr, config)?;
-    eprintln!(
+    tracing::info!(
         "serving {} on http://{} ({workers} render threads, queue {queue}); Ctrl-C stops",
         args.run.display(),
         server.addr()
     );
     let report = server.run_until_signal()?;
     if report.dropped_connections == 0 {
-        eprintln!("stopped: in-flight requests finished");
+        tracing::info!("stopped: in-flight requests finished");
     } else {
-        eprintln!(
+        tracing::warn!(
             "stopped: {} connections still open after the {grace} s grace period were dropped",
             report.dropped_connections
         );
