@@ -475,3 +475,25 @@ fn progress_is_a_log_line_off_a_terminal_and_quiet_hides_it() {
     assert_eq!(quiet.status.code(), loud.status.code(), "{stderr}");
     assert!(!stderr.contains("decoding"), "{stderr}");
 }
+
+/// More expression coefficients than the engine uses are accepted, and said.
+#[test]
+fn extra_expression_coefficients_are_accepted_with_a_note() {
+    let dir = common::temp_dir("extra_expression");
+    common::write_tiny_dataset(&dir);
+    edit_json(&dir, |v| {
+        v["frames"][1]["params"]["expression"] = serde_json::json!(vec![0.01; 50]);
+    });
+    assert_eq!(
+        Dataset::load(&dir).unwrap().frames[1]
+            .params
+            .expression
+            .len(),
+        talkin::human::body::N_EXPRESSION
+    );
+    let (_, stderr) = inspect(&dir);
+    assert!(
+        stderr.contains("1 of 2 frames carry more than 10 expression coefficients (up to 50)"),
+        "{stderr}"
+    );
+}

@@ -28,6 +28,9 @@ pub struct InspectArgs {
 
 pub fn run(args: InspectArgs) -> anyhow::Result<()> {
     let dataset = Dataset::load(&args.dir)?;
+    if let Some(note) = inspect::extra_expression_note(&args.dir) {
+        tracing::warn!("{note}");
+    }
     let progress = Progress::new("decoding", dataset.frames.len(), "frames");
     let summary = inspect::summarize(&dataset, &|done| progress.update(done, ""))?;
     println!(

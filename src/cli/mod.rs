@@ -89,5 +89,8 @@ pub fn load_dataset(dir: &std::path::Path) -> anyhow::Result<talkin_data::datase
     for p in summary.problems() {
         tracing::warn!("flagged {}: {}", p.field, p.message);
     }
+    if let Some(note) = talkin_data::inspect::extra_expression_note(dir) {
+        tracing::warn!("{note}");
+    }
     Ok(dataset)
 }

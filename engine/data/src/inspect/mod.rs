@@ -4,12 +4,14 @@
 //! and the posed joints with their projections. [`validate`] is the same check, run by
 //! every command before any work.
 
+mod expressions;
 mod joints;
 mod overlay;
 mod sheet;
 mod summary;
 mod validate;
 
+pub use expressions::extra_expression_note;
 pub use joints::{FrameJoints, frame_joints};
 pub use overlay::{overlay_frames, overlay_sheet};
 pub use sheet::contact_sheet;
