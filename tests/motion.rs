@@ -8,6 +8,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 use std::sync::OnceLock;
 
+use common::{npz_text, write_beat2};
 use talkin::data::array::{ArrayData, NdArray};
 use talkin::data::npz::{NpzWriter, object_npy_bytes};
 use talkin::grids::SamplerKind;
@@ -42,10 +43,6 @@ fn s(p: &Path) -> &str {
     p.to_str().unwrap()
 }
 
-fn text(t: &str) -> NdArray {
-    NdArray::new(vec![], ArrayData::Str(vec![t.into()])).unwrap()
-}
-
 /// A gentle talking pose per frame: arms down, a wave of the right elbow, jaw open.
 fn poses(n: usize, columns: usize) -> Vec<f64> {
     let mut p = vec![0.0; n * columns];
@@ -61,33 +58,8 @@ fn poses(n: usize, columns: usize) -> Vec<f64> {
     p
 }
 
-/// BEAT2 as SynTalker's example stores it: poses f4, expressions and trans f8, 300 betas
-/// f4, text `model` and `gender`, an int32 frame rate.
-fn write_beat2(file: &Path, n: usize) {
-    let p: Vec<f32> = poses(n, 165).iter().map(|&x| x as f32).collect();
-    let t: Vec<f64> = (0..n).flat_map(|i| [0.01 * i as f64, 1.29, 0.0]).collect();
-    let mut w = NpzWriter::create(file).unwrap();
-    w.array("betas", &NdArray::f32(&[300], vec![0.05; 300]).unwrap())
-        .unwrap()
-        .array("poses", &NdArray::f32(&[n, 165], p).unwrap())
-        .unwrap()
-        .array(
-            "expressions",
-            &NdArray::f64(&[n, 100], vec![0.1; n * 100]).unwrap(),
-        )
-        .unwrap()
-        .array("trans", &NdArray::f64(&[n, 3], t).unwrap())
-        .unwrap()
-        .array("model", &text("smplx2020"))
-        .unwrap()
-        .array("gender", &text("neutral"))
-        .unwrap()
-        .array(
-            "mocap_frame_rate",
-            &NdArray::new(vec![], ArrayData::I32(vec![30])).unwrap(),
-        )
-        .unwrap();
-    w.finish().unwrap();
+fn beat2_poses(n: usize) -> Vec<f32> {
+    poses(n, 165).iter().map(|&x| x as f32).collect()
 }
 
 /// Legacy AMASS SMPL+H (as `amass_sample.npz`): z-up, `mocap_framerate`, 156 columns,
@@ -104,7 +76,7 @@ fn write_amass(file: &Path, n: usize) {
         .unwrap()
         .array("betas", &NdArray::f64(&[16], vec![0.0; 16]).unwrap())
         .unwrap()
-        .array("gender", &text("male"))
+        .array("gender", &npz_text("male"))
         .unwrap()
         .array("mocap_framerate", &NdArray::f64(&[], vec![60.0]).unwrap())
         .unwrap()
@@ -177,7 +149,7 @@ fn beat2_and_amass_motions_render() {
 
     // BEAT2 at 30 fps, 5 frames, rendered at 15 fps: frames at 0, 2/30, 4/30.
     let beat2 = dir.join("2_scott_0_1_1.npz");
-    write_beat2(&beat2, 5);
+    write_beat2(&beat2, 5, beat2_poses(5));
     let out = dir.join("beat2");
     let res = talkin(&[
         "render",
@@ -257,7 +229,7 @@ fn bad_motion_files_fail_cleanly_and_leave_no_output() {
     let (_, run, name) = scene();
     let dir = common::temp_dir("motion_bad");
     let good = dir.join("good.npz");
-    write_beat2(&good, 3);
+    write_beat2(&good, 3, beat2_poses(3));
     let bytes = std::fs::read(&good).unwrap();
     let truncated = dir.join("truncated.npz");
     std::fs::write(&truncated, &bytes[..bytes.len() / 2]).unwrap();

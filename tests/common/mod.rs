@@ -176,3 +176,40 @@ pub fn small_train_opts(
         ..talkin::train::TrainOptions::default()
     }
 }
+
+/// A 0-d text array, as numpy stores `np.array("smplx2020")`.
+pub fn npz_text(s: &str) -> talkin::data::array::NdArray {
+    use talkin::data::array::{ArrayData, NdArray};
+    NdArray::new(vec![], ArrayData::Str(vec![s.into()])).unwrap()
+}
+
+/// A BEAT2 motion file as BEAT2's own files store it (SynTalker's example layout): f4
+/// `poses` (`n` rows of 165) and 300 `betas`, f8 `expressions` and `trans`, text `model`
+/// and `gender`, an int32 `mocap_frame_rate` of 30.
+pub fn write_beat2(file: &Path, n: usize, poses: Vec<f32>) {
+    use talkin::data::array::{ArrayData, NdArray};
+    use talkin::data::npz::NpzWriter;
+    let t: Vec<f64> = (0..n).flat_map(|i| [0.01 * i as f64, 1.29, 0.0]).collect();
+    let mut w = NpzWriter::create(file).unwrap();
+    w.array("betas", &NdArray::f32(&[300], vec![0.05; 300]).unwrap())
+        .unwrap()
+        .array("poses", &NdArray::f32(&[n, 165], poses).unwrap())
+        .unwrap()
+        .array(
+            "expressions",
+            &NdArray::f64(&[n, 100], vec![0.1; n * 100]).unwrap(),
+        )
+        .unwrap()
+        .array("trans", &NdArray::f64(&[n, 3], t).unwrap())
+        .unwrap()
+        .array("model", &npz_text("smplx2020"))
+        .unwrap()
+        .array("gender", &npz_text("neutral"))
+        .unwrap()
+        .array(
+            "mocap_frame_rate",
+            &NdArray::new(vec![], ArrayData::I32(vec![30])).unwrap(),
+        )
+        .unwrap();
+    w.finish().unwrap();
+}

@@ -8,51 +8,20 @@ use std::net::SocketAddr;
 use std::path::Path;
 
 use serde_json::{Value, json};
-use talkin::data::array::{ArrayData, NdArray};
+use talkin::data::array::NdArray;
 use talkin::data::motion::{Prepare, read_motion};
 use talkin::data::npz::NpzWriter;
 use talkin::data::params_json::ParamsJson;
 use talkin::serve::client::{self, HttpResponse};
 
+use super::common::{npz_text, write_beat2};
 use super::{WAIT, assert_error, config, fixture, post, start, subject};
-
-fn text(s: &str) -> NdArray {
-    NdArray::new(vec![], ArrayData::Str(vec![s.into()])).unwrap()
-}
 
 /// Small pose values that differ per frame and column.
 fn poses(n: usize, cols: usize) -> Vec<f32> {
     (0..n * cols)
         .map(|k| ((k * 7) % 23) as f32 * 0.01 - 0.1)
         .collect()
-}
-
-/// A BEAT2 file of `n` frames at 30 fps (as BEAT2's own files: f4 poses, f8 trans and
-/// expressions, an int frame rate, text model and gender), written to `file`.
-fn write_beat2(file: &Path, n: usize, poses: Vec<f32>) {
-    let t: Vec<f64> = (0..n).flat_map(|i| [0.01 * i as f64, 1.2, 0.0]).collect();
-    let mut w = NpzWriter::create(file).unwrap();
-    w.array("betas", &NdArray::f32(&[300], vec![0.0; 300]).unwrap())
-        .unwrap()
-        .array("poses", &NdArray::f32(&[n, 165], poses).unwrap())
-        .unwrap()
-        .array(
-            "expressions",
-            &NdArray::f64(&[n, 100], vec![0.01; n * 100]).unwrap(),
-        )
-        .unwrap()
-        .array("trans", &NdArray::f64(&[n, 3], t).unwrap())
-        .unwrap()
-        .array("model", &text("smplx2020"))
-        .unwrap()
-        .array("gender", &text("neutral"))
-        .unwrap()
-        .array(
-            "mocap_frame_rate",
-            &NdArray::new(vec![], ArrayData::I32(vec![30])).unwrap(),
-        )
-        .unwrap();
-    w.finish().unwrap();
 }
 
 /// An AMASS SMPL-X file of `n` frames at 60 fps (z up).
@@ -65,7 +34,7 @@ fn write_amass(file: &Path, n: usize) {
         .unwrap()
         .array("betas", &NdArray::f64(&[16], vec![0.0; 16]).unwrap())
         .unwrap()
-        .array("surface_model_type", &text("smplx"))
+        .array("surface_model_type", &npz_text("smplx"))
         .unwrap()
         .array("mocap_frame_rate", &NdArray::f64(&[], vec![60.0]).unwrap())
         .unwrap();
