@@ -154,6 +154,49 @@ fn eval_json_has_the_keys_and_renders_that_rescore_the_same() {
 }
 
 #[test]
+fn renders_in_small_chunks_match_and_bound_the_samples_per_forward() {
+    let (data, run) = scene();
+    let dataset = Dataset::load(data).unwrap();
+    let avatar = Avatar::load(run).unwrap();
+    let frame = &dataset.frames[split_frames(&dataset, Split::TestSame).unwrap()[0]];
+    let (subject, _) = avatar
+        .subject(&dataset.subjects[frame.subject].name)
+        .unwrap();
+    for sampler in [SamplerKind::Dense, SamplerKind::Accelerated] {
+        let whole = avatar
+            .render(subject, &frame.params, &frame.camera, Some(sampler))
+            .unwrap();
+        // A dense ray has 128 samples: 300 forces chunks of two rays, some of one.
+        let small = avatar
+            .render_chunked(subject, &frame.params, &frame.camera, Some(sampler), 300)
+            .unwrap();
+        assert_eq!(whole.samples, small.samples, "{sampler:?}");
+        assert_eq!(whole.labels, small.labels, "{sampler:?}");
+        let worst = whole
+            .rgb
+            .iter()
+            .chain(&whole.opacity)
+            .zip(small.rgb.iter().chain(&small.opacity))
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0f32, f32::max);
+        assert!(
+            worst < 1e-4,
+            "{sampler:?}: chunks changed a pixel by {worst}"
+        );
+    }
+    // A dense frame of this size is several capped chunks, so the cap was exercised.
+    let dense = avatar
+        .render(
+            subject,
+            &frame.params,
+            &frame.camera,
+            Some(SamplerKind::Dense),
+        )
+        .unwrap();
+    assert!(dense.samples > 300, "{}", dense.samples);
+}
+
+#[test]
 fn library_eval_matches_identities_by_name_and_smooths() {
     let (data, run) = scene();
     let dataset = Dataset::load(data).unwrap();

@@ -127,11 +127,11 @@ pub struct SpeedVsErrorArgs {
     #[arg(long, default_value_t = 60.0)]
     pub dense_minutes: f64,
     /// test_same frames scored at every evaluation, evenly spaced (0: all); each run is
-    /// rendered by its own sampler (dense: about 10 s a 144x192 frame on 2 cores).
+    /// rendered by its own sampler (dense: tens of seconds a 144x192 frame on 2 cores).
     #[arg(long, default_value_t = 3)]
     pub eval_frames: usize,
     /// Training seconds between evaluations (default: 25% of the time trained so far, at
-    /// least 5 s).
+    /// least 5 s); a run skips an evaluation due sooner than its last one took.
     #[arg(long, value_name = "S")]
     pub eval_every_s: Option<f64>,
     /// The dense run's candidate learning rates; with more than one, a sweep picks the

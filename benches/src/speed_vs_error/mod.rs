@@ -11,8 +11,9 @@
 //!   first seconds of a dense run at each rate, on the full dense budget's schedule) picks
 //!   the rate with the highest PSNR, and the dense run proper starts afresh at it.
 //! - **Each run rendered by its own sampler.** Evaluation pauses the training clock. A
-//!   dense render costs about 10 s a 144x192 frame on 2 cores, so a few fixed frames are
-//!   scored often ([`run::eval_marks`]).
+//!   dense render costs tens of seconds a 144x192 frame on 2 cores, so a few fixed frames
+//!   are scored, often but never for longer than the training since the last evaluation
+//!   ([`run::eval_marks`]).
 //! - **Stopping.** The accelerated run trains until it reaches the highest target or its
 //!   budget ends; the dense run until it reaches the highest target the accelerated run
 //!   reached, or its budget ends. A target the dense run never reaches gives a lower bound

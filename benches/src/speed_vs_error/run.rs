@@ -23,8 +23,9 @@ pub const EVAL_GAP_SHARE: f64 = 0.25;
 
 /// The training seconds at which a run of `budget_s` is evaluated: 0 (the untrained
 /// field), then every `every_s`, or (`None`) gaps growing with the time trained
-/// ([`EVAL_GAP_SHARE`] of it, at least [`MIN_EVAL_GAP_S`]): a curve rises fastest early,
-/// and a dense evaluation costs about 10 s a frame. The budget is always a mark.
+/// ([`EVAL_GAP_SHARE`] of it, at least [`MIN_EVAL_GAP_S`]): a curve rises fastest early.
+/// The budget is always a mark. A run skips the marks that come sooner after its last
+/// evaluation than that evaluation took (a dense evaluation costs about 20 s a frame).
 pub fn eval_marks(budget_s: f64, every_s: Option<f64>) -> Vec<f64> {
     let mut marks = vec![0.0];
     let mut t = 0.0;
@@ -39,6 +40,27 @@ pub fn eval_marks(budget_s: f64, every_s: Option<f64>) -> Vec<f64> {
     }
     marks.push(budget_s);
     marks
+}
+
+/// When and for how long a run was last evaluated.
+#[derive(Clone, Copy, Debug)]
+struct LastEval {
+    /// Training seconds at the evaluation.
+    at_s: f64,
+    /// Wall seconds it took.
+    took_s: f64,
+}
+
+/// Whether to evaluate at `mark`: always at the first and the last mark, otherwise only
+/// once the run has trained at least as long as its last evaluation took. A dense
+/// evaluation (tens of seconds) then never takes longer than the training between two,
+/// while the accelerated run's (a few seconds) keeps every mark.
+fn worth_evaluating(mark: f64, last: Option<LastEval>, is_last_mark: bool) -> bool {
+    match last {
+        None => true,
+        Some(_) if is_last_mark => true,
+        Some(last) => mark - last.at_s >= last.took_s,
+    }
 }
 
 /// What to run.
@@ -201,7 +223,11 @@ pub(crate) fn train_and_score(
     let mut meter = CostMeter::default();
     let mut points = Vec::new();
     let (mut eval_s, mut lpips_note, mut stop) = (0.0, None, Stop::Budget);
-    for &mark in spec.marks {
+    let mut last_eval = None;
+    for (i, &mark) in spec.marks.iter().enumerate() {
+        if !worth_evaluating(mark, last_eval, i + 1 == spec.marks.len()) {
+            continue;
+        }
         while trainer.elapsed_seconds() < mark && !trainer.done() {
             meter.add(&trainer.step()?);
         }
@@ -215,6 +241,10 @@ pub(crate) fn train_and_score(
         )?;
         let took = start.elapsed().as_secs_f64();
         eval_s += took;
+        last_eval = Some(LastEval {
+            at_s: trainer.elapsed_seconds(),
+            took_s: took,
+        });
         lpips_note = report.lpips_note.clone().or(lpips_note);
         progress(&format!(
             "{}: {:.2} dB at {:.0} s ({} steps; evaluating took {took:.0} s)",
@@ -277,6 +307,24 @@ mod tests {
         );
         assert_eq!(eval_marks(62.0, Some(30.0)), vec![0.0, 30.0, 62.0]);
         assert_eq!(eval_marks(3.0, None), vec![0.0, 3.0]);
+    }
+
+    #[test]
+    fn slow_evaluations_skip_marks_but_never_the_first_or_last() {
+        let slow = Some(LastEval {
+            at_s: 10.0,
+            took_s: 70.0,
+        });
+        assert!(worth_evaluating(0.0, None, false));
+        assert!(!worth_evaluating(15.0, slow, false));
+        assert!(!worth_evaluating(79.9, slow, false));
+        assert!(worth_evaluating(80.0, slow, false));
+        assert!(worth_evaluating(15.0, slow, true));
+        let fast = Some(LastEval {
+            at_s: 10.0,
+            took_s: 3.0,
+        });
+        assert!(worth_evaluating(15.0, fast, false));
     }
 
     #[test]

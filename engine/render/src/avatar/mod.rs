@@ -11,7 +11,7 @@ use burn::prelude::*;
 use talkin_grids::SamplerKind;
 use talkin_nets::{FieldConfig, TalkinField};
 
-pub use render::{MAX_RENDER_PIXELS, RENDER_CHUNK_RAYS, RenderedFrame};
+pub use render::{MAX_RENDER_PIXELS, RENDER_CHUNK_RAYS, RENDER_CHUNK_SAMPLES, RenderedFrame};
 
 use talkin_train::Trainer;
 use talkin_train::checkpoint::{Checkpoint, CheckpointError};

@@ -15,8 +15,13 @@ use talkin_human::body::FrameParams;
 use talkin_human::camera::Camera;
 use talkin_train::scene::{FrameSampler, FrameScene};
 
-/// Rays per field evaluation when rendering (bounds the memory of one forward).
+/// Rays per field evaluation when rendering.
 pub const RENDER_CHUNK_RAYS: usize = 8192;
+/// Field samples per evaluation at most when rendering: a chunk of rays with more is
+/// halved until it fits. This bounds the memory of one forward; a whole chunk of dense
+/// rays (8192 x 128 samples) held several GB of activations, and two chunks in parallel
+/// took about 14 GB.
+pub const RENDER_CHUNK_SAMPLES: usize = 1 << 17;
 /// Largest image a render accepts (pixels): 4096 x 4096.
 pub const MAX_RENDER_PIXELS: u64 = 4096 * 4096;
 
@@ -26,6 +31,27 @@ struct ChunkOut {
     opacity: Vec<f32>,
     labels: Vec<u8>,
     samples: usize,
+}
+
+impl ChunkOut {
+    /// `next`'s rays after these.
+    fn append(&mut self, next: ChunkOut) {
+        self.rgb.extend(next.rgb);
+        self.opacity.extend(next.opacity);
+        self.labels.extend(next.labels);
+        self.samples += next.samples;
+    }
+}
+
+/// What every chunk of one frame's render shares.
+#[derive(Clone, Copy)]
+struct ChunkContext<'a> {
+    frame_sampler: &'a FrameSampler,
+    kind: SamplerKind,
+    grid: &'a talkin_grids::OccupancyGrid,
+    conditions: &'a talkin_nets::FrameConditions,
+    /// Field samples per evaluation at most (a single ray may exceed it).
+    max_samples: usize,
 }
 
 /// A rendered image.
@@ -89,6 +115,19 @@ impl Avatar {
         camera: &Camera,
         sampler: Option<SamplerKind>,
     ) -> Result<RenderedFrame, AvatarError> {
+        self.render_chunked(subject, params, camera, sampler, RENDER_CHUNK_SAMPLES)
+    }
+
+    /// [`Avatar::render`] with at most `max_chunk_samples` field samples evaluated at
+    /// once (at least one ray's). The image does not depend on it.
+    pub fn render_chunked(
+        &self,
+        subject: usize,
+        params: &FrameParams,
+        camera: &Camera,
+        sampler: Option<SamplerKind>,
+        max_chunk_samples: usize,
+    ) -> Result<RenderedFrame, AvatarError> {
         let start = Instant::now();
         let model = self.subject_at(subject)?;
         if !params.is_finite() {
@@ -118,7 +157,16 @@ impl Avatar {
         // on any number of threads.
         let chunks: Vec<ChunkOut> = rays
             .par_chunks(RENDER_CHUNK_RAYS)
-            .map(|chunk| self.render_chunk(&frame_sampler, kind, &model.grid, &conditions, chunk))
+            .map(|chunk| {
+                let ctx = ChunkContext {
+                    frame_sampler: &frame_sampler,
+                    kind,
+                    grid: &model.grid,
+                    conditions: &conditions,
+                    max_samples: max_chunk_samples,
+                };
+                self.render_chunk(&ctx, chunk)
+            })
             .collect::<Result<_, _>>()?;
         let n = rays.len();
         let mut rgb = Vec::with_capacity(3 * n);
@@ -142,16 +190,23 @@ impl Avatar {
         })
     }
 
-    /// One chunk of a frame's rays.
-    fn render_chunk(
-        &self,
-        frame_sampler: &FrameSampler,
-        kind: SamplerKind,
-        grid: &talkin_grids::OccupancyGrid,
-        conditions: &talkin_nets::FrameConditions,
-        chunk: &[Ray],
-    ) -> Result<ChunkOut, AvatarError> {
+    /// One chunk of a frame's rays, halved while it has more than `ctx.max_samples`
+    /// samples.
+    fn render_chunk(&self, ctx: &ChunkContext, chunk: &[Ray]) -> Result<ChunkOut, AvatarError> {
+        let ChunkContext {
+            frame_sampler,
+            kind,
+            grid,
+            conditions,
+            max_samples,
+        } = *ctx;
         let samples = frame_sampler.sample(kind, chunk, grid, None)?;
+        if samples.num_samples() > max_samples && chunk.len() > 1 {
+            let (first, second) = chunk.split_at(chunk.len() / 2);
+            let mut out = self.render_chunk(ctx, first)?;
+            out.append(self.render_chunk(ctx, second)?);
+            return Ok(out);
+        }
         if samples.num_samples() == 0 {
             return Ok(ChunkOut {
                 rgb: chunk.iter().flat_map(|_| self.background).collect(),
