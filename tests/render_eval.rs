@@ -11,7 +11,7 @@ use std::sync::OnceLock;
 use talkin::data::dataset::{Dataset, Split};
 use talkin::grids::SamplerKind;
 use talkin::human::body::joint;
-use talkin::render::avatar::Avatar;
+use talkin::render::avatar::{Avatar, RENDER_CHUNK_SAMPLES};
 use talkin::render::eval::{
     self, CropKind, EvalOptions, LpipsScorer, PSNR_CAP_DB, Rect, evaluate, frame_crops, rescore_png,
 };
@@ -179,12 +179,15 @@ fn renders_in_small_chunks_match_and_bound_the_samples_per_forward() {
             .zip(small.rgb.iter().chain(&small.opacity))
             .map(|(a, b)| (a - b).abs())
             .fold(0.0f32, f32::max);
+        // The cap holds: a dense ray has 128 samples, so two fit under 300.
+        assert!(small.largest_forward <= 300, "{}", small.largest_forward);
+        assert!(whole.largest_forward <= RENDER_CHUNK_SAMPLES);
         assert!(
             worst < 1e-4,
             "{sampler:?}: chunks changed a pixel by {worst}"
         );
     }
-    // A dense frame of this size is several capped chunks, so the cap was exercised.
+    // The default cap splits this frame's dense chunk (1920 rays x 128 samples).
     let dense = avatar
         .render(
             subject,
@@ -193,7 +196,12 @@ fn renders_in_small_chunks_match_and_bound_the_samples_per_forward() {
             Some(SamplerKind::Dense),
         )
         .unwrap();
-    assert!(dense.samples > 300, "{}", dense.samples);
+    assert!(dense.samples > RENDER_CHUNK_SAMPLES, "{}", dense.samples);
+    assert!(
+        dense.largest_forward <= RENDER_CHUNK_SAMPLES,
+        "{}",
+        dense.largest_forward
+    );
 }
 
 #[test]

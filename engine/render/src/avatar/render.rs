@@ -31,6 +31,8 @@ struct ChunkOut {
     opacity: Vec<f32>,
     labels: Vec<u8>,
     samples: usize,
+    /// The most samples one field forward of this chunk saw.
+    largest_forward: usize,
 }
 
 impl ChunkOut {
@@ -40,6 +42,7 @@ impl ChunkOut {
         self.opacity.extend(next.opacity);
         self.labels.extend(next.labels);
         self.samples += next.samples;
+        self.largest_forward = self.largest_forward.max(next.largest_forward);
     }
 }
 
@@ -68,6 +71,9 @@ pub struct RenderedFrame {
     pub labels: Vec<u8>,
     /// Field samples evaluated.
     pub samples: usize,
+    /// The most samples one field forward saw ([`RENDER_CHUNK_SAMPLES`] at most, unless a
+    /// single ray has more).
+    pub largest_forward: usize,
     pub seconds: f64,
 }
 
@@ -172,8 +178,9 @@ impl Avatar {
         let mut rgb = Vec::with_capacity(3 * n);
         let mut opacity = Vec::with_capacity(n);
         let mut labels = Vec::with_capacity(n);
-        let mut total_samples = 0;
+        let (mut total_samples, mut largest_forward) = (0, 0);
         for c in chunks {
+            largest_forward = largest_forward.max(c.largest_forward);
             rgb.extend_from_slice(&c.rgb);
             opacity.extend_from_slice(&c.opacity);
             labels.extend_from_slice(&c.labels);
@@ -186,6 +193,7 @@ impl Avatar {
             opacity,
             labels,
             samples: total_samples,
+            largest_forward,
             seconds: start.elapsed().as_secs_f64(),
         })
     }
@@ -213,6 +221,7 @@ impl Avatar {
                 opacity: vec![0.0; chunk.len()],
                 labels: vec![0; chunk.len()],
                 samples: 0,
+                largest_forward: 0,
             });
         }
         let points: Vec<[f32; 3]> = samples
@@ -273,6 +282,7 @@ impl Avatar {
             opacity,
             labels,
             samples: samples.num_samples(),
+            largest_forward: samples.num_samples(),
         })
     }
 }
