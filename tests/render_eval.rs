@@ -270,12 +270,18 @@ fn perfect_and_noisy_images_score_as_they_must() {
     assert!((got - want).abs() < 1e-9, "{got} vs {want}");
     let s = eval::ssim(&truth, &noisy, full).unwrap();
     assert!(s < 0.99 && s > 0.3, "{s}");
-    if let Ok(scorer) = LpipsScorer::from_dir(Some(&lpips_dir())).unwrap() {
+    if let Ok(scorer) =
+        LpipsScorer::from_dir(Some(&lpips_dir()), &burn::prelude::Device::flex()).unwrap()
+    {
         let same = scorer.distance(&truth, &truth, full).unwrap();
         let diff = scorer.distance(&truth, &noisy, full).unwrap();
         assert!(same.abs() < 1e-6 && diff > 1e-3, "{same} {diff}");
     }
-    let missing = LpipsScorer::from_dir(Some(Path::new("/nonexistent"))).unwrap();
+    let missing = LpipsScorer::from_dir(
+        Some(Path::new("/nonexistent")),
+        &burn::prelude::Device::flex(),
+    )
+    .unwrap();
     assert!(missing.err().unwrap().contains("/nonexistent"));
 }
 

@@ -9,6 +9,8 @@ use talkin_train::TrainError;
 pub enum BenchError {
     #[error(transparent)]
     Train(#[from] TrainError),
+    #[error("render: {0}")]
+    Render(#[from] talkin_render::avatar::AvatarError),
     #[error("evaluation: {0}")]
     Eval(#[from] talkin_render::eval::EvalError),
     #[error("{}: {source}", file.display())]

@@ -5,8 +5,8 @@
 //!
 //! It must not know about the acceleration structures (`grids`) or the pipeline
 //! (`engine`): samples, candidate masks and per-frame transforms come in as plain slices.
-//! The backend is chosen at run time through burn's `Device` (`Device::flex()` on CPU,
-//! `.autodiff()` for training).
+//! The backend is chosen at run time through burn's `Device`: [`ComputeDevice`] parses
+//! `--device cpu|wgpu[:N]` and opens Flex (CPU) or wgpu; `.autodiff()` for training.
 //!
 //! ```
 //! use burn::prelude::*;
@@ -26,6 +26,7 @@
 //! let opacity = out.opacity.try_to_vec_as::<f32>().unwrap();
 //! assert!((opacity[0] - 1.0).abs() < 1e-6 && opacity[1] == 0.0);
 //! ```
+pub mod device;
 pub mod encoding;
 pub mod error;
 pub mod field;
@@ -36,6 +37,8 @@ pub mod render;
 pub mod skinning;
 mod util;
 
+pub use burn::prelude::Device;
+pub use device::{ComputeDevice, DeviceError};
 pub use error::NetsError;
 pub use field::{FieldConfig, FieldInput, FieldOutput, FrameConditions, TalkinField, UnitMap};
 pub use render::{RaySamples, RenderedRays, render_packed};

@@ -32,7 +32,7 @@ use burn::prelude::*;
 use burn::tensor::IndexingUpdateOp;
 
 use crate::error::{NetsError, check_len};
-use crate::util::{floats, host, ints};
+use crate::util::{floats, ints};
 
 /// Body joints driving D_r.
 pub const N_BODY_JOINTS: usize = 22;
@@ -375,15 +375,17 @@ impl BlendWeightVolume {
             .sum_dim(1)
             .reshape([m])
             + floats(p.posed, [m], device); // [m]
-        // Softmax over each sample's candidates; the per-sample max is a constant shift.
-        let l = host(&logits);
-        let mut max = vec![f32::NEG_INFINITY; n];
-        for (&s, &v) in p.sample.iter().zip(&l) {
-            max[s as usize] = max[s as usize].max(v);
-        }
-        let shift: Vec<f32> = p.sample.iter().map(|&s| max[s as usize]).collect();
-        let e = (logits - floats(shift, [m], device)).exp(); // [m], max 1 per sample
+        // Softmax over each sample's candidates; the per-sample max is a constant shift,
+        // taken on the device (no readback mid-forward on a GPU).
         let sample = ints(p.sample, device);
+        let max = Tensor::<1>::full([n], f32::NEG_INFINITY, device).select_assign(
+            0,
+            sample.clone(),
+            logits.clone().detach(),
+            IndexingUpdateOp::Max,
+        ); // [n]
+        let shift = max.select(0, sample.clone()); // [m]
+        let e = (logits - shift).exp(); // [m], max 1 per sample
         let denom = Tensor::<1>::zeros([n], device).select_assign(
             0,
             sample.clone(),
@@ -408,6 +410,7 @@ impl BlendWeightVolume {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::util::host;
 
     fn identity_transforms() -> Vec<[f32; 16]> {
         (0..N_BODY_JOINTS)

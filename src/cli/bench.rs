@@ -6,7 +6,6 @@ use talkin_benches::sampling;
 use talkin_data::dataset::Dataset;
 use talkin_data::params_json::ParamsJson;
 use talkin_human::body::FrameParams;
-use talkin_render::avatar::Avatar;
 use talkin_serve::{Server, bench};
 use talkin_train::TrainOptions;
 
@@ -39,6 +38,43 @@ pub enum BenchCommand {
     /// The render server under load: an in-process server on a free port, closed-loop
     /// clients posting one frame each; throughput and p50/p99 latency per client count.
     Serve(ServeBenchArgs),
+    /// Per device and preset, in one run: training steps/s and samples/s (and the host
+    /// sampler's share of a step), render fps at 540x540, and peak memory.
+    Device(DeviceBenchArgs),
+}
+
+#[derive(clap::Args, Debug)]
+pub struct DeviceBenchArgs {
+    /// Dataset directory.
+    #[arg(long)]
+    pub data: PathBuf,
+    /// Report directory: device.json and device.md (and the rows' scratch runs).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Devices to compare, comma-separated (`cpu`, `wgpu`, `wgpu:N`).
+    #[arg(long, default_value = "cpu", value_delimiter = ',')]
+    pub devices: Vec<talkin_nets::ComputeDevice>,
+    /// Presets to compare, comma-separated.
+    #[arg(long, default_value = "fast,paper", value_delimiter = ',', value_enum)]
+    pub presets: Vec<talkin_train::Preset>,
+    /// Untimed steps before the timed ones (kernel compilation, allocator warm-up).
+    #[arg(long, default_value_t = 3)]
+    pub warmup: usize,
+    /// Timed steps per row (the median is reported).
+    #[arg(long, default_value_t = 10)]
+    pub steps: usize,
+    /// Timed 540x540 renders per row (after one untimed).
+    #[arg(long, default_value_t = 3)]
+    pub renders: usize,
+    /// Random pixel rays per step (the paper: 32768 for its preset).
+    #[arg(long = "batch", value_name = "N", default_value_t = TrainOptions::default().batch_rays)]
+    pub batch_rays: usize,
+    /// 32x32 LPIPS patches per step.
+    #[arg(long, default_value_t = 0)]
+    pub patches: usize,
+    /// Seed of the fields and the ray choice.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
 }
 
 #[derive(clap::Args, Debug)]
@@ -164,6 +200,8 @@ pub struct ServeBenchArgs {
     /// Also write the reports as JSON here.
     #[arg(long)]
     pub json: Option<PathBuf>,
+    #[command(flatten)]
+    pub device: super::DeviceArg,
 }
 
 #[derive(clap::Args, Debug)]
@@ -187,7 +225,40 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         BenchCommand::Ablations(a) => ablations_bench(a),
         BenchCommand::NovelIdentity(a) => novel_identity_bench(a),
         BenchCommand::Serve(a) => serve_bench(a),
+        BenchCommand::Device(a) => device_bench(a),
     }
+}
+
+fn device_bench(args: DeviceBenchArgs) -> anyhow::Result<()> {
+    use talkin_benches::device::{DeviceBenchOptions, run, table};
+    let dataset = super::load_dataset(&args.data)?;
+    let opts = DeviceBenchOptions {
+        devices: args.devices.clone(),
+        presets: args.presets.clone(),
+        warmup: args.warmup,
+        steps: args.steps,
+        renders: args.renders,
+        train: TrainOptions {
+            batch_rays: args.batch_rays,
+            patches: args.patches,
+            seed: args.seed,
+            ..TrainOptions::default()
+        },
+    };
+    let report = run(&dataset, &args.out.join("runs"), &opts, &mut |row| {
+        tracing::info!("measuring {row}")
+    })
+    .with_context(|| format!("device benchmark on {}", args.data.display()))?;
+    let md = table(&report);
+    talkin_benches::shared::write_report(
+        &args.out,
+        "device",
+        serde_json::to_string_pretty(&report)?.as_bytes(),
+        &md,
+    )?;
+    println!("{md}");
+    println!("report: {}/{{device.json, device.md}}", args.out.display());
+    Ok(())
 }
 
 fn serve_bench(args: ServeBenchArgs) -> anyhow::Result<()> {
@@ -209,8 +280,7 @@ fn serve_bench(args: ServeBenchArgs) -> anyhow::Result<()> {
         .split_once('x')
         .and_then(|(w, h)| Some((w.parse::<u32>().ok()?, h.parse::<u32>().ok()?)))
         .ok_or_else(|| anyhow::anyhow!("--image: expected WIDTHxHEIGHT, found {image}"))?;
-    let avatar =
-        Avatar::load(&args.run).with_context(|| format!("loading {}", args.run.display()))?;
+    let avatar = args.device.load_avatar(&args.run)?;
     let subject = avatar
         .trained_subjects()
         .first()

@@ -25,6 +25,9 @@ pub struct DemoArgs {
     /// instead of the short-run recipe (MSE + 0.05 CE, 512 rays a step).
     #[arg(long)]
     pub paper_loss: bool,
+    /// Train and evaluate on this device.
+    #[command(flatten)]
+    pub device: super::DeviceArg,
 }
 
 /// The demo's short-run recipe: in a budget of minutes the LPIPS patch (1024 correlated
@@ -76,7 +79,16 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
     );
     let minutes = args.minutes.to_string();
     let seed = args.seed.to_string();
-    let mut argv = vec!["demo", "--minutes", &minutes, "--seed", &seed];
+    let device = args.device.device.to_string();
+    let mut argv = vec![
+        "demo",
+        "--minutes",
+        &minutes,
+        "--seed",
+        &seed,
+        "--device",
+        &device,
+    ];
     if !args.paper_loss {
         argv.extend(SHORT_RUN_RECIPE);
     }
@@ -106,6 +118,7 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
             renders: None,
             lpips_dir: DEFAULT_LPIPS_DIR.clone(),
             smooth: false,
+            device: args.device.clone(),
         })?;
         let report: serde_json::Value = serde_json::from_slice(
             &std::fs::read(&json).with_context(|| format!("reading {}", json.display()))?,

@@ -33,13 +33,16 @@ pub struct EvalArgs {
     /// Smooth poses and cameras over time (Gaussian, window 5, sigma 1) before rendering.
     #[arg(long)]
     pub smooth: bool,
+    #[command(flatten)]
+    pub device: super::DeviceArg,
 }
 
 pub fn run(args: EvalArgs) -> anyhow::Result<()> {
     let split: Split = args.split.parse().map_err(anyhow::Error::msg)?;
+    let device = args.device.open()?;
     let dataset = super::load_dataset(&args.data)?;
-    let avatar =
-        Avatar::load(&args.run).with_context(|| format!("loading run {}", args.run.display()))?;
+    let avatar = Avatar::load_on(&args.run, &device)
+        .with_context(|| format!("loading run {}", args.run.display()))?;
     let frames = split_frames(&dataset, split)?;
     let renders = args.renders.clone().unwrap_or_else(|| {
         let stem = args

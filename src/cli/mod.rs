@@ -94,3 +94,32 @@ pub fn load_dataset(dir: &std::path::Path) -> anyhow::Result<talkin_data::datase
     }
     Ok(dataset)
 }
+
+/// `--device` for the commands that load a trained run (render, eval, serve, bench serve).
+#[derive(clap::Args, Debug, Clone)]
+pub struct DeviceArg {
+    /// Where the field runs: `cpu`, or `wgpu` / `wgpu:N` (a GPU: the first adapter wgpu
+    /// lists, or the Nth; builds with `--features wgpu`).
+    #[arg(long, default_value_t = talkin_nets::ComputeDevice::Cpu)]
+    pub device: talkin_nets::ComputeDevice,
+}
+
+impl DeviceArg {
+    /// Opens the device (before any other work: a machine without it fails at once).
+    pub fn open(&self) -> anyhow::Result<talkin_nets::Device> {
+        let device = self.device.open()?;
+        tracing::info!("device: {}", self.device.describe(&device));
+        Ok(device)
+    }
+
+    /// Loads the newest checkpoint of `run` onto the device.
+    pub fn load_avatar(
+        &self,
+        run: &std::path::Path,
+    ) -> anyhow::Result<talkin_render::avatar::Avatar> {
+        use anyhow::Context;
+        let device = self.open()?;
+        talkin_render::avatar::Avatar::load_on(run, &device)
+            .with_context(|| format!("loading run {}", run.display()))
+    }
+}

@@ -70,6 +70,8 @@ pub struct RenderArgs {
     /// Motions with the default camera: image height in pixels (width is 3/4 of it).
     #[arg(long, default_value_t = 192)]
     pub size: u32,
+    #[command(flatten)]
+    pub device: super::DeviceArg,
 }
 
 pub fn run(args: RenderArgs) -> anyhow::Result<()> {
@@ -104,8 +106,7 @@ pub fn run(args: RenderArgs) -> anyhow::Result<()> {
         Some(m) => Some(SmplxModel::load(m)?),
         None => None,
     };
-    let avatar =
-        Avatar::load(&args.run).with_context(|| format!("loading run {}", args.run.display()))?;
+    let avatar = args.device.load_avatar(&args.run)?;
     let subject = args.subject.as_deref();
     let (dataset, mut shots) = match (&args.data, &args.split, source) {
         (Some(dir), Some(split), _) => {

@@ -17,6 +17,8 @@ pub struct ServeArgs {
     pub body_model: Option<PathBuf>,
     #[command(flatten)]
     pub limits: LimitArgs,
+    #[command(flatten)]
+    pub device: super::DeviceArg,
 }
 
 /// The server's limits, shared with `bench serve`.
@@ -112,7 +114,14 @@ pub fn run(args: ServeArgs) -> anyhow::Result<()> {
         config.queue,
         config.shutdown_grace.as_secs_f64(),
     );
-    let server = Server::load_and_start(&args.run, args.body_model.as_deref(), &args.addr, config)?;
+    let device = args.device.device;
+    let server = Server::load_and_start(
+        &args.run,
+        args.body_model.as_deref(),
+        &args.addr,
+        config,
+        device,
+    )?;
     tracing::info!(
         "serving {} on http://{} ({workers} render threads, queue {queue}); Ctrl-C stops",
         args.run.display(),

@@ -47,7 +47,8 @@ pub struct GivenFlags {
 
 impl FromArgMatches for GivenFlags {
     fn from_arg_matches(m: &ArgMatches) -> Result<Self, clap::Error> {
-        let own = ["data", "out", "resume", "force", "run", "subject"];
+        // `--device` is where a run trains, not what it trains: a resume takes it too.
+        let own = ["data", "out", "resume", "force", "run", "subject", "device"];
         let given = |id: &str| m.value_source(id) == Some(ValueSource::CommandLine);
         Ok(GivenFlags {
             budget: given("steps") || given("minutes"),
@@ -86,10 +87,10 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
         if args.given.other {
             tracing::warn!(
                 "--resume continues with the run's own options (its recipe.json); only \
-                 --steps and --minutes given here apply"
+                 --steps, --minutes and --device given here apply"
             );
         }
-        let mut trainer = Trainer::resume(&dataset, &args.out)
+        let mut trainer = Trainer::resume_on(&dataset, &args.out, args.recipe.device)
             .with_context(|| format!("resuming {}", args.out.display()))?;
         if args.given.budget {
             trainer

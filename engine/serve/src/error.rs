@@ -14,6 +14,8 @@ use talkin_render::avatar::AvatarError;
 pub enum ServeError {
     #[error(transparent)]
     Config(#[from] ConfigError),
+    #[error(transparent)]
+    Device(#[from] talkin_nets::DeviceError),
     #[error("loading the avatar from {}: {source}", run.display())]
     Avatar {
         run: PathBuf,

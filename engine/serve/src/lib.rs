@@ -44,6 +44,7 @@ pub use subjects::{ServedSubject, default_camera, served_subjects};
 
 use pool::Pool;
 use talkin_data::smplx_model::SmplxModel;
+use talkin_nets::ComputeDevice;
 use talkin_render::avatar::Avatar;
 
 /// What every handler shares.
@@ -82,8 +83,10 @@ impl Server {
         body_model: Option<&Path>,
         addr: &str,
         config: ServeConfig,
+        device: ComputeDevice,
     ) -> Result<Server, ServeError> {
         config.validate()?;
+        let device = device.open()?;
         // The small file first: a wrong path is reported without loading the run.
         let model = body_model
             .map(|file| {
@@ -93,7 +96,7 @@ impl Server {
                 })
             })
             .transpose()?;
-        let avatar = Avatar::load(run).map_err(|source| ServeError::Avatar {
+        let avatar = Avatar::load_on(run, &device).map_err(|source| ServeError::Avatar {
             run: run.to_path_buf(),
             source,
         })?;

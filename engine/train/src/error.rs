@@ -47,6 +47,11 @@ pub enum TrainError {
         #[source]
         source: GridError,
     },
+    #[error("{source}")]
+    Device {
+        #[source]
+        source: talkin_nets::DeviceError,
+    },
     #[error("field: {source}")]
     Field {
         #[source]

@@ -8,6 +8,7 @@ use std::str::FromStr;
 use clap::{Arg, ArgMatches, Args, FromArgMatches};
 use serde::{Deserialize, Serialize};
 use talkin_grids::SamplerKind;
+use talkin_nets::ComputeDevice;
 
 use crate::error::TrainError;
 use crate::preset::Preset;
@@ -21,6 +22,12 @@ pub struct TrainOptions {
     /// Field preset: `fast` (hash grid, small MLPs) or `paper` (8x256 MLPs).
     #[arg(long, value_enum, default_value_t = Preset::Fast)]
     pub preset: Preset,
+    /// Where the field trains: `cpu`, or `wgpu` / `wgpu:N` (a GPU; builds with the `wgpu`
+    /// feature). Not part of the recipe: a run resumes, renders and serves on any device.
+    #[arg(long, default_value_t = ComputeDevice::Cpu)]
+    // Runs recorded before the option existed trained on the CPU.
+    #[serde(default)]
+    pub device: ComputeDevice,
     /// Sampler: `accelerated` (capsule BVH + occupancy grid) or `dense` (128 per ray).
     #[arg(long, default_value_t = SamplerKind::Accelerated)]
     pub sampler: SamplerKind,
@@ -225,6 +232,7 @@ impl Default for Ablation {
 impl Default for TrainOptions {
     fn default() -> Self {
         TrainOptions {
+            device: ComputeDevice::Cpu,
             preset: Preset::Fast,
             sampler: SamplerKind::Accelerated,
             budget: Budget::default(),

@@ -15,7 +15,7 @@ use serde::{Deserialize, Serialize};
 use talkin_data::dataset::Dataset;
 use talkin_grids::OccUpdateOpts;
 use talkin_nets::loss::{Backbone, PerceptualLoss};
-use talkin_nets::{FieldConfig, TalkinField};
+use talkin_nets::{ComputeDevice, FieldConfig, TalkinField};
 
 use crate::adam::FusedAdam;
 use crate::checkpoint::{Checkpoint, CheckpointContents, CheckpointError, path_json};
@@ -127,21 +127,31 @@ impl<'a> Trainer<'a> {
         config.face_uses_jaw = opts.ablation.face_uses_jaw;
         let subjects = fit_subjects(dataset, &frames, opts.grid_resolution)?;
         fit_field_box(&mut config, &subjects);
-        let device = Device::flex().autodiff();
+        let device = open_device(opts.device)?;
         let skeletons = subjects
             .iter()
             .filter_map(|s| s.model.as_ref().map(|m| &m.skeleton));
         let field = {
-            // The device's RNG is process-wide: seeding and drawing the initial weights
-            // must not interleave with another trainer's (tests, benches in threads), or
-            // the same seed gives different weights.
+            // The initial weights are drawn on the CPU whatever the device, so one seed
+            // gives one field on every device. The CPU's RNG is process-wide: seeding and
+            // drawing must not interleave with another trainer's (tests, benches in
+            // threads), or the same seed gives different weights.
+            let cpu = Device::flex().autodiff();
             let _guard = crate::checkpoint::DEVICE_RNG
                 .lock()
                 .unwrap_or_else(|e| e.into_inner());
-            device.seed(opts.seed);
-            config
-                .init(&bone_prior(skeletons), &device)
-                .map_err(|source| TrainError::Field { source })?
+            cpu.seed(opts.seed);
+            let field = config
+                .init(&bone_prior(skeletons), &cpu)
+                .map_err(|source| TrainError::Field { source })?;
+            // burn draws a layer's weights lazily, on first use: draw them all now, on
+            // the CPU and under the lock, or a forked field would draw them on its device.
+            materialize(&field);
+            if device == cpu {
+                field
+            } else {
+                field.fork(&device)
+            }
         };
         let slot_of = (0..n_subjects).map(Some).collect();
         Trainer::start(dataset, out, opts, config, field, subjects, frames, slot_of)
@@ -177,7 +187,7 @@ impl<'a> Trainer<'a> {
             return Err(TrainError::NoTrainFrames { file: index_file });
         }
         let checkpoint = Checkpoint::load(base)?;
-        let device = Device::flex().autodiff();
+        let device = open_device(opts.device)?;
         {
             let _guard = crate::checkpoint::DEVICE_RNG
                 .lock()
@@ -227,8 +237,18 @@ impl<'a> Trainer<'a> {
 
     /// Continues the run in `run` from its newest usable checkpoint, with the same options
     /// and budget ([`Trainer::set_budget`] gives it another). Refuses a dataset other
-    /// than the one the run was trained on.
+    /// than the one the run was trained on. It trains on the CPU.
     pub fn resume(dataset: &'a Dataset, run: &Path) -> Result<Self, TrainError> {
+        Trainer::resume_on(dataset, run, ComputeDevice::Cpu)
+    }
+
+    /// [`Trainer::resume`] on device `on`, whichever device wrote the checkpoint
+    /// (checkpoints hold host arrays).
+    pub fn resume_on(
+        dataset: &'a Dataset,
+        run: &Path,
+        on: ComputeDevice,
+    ) -> Result<Self, TrainError> {
         let checkpoint = Checkpoint::load(run)?;
         let mut notes = checkpoint.notes.clone();
         let state_file = checkpoint.dir.join(crate::checkpoint::STATE_FILE);
@@ -272,7 +292,7 @@ impl<'a> Trainer<'a> {
                 ),
             });
         }
-        let device = Device::flex().autodiff();
+        let device = open_device(on)?;
         let field = checkpoint.field(&device)?;
         let optim_bytes = checkpoint
             .optimizer_bytes()
@@ -285,7 +305,10 @@ impl<'a> Trainer<'a> {
         let mut t = Trainer::assemble(
             dataset,
             run,
-            state.options.clone(),
+            TrainOptions {
+                device: on,
+                ..state.options.clone()
+            },
             checkpoint.config.clone(),
             field,
             checkpoint.subjects.clone(),
@@ -589,4 +612,21 @@ fn same_dir(a: &Path, b: &Path) -> bool {
 fn optimizer(preset: Preset) -> ModuleOptimizer {
     let a = preset.adam();
     ModuleOptimizer::from(FusedAdam::new(a.beta_1, a.beta_2, a.epsilon))
+}
+
+/// `on`, opened for training (with autodiff).
+fn open_device(on: ComputeDevice) -> Result<Device, TrainError> {
+    let device = on.open().map_err(|source| TrainError::Device { source })?;
+    Ok(device.autodiff())
+}
+
+/// Draws every lazily initialised parameter of `field` now.
+fn materialize(field: &TalkinField) {
+    struct Touch;
+    impl burn::module::ModuleVisitor for Touch {
+        fn visit_float<const D: usize>(&mut self, param: &burn::module::Param<Tensor<D>>) {
+            let _ = param.val();
+        }
+    }
+    field.visit(&mut Touch);
 }

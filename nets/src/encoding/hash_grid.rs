@@ -1,19 +1,21 @@
 //! Multiresolution hash encoding (instant-ngp): per level a grid of trainable feature vectors,
 //! dense where it fits in `2^log2_hashmap_size` entries and spatially hashed above that,
-//! trilinearly interpolated. Corner indices are computed on the host (they are piecewise
-//! constant in the point, so carry no gradient); the interpolation weights are tensor ops on
-//! the point, so gradients reach both the table and the input points.
+//! trilinearly interpolated. Corner indices are piecewise constant in the point, so carry no
+//! gradient: the fused CPU op computes them on the host, the composed ops as int tensor ops
+//! on the device (`hash_corners`). The interpolation weights are tensor ops on the point,
+//! so gradients reach both the table and the input points.
 
 use burn::prelude::*;
 use burn::tensor::Distribution;
 
+use super::hash_corners::corners_on_device;
 use super::hash_fused::{self, Corners};
 use crate::util::{floats, host, ints};
 
 /// instant-ngp's spatial-hash primes (the first is 1 for cache coherence along x).
-const PRIMES: [u32; 3] = [1, 2_654_435_761, 805_459_861];
+pub(super) const PRIMES: [u32; 3] = [1, 2_654_435_761, 805_459_861];
 /// Mixes the identity into the spatial hash (a fourth coordinate).
-const IDENTITY_PRIME: u32 = 3_674_653_429;
+pub(super) const IDENTITY_PRIME: u32 = 3_674_653_429;
 
 /// Table row of integer vertex `c` of identity `id` on `level` of a grid with these
 /// per-level `resolutions` and row `offsets`: dense levels hold one block per identity
@@ -292,10 +294,18 @@ impl HashGrid {
         let l = self.resolutions.len();
         let f = self.n_features;
         let device = x.device();
-        let (lower, rows) = self.corners(&host(&x), identity as u32);
+        let id = identity as u32;
+        // On the device where the arithmetic fits in i32 (every preset's grid), else on
+        // the host.
+        let (lower, rows) = match corners_on_device(&x, &self.resolutions, &self.offsets, id) {
+            Some(corners) => corners,
+            None => {
+                let (lower, rows) = self.corners(&host(&x), id);
+                (floats(lower, [n, l, 3], &device), ints(rows, &device))
+            }
+        }; // [n, L, 3], [n L 8]
         let res: Vec<f32> = self.resolutions.iter().map(|&r| r as f32).collect();
         let res = floats(res, [1, l, 1], &device); // [1, L, 1]
-        let lower = floats(lower, [n, l, 3], &device); // [n, L, 3]
         let frac = x.unsqueeze_dim::<3>(1) * res - lower; // [n, L, 3] in [0, 1]
         let axis = |a: usize| {
             let t = frac.clone().narrow(2, a, 1); // [n, L, 1]
@@ -306,7 +316,7 @@ impl HashGrid {
             * axis(2).reshape([n, l, 2, 1, 1]); // [n, L, z, y, x]
         let weights = weights.reshape([n, l, 8, 1]);
         let features = table
-            .select(0, ints(rows, &device)) // [n L 8, F]
+            .select(0, rows) // [n L 8, F]
             .reshape([n, l, 8, f]);
         (features * weights).sum_dim(2).reshape([n, l * f]) // [n, L F]
     }
@@ -396,6 +406,60 @@ pub(crate) mod tests {
             pts.push(p);
         }
         pts
+    }
+
+    /// The corners and rows the composed path computes as int tensor ops equal the host's,
+    /// on dense and hashed levels, for several identities (points off the cell
+    /// boundaries, where f32 and f64 could floor differently).
+    #[test]
+    fn device_corners_equal_host_corners() {
+        let device = Device::flex();
+        let grid = HashGridConfig::new()
+            .with_n_levels(16)
+            .with_log2_hashmap_size(19)
+            .with_n_identities(3)
+            .init(&device);
+        let on_boundary = |p: &[f32; 3]| {
+            grid.resolutions.iter().any(|&r| {
+                p.iter().any(|&v| {
+                    let q = v as f64 * r as f64;
+                    (q - q.round()).abs() < 1e-3
+                })
+            })
+        };
+        let pts: Vec<[f32; 3]> = awkward_points()
+            .into_iter()
+            .map(|p| p.map(|v| v.clamp(0.0, 1.0)))
+            .filter(|p| !on_boundary(p))
+            .collect();
+        assert!(pts.len() > 50, "{} points", pts.len());
+        let (n, l) = (pts.len(), grid.resolutions.len());
+        let flat: Vec<f32> = pts.iter().flatten().copied().collect();
+        let x = floats(flat.clone(), [n, 3], &device);
+        let levels = grid.resolutions.iter().zip(&grid.offsets[1..]);
+        let hashed = levels
+            .zip(&grid.offsets)
+            .filter(|((r, end), start)| (*r + 1).pow(3) > *end - *start)
+            .count();
+        assert!(hashed > 0 && hashed < l, "{hashed} of {l} levels hashed");
+        for id in 0..4u32 {
+            let (lower, rows) =
+                corners_on_device(&x, &grid.resolutions, &grid.offsets, id).expect("fits");
+            let (host_lower, host_rows) = grid.corners(&flat, id);
+            assert_eq!(
+                host(&lower.reshape([n * l, 3])),
+                host_lower,
+                "identity {id}"
+            );
+            assert_eq!(
+                rows.into_data()
+                    .convert::<i32>()
+                    .try_to_vec::<i32>()
+                    .unwrap(),
+                host_rows,
+                "identity {id}"
+            );
+        }
     }
 
     /// The fused CPU op and the composed tensor ops (kept for other backends) give the same

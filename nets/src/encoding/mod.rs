@@ -6,6 +6,7 @@
 pub(crate) mod flex_data;
 pub mod frequency;
 mod frequency_fused;
+mod hash_corners;
 mod hash_fused;
 pub mod hash_grid;
 

@@ -15,11 +15,14 @@ use crate::error::{NetsError, check_len};
 use crate::mlp::Mlp;
 use crate::render::{OwnedRaySamples, RaySamples, RenderedRays, render_in_front, render_packed};
 use crate::skinning::{BlendWeightVolume, BoneCapsule, N_BODY_JOINTS, RigidWarp};
-use crate::util::{floats, host, ints, softplus};
+use crate::util::{floats, ints, softplus};
 
 mod config;
+mod routing;
 
 pub use config::{FieldConfig, POSED_TAU_M, UnitMap};
+use routing::Router;
+pub use routing::Routing;
 
 /// Segmentation classes of the body net (DensePose-derived labels of the paper).
 pub const N_SEG_CLASSES: usize = 5;
@@ -339,6 +342,16 @@ impl TalkinField {
     /// # Shapes
     /// `n = input.points.len()`; outputs as documented on [`FieldOutput`].
     pub fn forward(&self, input: &FieldInput) -> Result<FieldOutput, NetsError> {
+        self.forward_routed(input, Routing::for_device(&self.device()))
+    }
+
+    /// [`TalkinField::forward`] with the routing labels read where `routing` says (the
+    /// two give the same outputs and gradients; tests compare them on one device).
+    pub fn forward_routed(
+        &self,
+        input: &FieldInput,
+        routing: Routing,
+    ) -> Result<FieldOutput, NetsError> {
         self.check(input)?;
         let device = self.device();
         let n = input.points.len();
@@ -389,19 +402,12 @@ impl TalkinField {
         let seg_logits = raw.narrow(1, 4, N_SEG_CLASSES); // [n, 5]
 
         // Hard routing: candidates (BVH) whose body label is the part.
-        let labels = argmax_rows(&host(&seg_logits), N_SEG_CLASSES);
-        let routed = |bit: u8, label: usize| -> Vec<usize> {
-            (0..n)
-                .filter(|&i| input.part_masks[i] & bit != 0 && labels[i] == label)
-                .collect()
-        };
+        let route = Router::new(input.part_masks, &seg_logits, routing);
         if let Some(face) = &self.face {
-            let head = routed(PART_BIT_HEAD, SEG_HEAD);
-            if !head.is_empty() {
-                let h = head.len();
-                let xh = x
-                    .clone()
-                    .select(0, ints(head.iter().map(|&i| i as i32).collect(), &device)); // [h, 3]
+            let head = route.rows(PART_BIT_HEAD, SEG_HEAD);
+            if !head.rows.is_empty() {
+                let h = head.rows.len();
+                let xh = x.clone().select(0, head.indices(&device)); // [h, 3]
                 let mut e = frame.expression.to_vec();
                 if self.settings.face_uses_jaw {
                     e.extend(frame.jaw);
@@ -415,19 +421,17 @@ impl TalkinField {
                     step,
                 );
                 let (s_face, c_face) = activate(&raw);
-                sigma = replace_rows(sigma, &head, s_face);
-                rgb = replace_rows(rgb, &head, c_face);
+                sigma = head.replace(sigma, s_face);
+                rgb = head.replace(rgb, c_face);
                 stats.face_rows = h;
             }
         }
         let mut hands_out = None;
         if let Some(hands) = &self.hands {
-            let idx = routed(PART_BIT_HANDS, SEG_HANDS);
-            if !idx.is_empty() {
-                let h = idx.len();
-                let mut xh = x
-                    .clone()
-                    .select(0, ints(idx.iter().map(|&i| i as i32).collect(), &device));
+            let idx = route.rows(PART_BIT_HANDS, SEG_HANDS);
+            if !idx.rows.is_empty() {
+                let h = idx.rows.len();
+                let mut xh = x.clone().select(0, idx.indices(&device));
                 if let Some(dh) = &self.hand_deform {
                     let pose = floats(frame.hand_pose.clone(), [1, HAND_POSE_DIM], &device);
                     xh = xh.clone() + dh.forward(self.to_unit(xh), pose, step);
@@ -436,14 +440,17 @@ impl TalkinField {
                 let (s_hand, c_hand) = activate(&raw);
                 stats.hand_rows = h;
                 if self.settings.hand_background {
+                    // A candidate whose label is not the hands gets no density: it
+                    // composites to nothing in the second pass.
+                    let s_hand = idx.keep_or(s_hand, 0.0);
                     hands_out = Some(HandSamples {
-                        indices: idx,
+                        indices: idx.rows,
                         rgb: c_hand,
                         sigma: s_hand,
                     });
                 } else {
-                    sigma = replace_rows(sigma, &idx, s_hand);
-                    rgb = replace_rows(rgb, &idx, c_hand);
+                    sigma = idx.replace(sigma, s_hand);
+                    rgb = idx.replace(rgb, c_hand);
                 }
             }
         }
@@ -480,6 +487,7 @@ mod tests {
     use super::*;
     use crate::encoding::{EncodingConfig, HashGridConfig};
     use crate::skinning::{BoneSegment, N_BODY_JOINTS, SkinningConfig};
+    use crate::util::host;
     use burn::optim::{AdamConfig, GradientsParams};
 
     pub(crate) fn prior() -> Vec<BoneSegment> {
@@ -654,6 +662,101 @@ mod tests {
             host(&out.sigma).iter().all(|s| s.is_finite()),
             "pass 1 holds body outputs only"
         );
+    }
+
+    /// Routing read on the device (every candidate runs the part's net, the label picks)
+    /// gives the outputs and gradients that routing read on the host gives, with and
+    /// without the hands' second pass.
+    #[test]
+    fn routing_on_the_device_matches_routing_on_the_host() {
+        use burn::module::{ModuleVisitor, Param as P};
+        struct Grads(Vec<Option<Vec<f32>>>, GradientsParams);
+        impl ModuleVisitor for Grads {
+            fn visit_float<const D: usize>(&mut self, param: &P<Tensor<D>>) {
+                let g = self.1.get::<D>(param.id);
+                self.0.push(g.map(|g| g.try_to_vec_as::<f32>().unwrap()));
+            }
+        }
+        let device = Device::flex().autodiff();
+        let (pts, samples) = batch(8, 12);
+        let n = pts.len();
+        let bones: Vec<u64> = (0..n).map(|i| (1u64 << (i % 22)) | (1 << 15)).collect();
+        let parts: Vec<u8> = (0..n)
+            .map(|i| [0, PART_BIT_HEAD, PART_BIT_HANDS, 0xff][i % 4])
+            .collect();
+        let f = frame();
+        let input = FieldInput {
+            points: &pts,
+            bone_masks: &bones,
+            part_masks: &parts,
+            frame: &f,
+            step: 0,
+        };
+        for background in [true, false] {
+            device.seed(5);
+            let mut field = tiny_fast()
+                .with_hand_background(background)
+                .init(&prior(), &device)
+                .unwrap();
+            // Labels that vary from sample to sample (the hash features and the output
+            // layer scaled up, its bias zero), so the hands' net gets candidates routed
+            // and turned away.
+            if let Encoding::HashGrid(grid) = &mut field.body.encoding {
+                grid.table = P::from_tensor((grid.table.val() * 1e4).detach());
+            }
+            let out = &mut field.body.mlp.output;
+            out.weight = P::from_tensor((out.weight.val() * 30.0).detach());
+            out.bias = out
+                .bias
+                .take()
+                .map(|b| P::from_tensor(b.val().zeros_like()));
+            let run = |routing: Routing| {
+                let o = field.forward_routed(&input, routing).unwrap();
+                let seg = o.seg_logits.clone();
+                let r = o.render(&samples.view()).unwrap();
+                let loss = r.rgb.clone().sum() + r.opacity.clone().sum() + seg.sum() * 1e-3;
+                let mut g = Grads(
+                    Vec::new(),
+                    GradientsParams::from_grads(loss.backward(), &field),
+                );
+                field.visit(&mut g);
+                (host(&r.rgb), host(&r.opacity), o.stats, g.0)
+            };
+            let (rgb_h, op_h, stats_h, grads_h) = run(Routing::OnHost);
+            let (rgb_d, op_d, stats_d, grads_d) = run(Routing::OnDevice);
+            // The host routes a subset of the candidates the device runs: here some of the
+            // hands' candidates and none of the head's (routing.rs tests both partial).
+            let what = format!("background {background}: {stats_h:?} vs {stats_d:?}");
+            assert!(stats_h.face_rows <= stats_d.face_rows, "{what}");
+            assert!(
+                stats_h.hand_rows > 0 && stats_h.hand_rows < stats_d.hand_rows,
+                "{what}"
+            );
+            let close = |a: &[f32], b: &[f32], what: &str| {
+                assert_eq!(a.len(), b.len(), "{what}");
+                for (x, y) in a.iter().zip(b) {
+                    assert!(
+                        (x - y).abs() <= 1e-5 * (1.0 + x.abs()),
+                        "{what}: {x} vs {y}"
+                    );
+                }
+            };
+            close(&rgb_h, &rgb_d, "rgb");
+            close(&op_h, &op_d, "opacity");
+            assert_eq!(grads_h.len(), grads_d.len());
+            for (k, (a, b)) in grads_h.iter().zip(&grads_d).enumerate() {
+                let what = format!("gradient {k} (background {background})");
+                match (a, b) {
+                    (Some(a), Some(b)) => close(a, b, &what),
+                    // A net no row was routed to: no gradient on the host, zeros on the
+                    // device (it ran on the candidates and every one was turned away).
+                    (None, Some(g)) | (Some(g), None) => {
+                        assert!(g.iter().all(|&v| v == 0.0), "{what}")
+                    }
+                    (None, None) => {}
+                }
+            }
+        }
     }
 
     #[test]

@@ -67,8 +67,14 @@ impl Avatar {
 
     /// Loads the newest checkpoint of `run` onto the CPU (Flex) device.
     pub fn load(run: &Path) -> Result<Avatar, AvatarError> {
+        Avatar::load_on(run, &Device::flex())
+    }
+
+    /// Loads the newest checkpoint of `run` onto `device` (any device: checkpoints hold
+    /// host arrays, whichever device trained them).
+    pub fn load_on(run: &Path, device: &Device) -> Result<Avatar, AvatarError> {
         let checkpoint = Checkpoint::load(run)?;
-        let field = checkpoint.field(&Device::flex())?;
+        let field = checkpoint.field(device)?;
         let state_file = checkpoint.dir.join(talkin_train::checkpoint::STATE_FILE);
         let bad = |field: &'static str, problem: &str| AvatarError::State {
             file: state_file.clone(),
@@ -97,6 +103,11 @@ impl Avatar {
             sampler,
             field_step,
         })
+    }
+
+    /// The device the field lives on (renders run there).
+    pub fn device(&self) -> Device {
+        self.field.identity.val().device()
     }
 
     /// The subject named `name` and its index; the error lists the trained subjects.

@@ -12,7 +12,7 @@ use crate::metrics::Rect;
 /// The backbone evaluation reports (the paper's LPIPS and the `lpips` package default).
 pub const BACKBONE: Backbone = Backbone::Alex;
 
-/// LPIPS weights loaded on the CPU device.
+/// LPIPS weights loaded on the device of the renders they score.
 pub struct LpipsScorer {
     lpips: Lpips,
     device: Device,
@@ -22,7 +22,10 @@ impl LpipsScorer {
     /// The scorer from `dir/alex.safetensors`: `Ok(Err(note))` when there is no directory or
     /// no weights file (then LPIPS is reported as null with that note); a file that exists
     /// but cannot be loaded is an error.
-    pub fn from_dir(dir: Option<&Path>) -> Result<Result<LpipsScorer, String>, LossError> {
+    pub fn from_dir(
+        dir: Option<&Path>,
+        device: &Device,
+    ) -> Result<Result<LpipsScorer, String>, LossError> {
         let Some(dir) = dir else {
             return Ok(Err(
                 "LPIPS not computed: no LPIPS weights directory was given".into(),
@@ -36,9 +39,11 @@ impl LpipsScorer {
                 file.display()
             )));
         }
-        let device = Device::flex();
-        let lpips = Lpips::load(&file, BACKBONE, &device)?;
-        Ok(Ok(LpipsScorer { lpips, device }))
+        let lpips = Lpips::load(&file, BACKBONE, device)?;
+        Ok(Ok(LpipsScorer {
+            lpips,
+            device: device.clone(),
+        }))
     }
 
     /// LPIPS distance of `a` and `b` over `r` (not scaled); `None` for a region smaller

@@ -95,10 +95,11 @@ pub fn evaluate_with_progress(
     if opts.smooth {
         smooth_shots(&mut shots, &Smoothing::PAPER)?;
     }
-    let (scorer, lpips_note) = match LpipsScorer::from_dir(opts.lpips_dir.as_deref())? {
-        Ok(s) => (Some(s), None),
-        Err(note) => (None, Some(note)),
-    };
+    let (scorer, lpips_note) =
+        match LpipsScorer::from_dir(opts.lpips_dir.as_deref(), &avatar.device())? {
+            Ok(s) => (Some(s), None),
+            Err(note) => (None, Some(note)),
+        };
     if let Some(dir) = &opts.renders_dir {
         std::fs::create_dir_all(dir).map_err(|source| EvalError::Io {
             file: dir.clone(),

@@ -1,0 +1,285 @@
+//! The device bench: per device and preset, in one run, the training step rate (steps/s,
+//! samples/s, the host sampler's share of a step), the render rate at 540x540 and the
+//! peak memory.
+//!
+//! Each row trains a fresh field from the same seed for `warmup + steps` steps on the
+//! same frames and times the last `steps` (the median step); then it renders `renders`
+//! frames at 540x540 from that field and times them (the median render). Every timed
+//! call ends with a readback (the step's loss, the render's pixels), so a GPU's queued
+//! work is inside the time. Memory: the process's peak resident set (reset before each
+//! row where Linux allows it) and, on a GPU, the most the device's allocator reserved.
+
+use std::path::Path;
+use std::time::Instant;
+
+use serde::Serialize;
+use talkin_data::dataset::{Dataset, Split};
+use talkin_human::camera::Camera;
+use talkin_nets::ComputeDevice;
+use talkin_render::avatar::Avatar;
+use talkin_train::{Budget, Preset, TrainOptions, Trainer};
+
+use crate::error::BenchError;
+
+/// The render size the report names (InstantAvatar's 540x540).
+pub const RENDER_SIDE: u32 = 540;
+
+/// What to measure.
+#[derive(Clone, Debug)]
+pub struct DeviceBenchOptions {
+    pub devices: Vec<ComputeDevice>,
+    pub presets: Vec<Preset>,
+    /// Untimed steps first (kernel compilation, allocator warm-up).
+    pub warmup: usize,
+    /// Timed steps.
+    pub steps: usize,
+    /// Timed 540x540 renders (after one untimed).
+    pub renders: usize,
+    /// Everything else (batch, sampler, seed); its preset, device and budget are set here.
+    pub train: TrainOptions,
+}
+
+/// One device and preset.
+#[derive(Clone, Debug, Serialize)]
+pub struct DeviceRow {
+    pub device: String,
+    pub adapter: String,
+    pub preset: String,
+    pub batch_rays: usize,
+    pub step_ms_median: f64,
+    pub steps_per_s: f64,
+    pub samples_per_step: f64,
+    pub samples_per_s: f64,
+    /// Of the median step, the host sampler's share.
+    pub sampling_share: f64,
+    pub render_ms_median: f64,
+    pub render_fps: f64,
+    pub render_samples: usize,
+    /// The process's peak resident set over the row, MiB (`None` where Linux's
+    /// `/proc/self/status` is not there).
+    pub peak_rss_mib: Option<f64>,
+    /// The most the device's allocator reserved, MiB (`None` on the CPU, whose tensors are
+    /// in the resident set).
+    pub peak_device_mib: Option<f64>,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct DeviceReport {
+    pub warmup: usize,
+    pub steps: usize,
+    pub renders: usize,
+    pub render_size: [u32; 2],
+    pub rows: Vec<DeviceRow>,
+}
+
+/// Runs every device x preset row on `dataset`, training in `work/<device>-<preset>`.
+pub fn run(
+    dataset: &Dataset,
+    work: &Path,
+    opts: &DeviceBenchOptions,
+    progress: &mut dyn FnMut(&str),
+) -> Result<DeviceReport, BenchError> {
+    if opts.steps == 0 || opts.renders == 0 {
+        return Err(BenchError::BadOption {
+            field: "--steps/--renders",
+            problem: "must be at least 1".into(),
+        });
+    }
+    let camera = render_camera(dataset)?;
+    let mut rows = Vec::new();
+    for &device in &opts.devices {
+        let opened = device.open().map_err(|e| BenchError::BadOption {
+            field: "--devices",
+            problem: e.to_string(),
+        })?;
+        let adapter = device.describe(&opened);
+        for &preset in &opts.presets {
+            progress(&format!("{device} {}", preset.name()));
+            let run = work.join(format!("{device}-{}", preset.name()).replace(':', "_"));
+            rows.push(measure(
+                dataset, &run, opts, device, &adapter, preset, &camera,
+            )?);
+        }
+    }
+    Ok(DeviceReport {
+        warmup: opts.warmup,
+        steps: opts.steps,
+        renders: opts.renders,
+        render_size: [RENDER_SIDE, RENDER_SIDE],
+        rows,
+    })
+}
+
+#[allow(clippy::too_many_arguments)]
+fn measure(
+    dataset: &Dataset,
+    run: &Path,
+    opts: &DeviceBenchOptions,
+    device: ComputeDevice,
+    adapter: &str,
+    preset: Preset,
+    camera: &Camera,
+) -> Result<DeviceRow, BenchError> {
+    let train = TrainOptions {
+        device,
+        preset,
+        budget: Budget::Steps(opts.warmup + opts.steps),
+        // No checkpoint inside the timed steps.
+        checkpoint_every_s: f64::MAX,
+        ..opts.train.clone()
+    };
+    let _ = std::fs::remove_dir_all(run);
+    reset_peak_rss();
+    let mut peak_device = 0u64;
+    let mut trainer = Trainer::new(dataset, run, &train)?;
+    let mut steps = Vec::with_capacity(opts.steps);
+    for k in 0..opts.warmup + opts.steps {
+        let start = Instant::now();
+        let log = trainer.step()?;
+        let wall = start.elapsed().as_secs_f64();
+        peak_device = peak_device.max(device_reserved(&trainer));
+        if k >= opts.warmup {
+            steps.push((wall, log.samples as f64, log.sampling_s));
+        }
+    }
+    let step_ms = median(steps.iter().map(|s| s.0).collect()) * 1e3;
+    let samples = median(steps.iter().map(|s| s.1).collect());
+    let sampling = median(steps.iter().map(|s| s.2 / s.0.max(1e-12)).collect());
+
+    let avatar = Avatar::from_trainer(&trainer);
+    let frame = &dataset.frames[0];
+    let mut render_samples = 0;
+    let mut renders = Vec::with_capacity(opts.renders);
+    for k in 0..=opts.renders {
+        let start = Instant::now();
+        let out = avatar.render(frame.subject, &frame.params, camera, None)?;
+        let _pixels = out.to_image();
+        if k > 0 {
+            renders.push(start.elapsed().as_secs_f64());
+        }
+        render_samples = out.samples;
+        peak_device = peak_device.max(device_reserved(&trainer));
+    }
+    let render_ms = median(renders) * 1e3;
+    Ok(DeviceRow {
+        device: device.to_string(),
+        adapter: adapter.to_string(),
+        preset: preset.name().to_string(),
+        batch_rays: train.batch_rays,
+        step_ms_median: step_ms,
+        steps_per_s: 1e3 / step_ms,
+        samples_per_step: samples,
+        samples_per_s: samples / (step_ms / 1e3),
+        sampling_share: sampling,
+        render_ms_median: render_ms,
+        render_fps: 1e3 / render_ms,
+        render_samples,
+        peak_rss_mib: peak_rss_bytes().map(|b| b as f64 / MIB),
+        peak_device_mib: device.is_gpu().then_some(peak_device as f64 / MIB),
+    })
+}
+
+const MIB: f64 = 1024.0 * 1024.0;
+
+/// The first frame's camera widened to `RENDER_SIDE` square: the focal length scaled so the
+/// longer side fills it, the principal point moved to keep the subject centred.
+fn render_camera(dataset: &Dataset) -> Result<Camera, BenchError> {
+    let frame = dataset
+        .frames
+        .iter()
+        .find(|f| f.split == Split::Train)
+        .or(dataset.frames.first())
+        .ok_or_else(|| BenchError::BadOption {
+            field: "--data",
+            problem: "the dataset has no frames".into(),
+        })?;
+    let c = &frame.camera;
+    let side = RENDER_SIDE as f64;
+    let scale = side / c.width.max(c.height) as f64;
+    let mut k = c.intrinsics_rows();
+    for v in &mut k[0] {
+        *v *= scale;
+    }
+    for v in &mut k[1] {
+        *v *= scale;
+    }
+    k[0][2] += (side - c.width as f64 * scale) / 2.0;
+    k[1][2] += (side - c.height as f64 * scale) / 2.0;
+    Camera::new(RENDER_SIDE, RENDER_SIDE, k, c.extrinsics_rows()).map_err(|e| {
+        BenchError::BadOption {
+            field: "--data",
+            problem: format!("the first frame's camera at {RENDER_SIDE}px: {e}"),
+        }
+    })
+}
+
+/// Bytes the trainer's device allocator holds (0 where it does not say).
+fn device_reserved(trainer: &Trainer) -> u64 {
+    Avatar::from_trainer(trainer)
+        .device()
+        .memory_pool_usage()
+        .map_or(0, |u| u.bytes_reserved)
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    match v.len() {
+        0 => f64::NAN,
+        n if n % 2 == 1 => v[n / 2],
+        n => (v[n / 2 - 1] + v[n / 2]) / 2.0,
+    }
+}
+
+/// Resets the kernel's peak-RSS counter for this process (Linux; a no-op elsewhere).
+fn reset_peak_rss() {
+    let _ = std::fs::write("/proc/self/clear_refs", "5");
+}
+
+/// `VmHWM` of this process, in bytes.
+fn peak_rss_bytes() -> Option<u64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kib * 1024)
+}
+
+/// The report as a Markdown table.
+pub fn table(r: &DeviceReport) -> String {
+    let mut s = format!(
+        "{} timed steps after {} warm-up, {} renders at {}x{}; medians.\n\n\
+         | device | preset | batch | step ms | steps/s | samples/s | sampler share | \
+         render ms | fps | peak RSS MiB | peak device MiB |\n\
+         |---|---|---|---|---|---|---|---|---|---|---|\n",
+        r.steps, r.warmup, r.renders, r.render_size[0], r.render_size[1]
+    );
+    let opt = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.0}"));
+    for row in &r.rows {
+        s += &format!(
+            "| {} | {} | {} | {:.1} | {:.2} | {:.0} | {:.1}% | {:.0} | {:.2} | {} | {} |\n",
+            row.adapter,
+            row.preset,
+            row.batch_rays,
+            row.step_ms_median,
+            row.steps_per_s,
+            row.samples_per_s,
+            100.0 * row.sampling_share,
+            row.render_ms_median,
+            row.render_fps,
+            opt(row.peak_rss_mib),
+            opt(row.peak_device_mib),
+        );
+    }
+    s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn median_of_odd_and_even_counts() {
+        assert_eq!(median(vec![3.0, 1.0, 2.0]), 2.0);
+        assert_eq!(median(vec![4.0, 1.0, 2.0, 3.0]), 2.5);
+        assert!(median(vec![]).is_nan());
+    }
+}

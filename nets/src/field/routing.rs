@@ -1,0 +1,199 @@
+//! Hard routing of samples to F_face and F_hands: a sample goes to a part's net when the
+//! BVH made it a candidate of the part (host data) and F_body's segmentation labels it
+//! that part (a device tensor).
+//!
+//! Two ways to read the labels, with the same outputs and gradients:
+//! - on the host ([`Routing::OnHost`], the CPU's): the labels are read back and only the
+//!   routed rows run the part's net;
+//! - on the device ([`Routing::OnDevice`], a GPU's): every candidate row runs the part's
+//!   net and the label picks, per row, the part's output or the body's. Nothing is read
+//!   back mid-forward, at the price of the candidates the label turns away.
+
+use burn::prelude::*;
+
+use super::{argmax_rows, replace_rows};
+use crate::util::{host, ints};
+
+/// Where the routing labels are read.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Routing {
+    OnHost,
+    OnDevice,
+}
+
+impl Routing {
+    /// On the host for burn's CPU backend (a readback is a copy there, and fewer rows
+    /// through the part nets is the saving), on the device for every other.
+    pub fn for_device(device: &Device) -> Routing {
+        if device.clone().without_autodiff() == Device::flex() {
+            Routing::OnHost
+        } else {
+            Routing::OnDevice
+        }
+    }
+}
+
+/// One batch's candidates and labels.
+pub(super) struct Router<'a> {
+    part_masks: &'a [u8],
+    seg_logits: Tensor<2>,
+    /// The labels on the host ([`Routing::OnHost`] only).
+    labels: Option<Vec<usize>>,
+}
+
+/// The rows one part's net runs on.
+pub(super) struct Routed {
+    /// Ascending sample indices.
+    pub rows: Vec<usize>,
+    /// Per row, whether the part's output replaces the body's: `None` when every row is
+    /// routed (the host read the labels), a device mask `[rows]` otherwise.
+    keep: Option<Tensor<1, Bool>>,
+}
+
+impl<'a> Router<'a> {
+    pub fn new(part_masks: &'a [u8], seg_logits: &Tensor<2>, routing: Routing) -> Router<'a> {
+        let classes = seg_logits.dims()[1];
+        let labels = match routing {
+            Routing::OnHost => Some(argmax_rows(&host(seg_logits), classes)),
+            Routing::OnDevice => None,
+        };
+        Router {
+            part_masks,
+            seg_logits: seg_logits.clone(),
+            labels,
+        }
+    }
+
+    /// The rows of the part with candidate bit `bit` and segmentation label `label`.
+    pub fn rows(&self, bit: u8, label: usize) -> Routed {
+        let candidates = (0..self.part_masks.len()).filter(|&i| self.part_masks[i] & bit != 0);
+        match &self.labels {
+            Some(labels) => Routed {
+                rows: candidates.filter(|&i| labels[i] == label).collect(),
+                keep: None,
+            },
+            None => {
+                let rows: Vec<usize> = candidates.collect();
+                let keep = (!rows.is_empty()).then(|| {
+                    let device = self.seg_logits.device();
+                    let h = rows.len();
+                    self.seg_logits
+                        .clone()
+                        .detach()
+                        .select(0, index_tensor(&rows, &device))
+                        .argmax(1)
+                        .reshape([h])
+                        .equal_elem(label as i64)
+                });
+                Routed { rows, keep }
+            }
+        }
+    }
+}
+
+impl Routed {
+    /// The rows as a device index tensor.
+    pub fn indices(&self, device: &Device) -> Tensor<1, Int> {
+        index_tensor(&self.rows, device)
+    }
+
+    /// `base` with the routed rows' values from `values` (`[rows, ..]`); a candidate the
+    /// label turned away keeps `base`'s.
+    pub fn replace<const D: usize>(&self, base: Tensor<D>, values: Tensor<D>) -> Tensor<D> {
+        let values = match &self.keep {
+            None => values,
+            Some(keep) => {
+                let device = base.device();
+                let old = base.clone().select(0, self.indices(&device));
+                old.mask_where(broadcast(keep, &values), values)
+            }
+        };
+        replace_rows(base, &self.rows, values)
+    }
+
+    /// `values` (`[rows]`) with `fill` where the label turned a candidate away.
+    pub fn keep_or(&self, values: Tensor<1>, fill: f32) -> Tensor<1> {
+        match &self.keep {
+            None => values,
+            Some(keep) => values.mask_fill(keep.clone().bool_not(), fill),
+        }
+    }
+}
+
+fn index_tensor(rows: &[usize], device: &Device) -> Tensor<1, Int> {
+    ints(rows.iter().map(|&i| i as i32).collect(), device)
+}
+
+/// `keep` (`[h]`) shaped like `like` (`[h, ..]`).
+fn broadcast<const D: usize>(keep: &Tensor<1, Bool>, like: &Tensor<D>) -> Tensor<D, Bool> {
+    let dims = like.dims();
+    let mut shape = [1usize; D];
+    shape[0] = dims[0];
+    keep.clone().reshape(shape).expand(dims)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::field::{PART_BIT_HANDS, PART_BIT_HEAD, SEG_HANDS, SEG_HEAD};
+
+    /// Each part's candidates, some labelled the part and some not: replacing rows and
+    /// filling turned-away rows gives the same values and gradients both ways.
+    #[test]
+    fn replace_and_fill_agree_on_host_and_device() {
+        let device = Device::flex().autodiff();
+        let n = 12;
+        let parts: Vec<u8> = (0..n)
+            .map(|i| {
+                [
+                    PART_BIT_HEAD,
+                    PART_BIT_HANDS,
+                    PART_BIT_HEAD | PART_BIT_HANDS,
+                    0,
+                ][i % 4]
+            })
+            .collect();
+        let logits: Vec<f32> = (0..n)
+            .flat_map(|i| {
+                let mut row = [0.0f32; 5];
+                row[[SEG_HEAD, SEG_HANDS, 0][i % 3]] = 1.0;
+                row
+            })
+            .collect();
+        let seg = Tensor::<2>::from_data(TensorData::new(logits, [n, 5]), &device);
+        let x: Vec<f32> = (0..n * 3).map(|k| k as f32 * 0.1 - 1.0).collect();
+        let x = Tensor::<2>::from_data(TensorData::new(x, [n, 3]), &device).require_grad();
+        let run = |routing: Routing| {
+            let router = Router::new(&parts, &seg, routing);
+            let head = router.rows(PART_BIT_HEAD, SEG_HEAD);
+            let hands = router.rows(PART_BIT_HANDS, SEG_HANDS);
+            // A part's "net": doubles (head) or squares (hands) its rows.
+            let part = |r: &Routed| x.clone().select(0, r.indices(&device));
+            let y = head.replace(x.clone(), part(&head) * 2.0);
+            let y = hands.replace(y, part(&hands).powf_scalar(2.0));
+            let filled = hands.keep_or(part(&hands).sum_dim(1).reshape([hands.rows.len()]), 0.0);
+            let total = hands.indices(&device).float().mul(filled.clone()).sum();
+            let loss = y.clone().sum() + total.clone();
+            let g = x.grad(&loss.backward()).unwrap();
+            (
+                host(&y),
+                host(&total.reshape([1])),
+                g.try_to_vec_as::<f32>().unwrap(),
+                (head.rows.len(), hands.rows.len()),
+            )
+        };
+        let (y_h, t_h, g_h, rows_h) = run(Routing::OnHost);
+        let (y_d, t_d, g_d, rows_d) = run(Routing::OnDevice);
+        assert!(
+            rows_h.0 > 0 && rows_h.0 < rows_d.0,
+            "{rows_h:?} vs {rows_d:?}"
+        );
+        assert!(
+            rows_h.1 > 0 && rows_h.1 < rows_d.1,
+            "{rows_h:?} vs {rows_d:?}"
+        );
+        assert_eq!(y_h, y_d);
+        assert_eq!(t_h, t_d);
+        assert_eq!(g_h, g_d);
+    }
+}

@@ -1,0 +1,168 @@
+//! The device path: `--device` parses and refuses what it cannot open, and (with the
+//! `wgpu` feature, on any Vulkan adapter, Mesa's lavapipe included) a few training steps
+//! and a render on wgpu match the CPU from the same seed.
+//!
+//! The equivalence test is ignored by `cargo test` (it needs the `wgpu` feature and an
+//! adapter); run it with
+//! `cargo test --release --features wgpu --test device -- --ignored`.
+
+mod common;
+
+use std::process::Command;
+
+use talkin::nets::ComputeDevice;
+
+#[test]
+fn a_device_that_cannot_be_opened_is_a_named_error_and_a_nonzero_exit() {
+    let data = common::temp_dir("device_cli");
+    for (device, says) in [
+        ("cuda", "expected `cpu`, `wgpu` or `wgpu:N`"),
+        ("wgpu:x", "expected `cpu`, `wgpu` or `wgpu:N`"),
+        #[cfg(not(feature = "wgpu"))]
+        ("wgpu", "--features wgpu"),
+        #[cfg(feature = "wgpu")]
+        ("wgpu:64", "adapter"),
+    ] {
+        let out = Command::new(env!("CARGO_BIN_EXE_talkin"))
+            .args(["eval", "--run", "nowhere", "--split", "test_same", "--json"])
+            .arg(data.join("e.json"))
+            .arg("--data")
+            .arg(&data)
+            .args(["--device", device])
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success(), "{device}: exit 0");
+        assert!(stderr.contains(says), "{device}: {stderr}");
+        assert!(!stderr.contains("panicked"), "{device}: {stderr}");
+    }
+    // The CPU is always there.
+    assert!(ComputeDevice::Cpu.open().is_ok());
+}
+
+#[cfg(feature = "wgpu")]
+mod wgpu {
+    use burn::module::{Module, ModuleVisitor, Param};
+    use burn::prelude::*;
+    use talkin::grids::SamplerKind;
+    use talkin::nets::{ComputeDevice, TalkinField};
+    use talkin::render::avatar::Avatar;
+    use talkin::render::metrics::{Rect, psnr};
+    use talkin::train::{StepLog, Trainer};
+
+    use super::common;
+
+    const STEPS: usize = 8;
+
+    /// Every float parameter of a field, in visiting order, on the host.
+    fn parameters(field: &TalkinField) -> Vec<Vec<f32>> {
+        struct Collect(Vec<Vec<f32>>);
+        impl ModuleVisitor for Collect {
+            fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
+                self.0.push(param.val().try_to_vec_as::<f32>().unwrap());
+            }
+        }
+        let mut c = Collect(Vec::new());
+        field.visit(&mut c);
+        c.0
+    }
+
+    /// `STEPS` steps on `device`, the per-step logs and the trainer.
+    fn train<'a>(
+        dataset: &'a talkin::data::dataset::Dataset,
+        name: &str,
+        device: ComputeDevice,
+    ) -> (Vec<StepLog>, Trainer<'a>) {
+        let out = common::temp_dir(name);
+        let mut opts = common::small_train_opts(SamplerKind::Accelerated, STEPS);
+        opts.device = device;
+        let mut t = Trainer::new(dataset, &out, &opts).unwrap();
+        let logs = (0..STEPS).map(|_| t.step().unwrap()).collect();
+        (logs, t)
+    }
+
+    /// Tolerances, stated: the two devices add in different orders (the CPU's fused
+    /// kernels, wgpu's composed ops and atomic scatter-adds), so losses agree to 2%
+    /// relative and each parameter to 2 x lr per step taken (Adam moves a parameter at
+    /// most ~lr a step, whatever its gradient, so a sign flip in a near-zero gradient moves
+    /// it that much) plus 1e-4 relative. The renders agree to 0.5 dB of PSNR against the
+    /// ground truth, and to 35 dB against each other.
+    #[test]
+    #[ignore = "needs the wgpu feature and a Vulkan adapter (lavapipe will do): \
+                cargo test --release --features wgpu --test device -- --ignored"]
+    fn wgpu_matches_cpu() {
+        let dataset = common::synthetic_scene("device_scene", 1, 48, 1);
+        let (cpu_logs, cpu) = train(&dataset, "device_run_cpu", ComputeDevice::Cpu);
+        let gpu_device = ComputeDevice::Wgpu { index: 0 };
+        let (gpu_logs, gpu) = train(&dataset, "device_run_wgpu", gpu_device);
+
+        // The same start: the initial weights are drawn on the CPU for every device, the
+        // rays and samples on the host.
+        for (c, g) in cpu_logs.iter().zip(&gpu_logs) {
+            assert_eq!(c.samples, g.samples, "step {}: the batches differ", c.step);
+            let rel = (c.loss - g.loss).abs() / c.loss.abs().max(1e-6);
+            println!(
+                "step {}: loss cpu {:.6} wgpu {:.6} ({:.2e} relative)",
+                c.step, c.loss, g.loss, rel
+            );
+            assert!(rel < 0.02, "step {}: loss {} vs {}", c.step, c.loss, g.loss);
+        }
+
+        let lr = cpu_logs[0].lr as f32;
+        let (a, b) = (
+            parameters(&cpu.inference_field()),
+            parameters(&gpu.inference_field()),
+        );
+        assert_eq!(a.len(), b.len());
+        let mut worst = 0.0f32;
+        for (i, (a, b)) in a.iter().zip(&b).enumerate() {
+            assert_eq!(a.len(), b.len(), "parameter {i}");
+            for (x, y) in a.iter().zip(b) {
+                let allowed = 2.0 * lr * STEPS as f32 + 1e-4 * x.abs();
+                worst = worst.max((x - y).abs() / allowed);
+                assert!((x - y).abs() <= allowed, "parameter {i}: {x} vs {y}");
+            }
+        }
+        println!("largest parameter gap: {worst:.3} of the allowed");
+
+        // One held-out frame rendered on both.
+        let f = &dataset.frames[dataset.frames.len() - 1];
+        let truth = image::open(dataset.root.join(&f.image)).unwrap().to_rgb8();
+        let render = |t: &Trainer| {
+            Avatar::from_trainer(t)
+                .render(0, &f.params, &f.camera, None)
+                .unwrap()
+                .to_image()
+        };
+        let (on_cpu, on_gpu) = (render(&cpu), render(&gpu));
+        let full = Rect::full(&truth);
+        let (p_cpu, p_gpu) = (psnr(&on_cpu, &truth, full), psnr(&on_gpu, &truth, full));
+        let between = psnr(&on_cpu, &on_gpu, full);
+        println!(
+            "PSNR against the truth: cpu {p_cpu:.3} dB, wgpu {p_gpu:.3} dB; between {between:.1} dB"
+        );
+        assert!((p_cpu - p_gpu).abs() <= 0.5, "{p_cpu} vs {p_gpu}");
+        assert!(between >= 35.0, "the renders differ: {between} dB");
+
+        // A checkpoint trained on one device renders on the other.
+        let cpu_run = common::temp_dir("device_ckpt_cpu");
+        let mut opts = common::small_train_opts(SamplerKind::Accelerated, 2);
+        talkin::train::train(&dataset, &cpu_run, &opts, &mut |_| {}).unwrap();
+        opts.device = gpu_device;
+        let gpu_run = common::temp_dir("device_ckpt_wgpu");
+        talkin::train::train(&dataset, &gpu_run, &opts, &mut |_| {}).unwrap();
+        let wgpu = gpu_device.open().unwrap();
+        for run in [&cpu_run, &gpu_run] {
+            let here = Avatar::load(run).unwrap();
+            let there = Avatar::load_on(run, &wgpu).unwrap();
+            let a = here.render(0, &f.params, &f.camera, None).unwrap();
+            let b = there.render(0, &f.params, &f.camera, None).unwrap();
+            let gap = psnr(&a.to_image(), &b.to_image(), full);
+            println!(
+                "{}: cpu vs wgpu render of one checkpoint: {gap:.1} dB",
+                run.display()
+            );
+            assert!(gap >= 40.0, "{}: {gap} dB", run.display());
+        }
+    }
+}
