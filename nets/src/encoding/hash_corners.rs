@@ -10,7 +10,7 @@
 
 use burn::prelude::*;
 
-use super::hash_grid::{IDENTITY_PRIME, PRIMES};
+use super::hash_primes::{IDENTITY_PRIME, PRIMES};
 
 /// Vertex coordinates must stay below this (a resolution of 8191 cells).
 const MAX_VERTEX: usize = 1 << 13;

@@ -10,12 +10,8 @@ use burn::tensor::Distribution;
 
 use super::hash_corners::corners_on_device;
 use super::hash_fused::{self, Corners};
+use super::hash_primes::{IDENTITY_PRIME, PRIMES};
 use crate::util::{floats, host, ints};
-
-/// instant-ngp's spatial-hash primes (the first is 1 for cache coherence along x).
-pub(super) const PRIMES: [u32; 3] = [1, 2_654_435_761, 805_459_861];
-/// Mixes the identity into the spatial hash (a fourth coordinate).
-pub(super) const IDENTITY_PRIME: u32 = 3_674_653_429;
 
 /// Table row of integer vertex `c` of identity `id` on `level` of a grid with these
 /// per-level `resolutions` and row `offsets`: dense levels hold one block per identity

@@ -9,6 +9,7 @@ mod frequency_fused;
 mod hash_corners;
 mod hash_fused;
 pub mod hash_grid;
+mod hash_primes;
 
 use burn::prelude::*;
 
