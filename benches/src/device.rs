@@ -94,11 +94,17 @@ pub fn run(
         })?;
         let adapter = device.describe(&opened);
         for &preset in &opts.presets {
-            progress(&format!("{device} {}", preset.name()));
+            progress(&format!("measuring {device} {}", preset.name()));
             let run = work.join(format!("{device}-{}", preset.name()).replace(':', "_"));
-            rows.push(measure(
-                dataset, &run, opts, device, &adapter, preset, &camera,
-            )?);
+            let row = measure(dataset, &run, opts, device, &adapter, preset, &camera)?;
+            progress(&format!(
+                "{device} {}: step {:.1} ms, {:.0} samples/s, render {:.0} ms",
+                preset.name(),
+                row.step_ms_median,
+                row.samples_per_s,
+                row.render_ms_median
+            ));
+            rows.push(row);
         }
     }
     Ok(DeviceReport {

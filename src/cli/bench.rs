@@ -246,7 +246,7 @@ fn device_bench(args: DeviceBenchArgs) -> anyhow::Result<()> {
         },
     };
     let report = run(&dataset, &args.out.join("runs"), &opts, &mut |row| {
-        tracing::info!("measuring {row}")
+        tracing::info!("{row}")
     })
     .with_context(|| format!("device benchmark on {}", args.data.display()))?;
     let md = table(&report);
