@@ -125,7 +125,7 @@ mod wgpu {
         }
         println!("largest parameter gap: {worst:.3} of the allowed");
 
-        // One held-out frame rendered on both.
+        // The dataset's last frame rendered on both.
         let f = &dataset.frames[dataset.frames.len() - 1];
         let truth = image::open(dataset.root.join(&f.image)).unwrap().to_rgb8();
         let render = |t: &Trainer| {

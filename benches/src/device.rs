@@ -13,9 +13,9 @@ use std::path::Path;
 use std::time::Instant;
 
 use serde::Serialize;
-use talkin_data::dataset::{Dataset, Split};
+use talkin_data::dataset::{Dataset, Frame, Split};
 use talkin_human::camera::Camera;
-use talkin_nets::ComputeDevice;
+use talkin_nets::{ComputeDevice, Device};
 use talkin_render::avatar::Avatar;
 use talkin_train::{Budget, Preset, TrainOptions, Trainer};
 
@@ -50,7 +50,7 @@ pub struct DeviceRow {
     pub steps_per_s: f64,
     pub samples_per_step: f64,
     pub samples_per_s: f64,
-    /// Of the median step, the host sampler's share.
+    /// The host sampler's share of a step's wall time (the median over the timed steps).
     pub sampling_share: f64,
     pub render_ms_median: f64,
     pub render_fps: f64,
@@ -85,18 +85,24 @@ pub fn run(
             problem: "must be at least 1".into(),
         });
     }
-    let camera = render_camera(dataset)?;
+    let (frame, camera) = render_shot(dataset)?;
     let mut rows = Vec::new();
     for &device in &opts.devices {
         let opened = device.open().map_err(|e| BenchError::BadOption {
             field: "--devices",
             problem: e.to_string(),
         })?;
-        let adapter = device.describe(&opened);
         for &preset in &opts.presets {
             progress(&format!("measuring {device} {}", preset.name()));
             let run = work.join(format!("{device}-{}", preset.name()).replace(':', "_"));
-            let row = measure(dataset, &run, opts, device, &adapter, preset, &camera)?;
+            let row = measure(
+                dataset,
+                &run,
+                opts,
+                (device, &opened),
+                preset,
+                (frame, &camera),
+            )?;
             progress(&format!(
                 "{device} {}: step {:.1} ms, {:.0} samples/s, render {:.0} ms",
                 preset.name(),
@@ -116,16 +122,17 @@ pub fn run(
     })
 }
 
-#[allow(clippy::too_many_arguments)]
+/// One row: `device` as named and as opened, the frame and camera it renders.
 fn measure(
     dataset: &Dataset,
     run: &Path,
     opts: &DeviceBenchOptions,
-    device: ComputeDevice,
-    adapter: &str,
+    (device, opened): (ComputeDevice, &Device),
     preset: Preset,
-    camera: &Camera,
+    (frame, camera): (&Frame, &Camera),
 ) -> Result<DeviceRow, BenchError> {
+    // What the device's allocator holds (0 where it does not say).
+    let reserved = || opened.memory_pool_usage().map_or(0, |u| u.bytes_reserved);
     let train = TrainOptions {
         device,
         preset,
@@ -143,7 +150,7 @@ fn measure(
         let start = Instant::now();
         let log = trainer.step()?;
         let wall = start.elapsed().as_secs_f64();
-        peak_device = peak_device.max(device_reserved(&trainer));
+        peak_device = peak_device.max(reserved());
         if k >= opts.warmup {
             steps.push((wall, log.samples as f64, log.sampling_s));
         }
@@ -153,7 +160,6 @@ fn measure(
     let sampling = median(steps.iter().map(|s| s.2 / s.0.max(1e-12)).collect());
 
     let avatar = Avatar::from_trainer(&trainer);
-    let frame = &dataset.frames[0];
     let mut render_samples = 0;
     let mut renders = Vec::with_capacity(opts.renders);
     for k in 0..=opts.renders {
@@ -164,12 +170,12 @@ fn measure(
             renders.push(start.elapsed().as_secs_f64());
         }
         render_samples = out.samples;
-        peak_device = peak_device.max(device_reserved(&trainer));
+        peak_device = peak_device.max(reserved());
     }
     let render_ms = median(renders) * 1e3;
     Ok(DeviceRow {
         device: device.to_string(),
-        adapter: adapter.to_string(),
+        adapter: device.describe(opened),
         preset: preset.name().to_string(),
         batch_rays: train.batch_rays,
         step_ms_median: step_ms,
@@ -187,9 +193,10 @@ fn measure(
 
 const MIB: f64 = 1024.0 * 1024.0;
 
-/// The first frame's camera widened to `RENDER_SIDE` square: the focal length scaled so the
-/// longer side fills it, the principal point moved to keep the subject centred.
-fn render_camera(dataset: &Dataset) -> Result<Camera, BenchError> {
+/// The first training frame, and its camera widened to `RENDER_SIDE` square: the focal
+/// length scaled so the longer side fills it, the principal point moved to keep the
+/// subject centred.
+fn render_shot(dataset: &Dataset) -> Result<(&Frame, Camera), BenchError> {
     let frame = dataset
         .frames
         .iter()
@@ -211,20 +218,13 @@ fn render_camera(dataset: &Dataset) -> Result<Camera, BenchError> {
     }
     k[0][2] += (side - c.width as f64 * scale) / 2.0;
     k[1][2] += (side - c.height as f64 * scale) / 2.0;
-    Camera::new(RENDER_SIDE, RENDER_SIDE, k, c.extrinsics_rows()).map_err(|e| {
+    let camera = Camera::new(RENDER_SIDE, RENDER_SIDE, k, c.extrinsics_rows()).map_err(|e| {
         BenchError::BadOption {
             field: "--data",
-            problem: format!("the first frame's camera at {RENDER_SIDE}px: {e}"),
+            problem: format!("the first training frame's camera at {RENDER_SIDE}px: {e}"),
         }
-    })
-}
-
-/// Bytes the trainer's device allocator holds (0 where it does not say).
-fn device_reserved(trainer: &Trainer) -> u64 {
-    Avatar::from_trainer(trainer)
-        .device()
-        .memory_pool_usage()
-        .map_or(0, |u| u.bytes_reserved)
+    })?;
+    Ok((frame, camera))
 }
 
 fn median(mut v: Vec<f64>) -> f64 {

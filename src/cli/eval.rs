@@ -2,7 +2,6 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use talkin_data::dataset::Split;
-use talkin_render::avatar::Avatar;
 use talkin_render::eval::{EvalOptions, evaluate_with_progress};
 use talkin_render::sequence::split_frames;
 
@@ -41,8 +40,7 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
     let split: Split = args.split.parse().map_err(anyhow::Error::msg)?;
     let device = args.device.open()?;
     let dataset = super::load_dataset(&args.data)?;
-    let avatar = Avatar::load_on(&args.run, &device)
-        .with_context(|| format!("loading run {}", args.run.display()))?;
+    let avatar = super::load_avatar(&args.run, &device)?;
     let frames = split_frames(&dataset, split)?;
     let renders = args.renders.clone().unwrap_or_else(|| {
         let stem = args

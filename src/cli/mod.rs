@@ -112,14 +112,21 @@ impl DeviceArg {
         Ok(device)
     }
 
-    /// Loads the newest checkpoint of `run` onto the device.
+    /// Opens the device and loads the newest checkpoint of `run` onto it.
     pub fn load_avatar(
         &self,
         run: &std::path::Path,
     ) -> anyhow::Result<talkin_render::avatar::Avatar> {
-        use anyhow::Context;
-        let device = self.open()?;
-        talkin_render::avatar::Avatar::load_on(run, &device)
-            .with_context(|| format!("loading run {}", run.display()))
+        load_avatar(run, &self.open()?)
     }
+}
+
+/// Loads the newest checkpoint of `run` onto `device`.
+pub fn load_avatar(
+    run: &std::path::Path,
+    device: &talkin_nets::Device,
+) -> anyhow::Result<talkin_render::avatar::Avatar> {
+    use anyhow::Context;
+    talkin_render::avatar::Avatar::load_on(run, device)
+        .with_context(|| format!("loading run {}", run.display()))
 }

@@ -47,11 +47,8 @@ pub enum TrainError {
         #[source]
         source: GridError,
     },
-    #[error("{source}")]
-    Device {
-        #[source]
-        source: talkin_nets::DeviceError,
-    },
+    #[error(transparent)]
+    Device(#[from] talkin_nets::DeviceError),
     #[error("field: {source}")]
     Field {
         #[source]

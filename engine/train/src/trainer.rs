@@ -616,8 +616,7 @@ fn optimizer(preset: Preset) -> ModuleOptimizer {
 
 /// `on`, opened for training (with autodiff).
 fn open_device(on: ComputeDevice) -> Result<Device, TrainError> {
-    let device = on.open().map_err(|source| TrainError::Device { source })?;
-    Ok(device.autodiff())
+    Ok(on.open()?.autodiff())
 }
 
 /// Draws every lazily initialised parameter of `field` now.

@@ -542,6 +542,16 @@ mod tests {
         (pts, s)
     }
 
+    /// Bone and part masks for `n` samples: each one bone and the spine, and the parts
+    /// cycling through none, head, hands and all.
+    fn mixed_masks(n: usize) -> (Vec<u64>, Vec<u8>) {
+        let bones = (0..n).map(|i| (1u64 << (i % 22)) | (1 << 15)).collect();
+        let parts = (0..n)
+            .map(|i| [0, PART_BIT_HEAD, PART_BIT_HANDS, 0xff][i % 4])
+            .collect();
+        (bones, parts)
+    }
+
     fn tiny_fast() -> FieldConfig {
         let mut c = FieldConfig::fast(2).with_non_rigid_start_step(Some(10));
         c.encoding = EncodingConfig::HashGrid(
@@ -680,10 +690,7 @@ mod tests {
         let device = Device::flex().autodiff();
         let (pts, samples) = batch(8, 12);
         let n = pts.len();
-        let bones: Vec<u64> = (0..n).map(|i| (1u64 << (i % 22)) | (1 << 15)).collect();
-        let parts: Vec<u8> = (0..n)
-            .map(|i| [0, PART_BIT_HEAD, PART_BIT_HANDS, 0xff][i % 4])
-            .collect();
+        let (bones, parts) = mixed_masks(n);
         let f = frame();
         let input = FieldInput {
             points: &pts,
@@ -946,10 +953,7 @@ mod tests {
         step: usize,
     ) -> (TalkinField, f32) {
         let n = pts.len();
-        let bones: Vec<u64> = (0..n).map(|i| (1u64 << (i % 22)) | (1 << 15)).collect();
-        let parts: Vec<u8> = (0..n)
-            .map(|i| [0, PART_BIT_HEAD, PART_BIT_HANDS, 0xff][i % 4])
-            .collect();
+        let (bones, parts) = mixed_masks(n);
         let f = frame();
         let input = FieldInput {
             points: pts,

@@ -36,9 +36,14 @@ impl Routing {
 /// One batch's candidates and labels.
 pub(super) struct Router<'a> {
     part_masks: &'a [u8],
-    seg_logits: Tensor<2>,
-    /// The labels on the host ([`Routing::OnHost`] only).
-    labels: Option<Vec<usize>>,
+    labels: Labels,
+}
+
+/// Every sample's segmentation label, where [`Routing`] reads it.
+enum Labels {
+    OnHost(Vec<usize>),
+    /// `[n]`
+    OnDevice(Tensor<1, Int>),
 }
 
 /// The rows one part's net runs on.
@@ -51,38 +56,32 @@ pub(super) struct Routed {
 }
 
 impl<'a> Router<'a> {
+    /// `seg_logits`: `[n, classes]`, one row per entry of `part_masks`.
     pub fn new(part_masks: &'a [u8], seg_logits: &Tensor<2>, routing: Routing) -> Router<'a> {
-        let classes = seg_logits.dims()[1];
+        let [n, classes] = seg_logits.dims();
         let labels = match routing {
-            Routing::OnHost => Some(argmax_rows(&host(seg_logits), classes)),
-            Routing::OnDevice => None,
+            Routing::OnHost => Labels::OnHost(argmax_rows(&host(seg_logits), classes)),
+            Routing::OnDevice => {
+                Labels::OnDevice(seg_logits.clone().detach().argmax(1).reshape([n]))
+            }
         };
-        Router {
-            part_masks,
-            seg_logits: seg_logits.clone(),
-            labels,
-        }
+        Router { part_masks, labels }
     }
 
     /// The rows of the part with candidate bit `bit` and segmentation label `label`.
     pub fn rows(&self, bit: u8, label: usize) -> Routed {
         let candidates = (0..self.part_masks.len()).filter(|&i| self.part_masks[i] & bit != 0);
         match &self.labels {
-            Some(labels) => Routed {
+            Labels::OnHost(labels) => Routed {
                 rows: candidates.filter(|&i| labels[i] == label).collect(),
                 keep: None,
             },
-            None => {
+            Labels::OnDevice(labels) => {
                 let rows: Vec<usize> = candidates.collect();
                 let keep = (!rows.is_empty()).then(|| {
-                    let device = self.seg_logits.device();
-                    let h = rows.len();
-                    self.seg_logits
+                    labels
                         .clone()
-                        .detach()
-                        .select(0, index_tensor(&rows, &device))
-                        .argmax(1)
-                        .reshape([h])
+                        .select(0, index_tensor(&rows, &labels.device()))
                         .equal_elem(label as i64)
                 });
                 Routed { rows, keep }
