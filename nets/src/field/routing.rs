@@ -42,8 +42,8 @@ pub(super) struct Router<'a> {
 /// Every sample's segmentation label, where [`Routing`] reads it.
 enum Labels {
     OnHost(Vec<usize>),
-    /// `[n]`
-    OnDevice(Tensor<1, Int>),
+    /// `[n]` (boxed: a tensor handle is ten times a `Vec`'s size).
+    OnDevice(Box<Tensor<1, Int>>),
 }
 
 /// The rows one part's net runs on.
@@ -62,7 +62,7 @@ impl<'a> Router<'a> {
         let labels = match routing {
             Routing::OnHost => Labels::OnHost(argmax_rows(&host(seg_logits), classes)),
             Routing::OnDevice => {
-                Labels::OnDevice(seg_logits.clone().detach().argmax(1).reshape([n]))
+                Labels::OnDevice(Box::new(seg_logits.clone().detach().argmax(1).reshape([n])))
             }
         };
         Router { part_masks, labels }
@@ -80,6 +80,7 @@ impl<'a> Router<'a> {
                 let rows: Vec<usize> = candidates.collect();
                 let keep = (!rows.is_empty()).then(|| {
                     labels
+                        .as_ref()
                         .clone()
                         .select(0, index_tensor(&rows, &labels.device()))
                         .equal_elem(label as i64)
