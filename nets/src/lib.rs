@@ -40,5 +40,8 @@ mod util;
 pub use burn::prelude::Device;
 pub use device::{ComputeDevice, DeviceError};
 pub use error::NetsError;
-pub use field::{FieldConfig, FieldInput, FieldOutput, FrameConditions, TalkinField, UnitMap};
+pub use field::{
+    FieldConfig, FieldInput, FieldOutput, FrameConditions, PoseGrads, PoseLeaves, TalkinField,
+    UnitMap,
+};
 pub use render::{RaySamples, RenderedRays, render_packed};

@@ -332,6 +332,31 @@ impl BlendWeightVolume {
         bone_capsules: &[BoneCapsule],
         device: &Device,
     ) -> Result<RigidWarp, NetsError> {
+        self.inverse_lbs_with(
+            points,
+            bone_masks,
+            canonical_from_posed,
+            bone_capsules,
+            device,
+            None,
+        )
+    }
+
+    /// [`BlendWeightVolume::inverse_lbs`], with each candidate's canonical point
+    /// `x_b = R_b x + t_b` taken from `transforms` (`[22, 12]`, the top rows of
+    /// `canonical_from_posed`, e.g. leaves that require gradients) when given, so that the
+    /// warp is differentiable in them. The trilinear corners and weights where each bone's
+    /// logit is read stay those of the host transforms: the transforms' gradient flows
+    /// through the blended points, not through where the weights are looked up.
+    pub fn inverse_lbs_with(
+        &self,
+        points: &[[f32; 3]],
+        bone_masks: &[u64],
+        canonical_from_posed: &[[f32; 16]],
+        bone_capsules: &[BoneCapsule],
+        device: &Device,
+        transforms: Option<&Tensor<2>>,
+    ) -> Result<RigidWarp, NetsError> {
         let n = points.len();
         check_len("bone_masks", bone_masks.len(), n)?;
         check_len(
@@ -365,6 +390,24 @@ impl BlendWeightVolume {
         }
         let p = self.pairs(points, bone_masks, canonical_from_posed, bone_capsules);
         let m = p.sample.len();
+        let xb = match transforms {
+            None => floats(p.x, [m, 3], device), // [m, 3]
+            Some(rows) => {
+                // [m, 3, 4] transforms times [m, 1, 4] homogeneous points, summed.
+                let bones = ints(p.bone.iter().map(|&b| b as i32).collect::<Vec<_>>(), device);
+                let mats = rows.clone().select(0, bones).reshape([m, 3, 4]);
+                let xh: Vec<f32> = p
+                    .sample
+                    .iter()
+                    .flat_map(|&s| {
+                        let x = points[s as usize];
+                        [x[0], x[1], x[2], 1.0]
+                    })
+                    .collect();
+                let xh = floats(xh, [m, 1, 4], device);
+                (mats * xh).sum_dim(2).reshape([m, 3])
+            }
+        };
         let corner_w = floats(p.weights, [m, 8], device);
         let logits = (self
             .logits
@@ -393,7 +436,7 @@ impl BlendWeightVolume {
             IndexingUpdateOp::Add,
         );
         let w = e / denom.select(0, sample.clone()); // [m]
-        let xb = floats(p.x, [m, 3], device); // [m, 3]
+
         let x_canonical = Tensor::<2>::zeros([n, 3], device).select_assign(
             0,
             sample,

@@ -18,9 +18,11 @@ use crate::skinning::{BlendWeightVolume, BoneCapsule, N_BODY_JOINTS, RigidWarp};
 use crate::util::{floats, ints, softplus};
 
 mod config;
+pub mod leaves;
 mod routing;
 
 pub use config::{FieldConfig, POSED_TAU_M, UnitMap};
+pub use leaves::{PoseGrads, PoseLeaves};
 use routing::Router;
 pub use routing::Routing;
 
@@ -312,6 +314,11 @@ impl TalkinField {
         )
     }
 
+    /// The field's pose dimension (D_nr's body-pose condition).
+    pub fn pose_dim(&self) -> usize {
+        self.settings.pose_dim
+    }
+
     fn check(&self, input: &FieldInput) -> Result<(), NetsError> {
         let n = input.points.len();
         check_len("bone_masks", input.bone_masks.len(), n)?;
@@ -352,6 +359,27 @@ impl TalkinField {
         input: &FieldInput,
         routing: Routing,
     ) -> Result<FieldOutput, NetsError> {
+        self.forward_inner(input, routing, None)
+    }
+
+    /// [`TalkinField::forward`] reading the frame's skinning transforms, body pose,
+    /// expression, jaw and hand pose from `leaves` (see [`leaves`]): the backward then
+    /// gives their gradients, for pose refinement. `input.frame` still supplies the
+    /// identity and the posed-space prior's capsules, and must hold the same values.
+    pub fn forward_with_leaves(
+        &self,
+        input: &FieldInput,
+        leaves: &PoseLeaves,
+    ) -> Result<FieldOutput, NetsError> {
+        self.forward_inner(input, Routing::for_device(&self.device()), Some(leaves))
+    }
+
+    fn forward_inner(
+        &self,
+        input: &FieldInput,
+        routing: Routing,
+        leaves: Option<&PoseLeaves>,
+    ) -> Result<FieldOutput, NetsError> {
         self.check(input)?;
         let device = self.device();
         let n = input.points.len();
@@ -362,7 +390,14 @@ impl TalkinField {
             ..Default::default()
         };
 
-        let warp = self.rigid_warp(input.points, input.bone_masks, frame)?;
+        let warp = self.skinning.inverse_lbs_with(
+            input.points,
+            input.bone_masks,
+            &frame.canonical_from_posed,
+            &frame.bone_capsules,
+            &device,
+            leaves.map(|l| &l.canonical_from_posed),
+        )?;
         stats.skinning_pairs = warp.n_pairs;
         if n == 0 {
             return Ok(FieldOutput {
@@ -380,11 +415,14 @@ impl TalkinField {
             .non_rigid_start_step
             .is_some_and(|s| step >= s);
         if let (Some(nr), true) = (&self.non_rigid, started) {
-            let pose = floats(
-                frame.body_pose.clone(),
-                [1, self.settings.pose_dim],
-                &device,
-            );
+            let pose = match leaves {
+                Some(l) => l.body_pose.clone(),
+                None => floats(
+                    frame.body_pose.clone(),
+                    [1, self.settings.pose_dim],
+                    &device,
+                ),
+            };
             x = x.clone() + nr.forward(self.to_unit(x), pose, step); // [n, 3]
             stats.non_rigid_rows = n;
         }
@@ -408,12 +446,20 @@ impl TalkinField {
             if !head.rows.is_empty() {
                 let h = head.rows.len();
                 let xh = x.clone().select(0, head.indices(&device)); // [h, 3]
-                let mut e = frame.expression.to_vec();
-                if self.settings.face_uses_jaw {
-                    e.extend(frame.jaw);
-                }
-                let d_e = e.len();
-                let e = floats(e, [1, d_e], &device);
+                let e = match leaves {
+                    Some(l) if self.settings.face_uses_jaw => {
+                        Tensor::cat(vec![l.expression.clone(), l.jaw.clone()], 1)
+                    }
+                    Some(l) => l.expression.clone(),
+                    None => {
+                        let mut e = frame.expression.to_vec();
+                        if self.settings.face_uses_jaw {
+                            e.extend(frame.jaw);
+                        }
+                        let d_e = e.len();
+                        floats(e, [1, d_e], &device)
+                    }
+                };
                 let raw = face.forward(
                     self.to_unit(xh),
                     frame.identity,
@@ -433,7 +479,10 @@ impl TalkinField {
                 let h = idx.rows.len();
                 let mut xh = x.clone().select(0, idx.indices(&device));
                 if let Some(dh) = &self.hand_deform {
-                    let pose = floats(frame.hand_pose.clone(), [1, HAND_POSE_DIM], &device);
+                    let pose = match leaves {
+                        Some(l) => l.hand_pose.clone(),
+                        None => floats(frame.hand_pose.clone(), [1, HAND_POSE_DIM], &device),
+                    };
                     xh = xh.clone() + dh.forward(self.to_unit(xh), pose, step);
                 }
                 let raw = hands.forward(self.to_unit(xh), frame.identity, identity, step);
@@ -552,7 +601,7 @@ mod tests {
         (bones, parts)
     }
 
-    fn tiny_fast() -> FieldConfig {
+    pub(crate) fn tiny_fast() -> FieldConfig {
         let mut c = FieldConfig::fast(2).with_non_rigid_start_step(Some(10));
         c.encoding = EncodingConfig::HashGrid(
             HashGridConfig::new()
@@ -564,7 +613,7 @@ mod tests {
     }
 
     /// Makes F_body output exactly `bias` (zero weights), so routing labels are known.
-    fn force_body(field: &mut TalkinField, bias: [f32; 9]) {
+    pub(crate) fn force_body(field: &mut TalkinField, bias: [f32; 9]) {
         let device = field.device();
         let out = &mut field.body.mlp.output;
         let w = out.weight.val().zeros_like();
