@@ -3,7 +3,8 @@
 //! samples with), its [`rays`], the [`field_inputs`] and the [`loss`], the [`adam`]
 //! optimizer, the [`grid_update`]; [`step`] strings them together and [`trainer`] runs
 //! steps until the budget is spent, writing the [`log`] and [`checkpoint`]s. A run is
-//! told its [`recipe`], whose [`preset`] names the architecture and optimiser settings.
+//! told its [`recipe`], whose [`preset`] names the architecture and optimiser settings;
+//! with [`refine`] it also learns per-frame corrections of the training fits.
 //!
 //! Must not know about rendering whole frames, evaluation, the server or the
 //! experiments: they read what it writes (checkpoints) or drive a [`Trainer`].
@@ -18,6 +19,7 @@ pub mod loss;
 pub mod preset;
 pub mod rays;
 pub mod recipe;
+pub mod refine;
 pub mod rng;
 pub mod scene;
 pub mod schedule;

@@ -13,8 +13,9 @@
 use burn::optim::{GradientsAccumulator, GradientsParams};
 use burn::prelude::*;
 use talkin_grids::{PackedSamples, Ray};
+use talkin_nets::field::leaves::zero_grads;
 use talkin_nets::loss::{PerceptualLoss, mse, seg_cross_entropy};
-use talkin_nets::{FieldInput, FrameConditions, NetsError, TalkinField};
+use talkin_nets::{FieldInput, FrameConditions, NetsError, PoseGrads, PoseLeaves, TalkinField};
 
 use crate::field_inputs::packed_layout;
 
@@ -38,6 +39,8 @@ pub(crate) struct StepBatch<'a> {
     pub background: [f32; 3],
     /// Weight of the opacity-against-mask term (0: off).
     pub mask_weight: f32,
+    /// Differentiate with respect to the frame's pose too (pose refinement).
+    pub pose_grads: bool,
 }
 
 /// The summed loss, its MSE part and the gradients of the whole batch.
@@ -45,6 +48,8 @@ pub(crate) struct StepLoss {
     pub loss: f32,
     pub mse: f32,
     pub grads: GradientsParams,
+    /// With [`StepBatch::pose_grads`]: the gradients w.r.t. the frame's conditions.
+    pub pose: Option<PoseGrads>,
 }
 
 /// Where the batch is split: halfway, but never inside the LPIPS patches (they stay in
@@ -78,10 +83,18 @@ pub(crate) fn loss_and_grads(
     let mut sum = GradientsAccumulator::new();
     sum.accumulate(field, a.grads);
     sum.accumulate(field, b.grads);
+    let pose = match (a.pose, b.pose) {
+        (Some(mut a), Some(b)) => {
+            a.accumulate(&b);
+            Some(a)
+        }
+        (a, b) => a.or(b),
+    };
     Ok(StepLoss {
         loss: a.loss + b.loss,
         mse: a.mse + b.mse,
         grads: sum.grads(),
+        pose,
     })
 }
 
@@ -120,7 +133,14 @@ fn half(
         frame: batch.frame,
         step: batch.step,
     };
-    let rendered = field.forward(&input)?.render(&layout.view())?;
+    let leaves = batch
+        .pose_grads
+        .then(|| PoseLeaves::new(batch.frame, &device));
+    let rendered = match &leaves {
+        Some(l) => field.forward_with_leaves(&input, l)?,
+        None => field.forward(&input)?,
+    }
+    .render(&layout.view())?;
     let rgb = rendered.rgb_over(batch.background); // [r, 3]
     let target = Tensor::<2>::from_data(
         TensorData::new(
@@ -161,15 +181,19 @@ fn half(
     let (loss_value, mse_value) = (scalar(&loss), weight * scalar(&l_mse));
     // A half whose rays all missed every capsule (e.g. an LPIPS patch beside the person)
     // has no samples: its loss is a constant, with no gradient to take.
-    let grads = if loss.is_tracked() {
-        GradientsParams::from_grads(loss.backward(), field)
+    let (grads, pose) = if loss.is_tracked() {
+        let g = loss.backward();
+        let pose = leaves.as_ref().map(|l| l.grads(&g));
+        (GradientsParams::from_grads(g, field), pose)
     } else {
-        GradientsParams::new()
+        let pose = batch.pose_grads.then(|| zero_grads(field.pose_dim()));
+        (GradientsParams::new(), pose)
     };
     Ok(StepLoss {
         loss: loss_value,
         mse: mse_value,
         grads,
+        pose,
     })
 }
 
@@ -295,6 +319,7 @@ mod tests {
                 step: 0,
                 background: [1.0; 3],
                 mask_weight: 0.1,
+                pose_grads: false,
             };
             let whole_batch = batch();
             let whole = half(&field, false, None, &whole_batch, 0..9, &samples).unwrap();

@@ -10,6 +10,7 @@ use crate::scene::{FrameSampler, FrameScene};
 use crate::schedule::PartFractions;
 use crate::subject::SubjectModel;
 use talkin_data::dataset::{Dataset, DatasetError, FrameImages, N_LABELS};
+use talkin_human::body::FrameParams;
 
 /// Side of an LPIPS patch (pixels).
 pub const PATCH: u32 = 32;
@@ -27,6 +28,10 @@ pub(crate) struct FrameCache {
     pub arm_pixels: Vec<(u32, u32)>,
     pub conditions: FrameConditions,
     pub sampler: FrameSampler,
+    /// The person's pixel rays (the accelerated step is measured on them).
+    foreground_rays: Vec<Ray>,
+    /// The pose correction the conditions and sampler were built with (`None`: the fit).
+    pub posed_with: Option<Vec<f32>>,
 }
 
 /// Why a frame could not be cached.
@@ -37,7 +42,8 @@ pub(crate) enum CacheError {
 }
 
 impl FrameCache {
-    /// Frame `i` of `dataset`, its subject being identity `slot` with `model`.
+    /// Frame `i` of `dataset`, its subject being identity `slot` with `model`, posed as
+    /// its fit.
     pub fn new(
         dataset: &Dataset,
         i: usize,
@@ -77,7 +83,26 @@ impl FrameCache {
             arm_pixels,
             conditions,
             sampler,
+            foreground_rays: rays,
+            posed_with: None,
         })
+    }
+
+    /// Rebuilds the frame's conditions and sampler in pose `params` (the fit with
+    /// correction `delta`): the capsule intervals follow the corrected body.
+    pub fn repose(
+        &mut self,
+        params: &FrameParams,
+        delta: &[f32],
+        slot: usize,
+        model: &SubjectModel,
+    ) -> Result<(), GridError> {
+        let scene = FrameScene::new(&model.skeleton, &model.canonical, params);
+        let conditions = frame_conditions(slot, params, &scene, &model.shells);
+        self.sampler = FrameSampler::new(scene, &model.shells, &self.foreground_rays)?;
+        self.conditions = conditions;
+        self.posed_with = Some(delta.to_vec());
+        Ok(())
     }
 }
 

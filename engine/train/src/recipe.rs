@@ -12,6 +12,7 @@ use talkin_nets::ComputeDevice;
 
 use crate::error::TrainError;
 use crate::preset::Preset;
+use crate::refine::RefineOptions;
 
 /// Where `talkin lpips-weights` puts the converted LPIPS weights (a per-user cache).
 pub use talkin_nets::loss::DEFAULT_LPIPS_DIR;
@@ -83,6 +84,10 @@ pub struct TrainOptions {
     // Runs recorded before the option existed read as all of the video.
     #[serde(default)]
     pub clip_seconds: Option<f64>,
+    #[command(flatten)]
+    // Runs recorded before refinement existed trusted their fits.
+    #[serde(default = "RefineOptions::recorded_before")]
+    pub refine: RefineOptions,
 }
 
 /// How long to train: `--steps N` or `--minutes M` on the command line.
@@ -249,6 +254,7 @@ impl Default for TrainOptions {
             checkpoint_every_s: 120.0,
             ablation: Ablation::default(),
             clip_seconds: None,
+            refine: RefineOptions::default(),
         }
     }
 }
@@ -304,6 +310,9 @@ impl TrainOptions {
             && !(c.is_finite() && c > 0.0)
         {
             return bad("--seconds-of-video", "must be a positive number of seconds");
+        }
+        if let Err((flag, problem)) = self.refine.check() {
+            return bad(flag, problem);
         }
         Ok(())
     }

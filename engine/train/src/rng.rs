@@ -34,6 +34,11 @@ impl SplitMix64 {
         (self.next_u64() >> 40) as f32 / (1u64 << 24) as f32
     }
 
+    /// Uniform in `[0, 1)` with 53 bits.
+    pub fn next_f64(&mut self) -> f64 {
+        (self.next_u64() >> 11) as f64 * (1.0 / (1u64 << 53) as f64)
+    }
+
     /// Uniform in `0..n` (`n > 0`; the modulo bias is below 2^-32 for any n < 2^32).
     pub fn below(&mut self, n: u64) -> u64 {
         debug_assert!(n > 0);

@@ -44,7 +44,7 @@ pub(crate) fn clear_run(out: &Path) -> Result<(), TrainError> {
 
 /// The dataset's fingerprint: the SHA-256 of its `dataset.json` (every frame's files,
 /// split, camera and parameters), recorded in each checkpoint and checked on resume.
-pub(crate) fn dataset_sha256(dataset: &Dataset) -> Result<String, TrainError> {
+pub fn dataset_sha256(dataset: &Dataset) -> Result<String, TrainError> {
     let file = dataset.root.join(INDEX_FILE);
     std::fs::read(&file)
         .map(|bytes| sha256_hex(&bytes))

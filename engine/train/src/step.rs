@@ -12,8 +12,10 @@ use crate::error::TrainError;
 use crate::log::StepLog;
 use crate::loss::{StepBatch, StepLoss, loss_and_grads};
 use crate::rays::{Batch, BatchSpec, CacheError, FrameCache, PATCH, draw_batch};
+use crate::refine::chain::correction_gradient;
 use crate::schedule;
 use crate::trainer::Trainer;
+use talkin_nets::PoseGrads;
 
 impl Trainer<'_> {
     /// One optimizer step (and, when due, an occupancy-grid update).
@@ -22,8 +24,14 @@ impl Trainer<'_> {
         let vstep = self.field_step();
         let lr = schedule::learning_rate(self.opts.initial_lr(), vstep);
 
-        // Rays: a seeded training frame, its LPIPS patches and part-aware pixels.
+        // Rays: a seeded training frame (posed as its refined pose, when refining), its
+        // LPIPS patches and part-aware pixels.
         let frame = self.pick_frame()?;
+        self.follow_refined_pose(frame)?;
+        let refining = self
+            .refiner
+            .as_ref()
+            .is_some_and(|r| r.learning_at(self.step));
         let batch = self.draw_rays(frame, vstep)?;
 
         // Samples along each ray, by the run's sampler (timed for the log).
@@ -34,7 +42,12 @@ impl Trainer<'_> {
         let bones_per_sample = mean_candidate_bones(&samples.bone_mask);
 
         // Field and loss: forward, render, loss and backward.
-        let StepLoss { loss, mse, grads } = self.field_loss(frame, &batch, samples, vstep)?;
+        let StepLoss {
+            loss,
+            mse,
+            grads,
+            pose,
+        } = self.field_loss(frame, &batch, samples, vstep, refining)?;
         if !loss.is_finite() {
             return Err(TrainError::NonFinite {
                 step: self.step + 1,
@@ -42,8 +55,11 @@ impl Trainer<'_> {
             });
         }
 
-        // Optimizer.
+        // Optimizer (and the frame's pose correction).
         self.optimize(lr, grads);
+        if let Some(pose) = pose {
+            self.refine_pose(frame, &pose);
+        }
         self.step += 1;
 
         // Grid update, when due.
@@ -133,14 +149,64 @@ impl Trainer<'_> {
             .map_err(|source| grid_error(self.dataset, frame, source))
     }
 
+    /// Rebuilds frame `frame`'s conditions and sampler when its pose correction moved
+    /// since they were built (refining runs only).
+    fn follow_refined_pose(&mut self, frame: usize) -> Result<(), TrainError> {
+        let Some(refiner) = &self.refiner else {
+            return Ok(());
+        };
+        let Some(delta) = refiner.delta_of(frame) else {
+            return Ok(());
+        };
+        let cache = self
+            .cache
+            .get_mut(&frame)
+            .expect("the picked frame is cached");
+        let current = match &cache.posed_with {
+            Some(d) => d.as_slice() == delta,
+            None => delta.iter().all(|&d| d == 0.0),
+        };
+        if current {
+            return Ok(());
+        }
+        let slot = self.slot_of[self.dataset.frames[frame].subject]
+            .expect("training frames belong to trained subjects");
+        let model = self.subjects[slot]
+            .model
+            .as_ref()
+            .expect("a trained subject has a model");
+        let params = refiner.params_of(self.dataset, frame);
+        cache
+            .repose(&params, delta, slot, model)
+            .map_err(|source| grid_error(self.dataset, frame, source))
+    }
+
+    /// Moves frame `frame`'s pose correction down the loss's gradient `pose` (w.r.t. the
+    /// frame's skinning transforms and conditions, at its corrected pose).
+    fn refine_pose(&mut self, frame: usize, pose: &PoseGrads) {
+        let model = self.model_of(frame);
+        let (skeleton, canonical) = (model.skeleton.clone(), model.canonical.clone());
+        let Some(refiner) = self.refiner.as_mut() else {
+            return;
+        };
+        let Some(delta) = refiner.delta_of(frame).map(<[f32]>::to_vec) else {
+            return;
+        };
+        let fit = &self.dataset.frames[frame].params;
+        let g = correction_gradient(&skeleton, &canonical, fit, &delta, pose);
+        refiner.update(frame, &g);
+    }
+
     /// The field at the samples, rendered, scored against the batch's targets and
-    /// differentiated ([`loss_and_grads`]).
+    /// differentiated ([`loss_and_grads`]); with `pose_grads`, w.r.t. the frame's pose
+    /// too.
     fn field_loss(
         &self,
         frame: usize,
         batch: &Batch,
         samples: PackedSamples,
         vstep: usize,
+        pose_grads: bool,
     ) -> Result<StepLoss, TrainError> {
         loss_and_grads(
             self.field(),
@@ -156,6 +222,7 @@ impl Trainer<'_> {
                 step: vstep,
                 background: self.dataset.background,
                 mask_weight: self.opts.mask_weight,
+                pose_grads,
             },
         )
         .map_err(|source| TrainError::Field { source })

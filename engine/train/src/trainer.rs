@@ -24,6 +24,7 @@ use crate::log::{LOG_FILE, StepLog, TrainLog};
 use crate::preset::Preset;
 use crate::rays::FrameCache;
 use crate::recipe::TrainOptions;
+use crate::refine::{PoseRefiner, RefineMode, RefinerState};
 use crate::rng::SplitMix64;
 use crate::schedule;
 mod budget;
@@ -80,6 +81,10 @@ struct TrainState {
     /// Where the schedule was last re-anchored to a new budget (absent: never).
     #[serde(default)]
     schedule_anchor: Option<ScheduleAnchor>,
+    /// The training frames' pose corrections and their optimizer (absent: the run
+    /// trusts its fits).
+    #[serde(default)]
+    pose_refinement: Option<RefinerState>,
 }
 
 /// A run in progress.
@@ -113,6 +118,8 @@ pub struct Trainer<'a> {
     /// save) and its step.
     pub(crate) last_checkpoint: Option<(usize, PathBuf)>,
     pub(crate) notes: Vec<String>,
+    /// The training fits' corrections (`None`: the fits are trusted).
+    pub(crate) refiner: Option<PoseRefiner>,
 }
 
 impl<'a> Trainer<'a> {
@@ -326,6 +333,20 @@ impl<'a> Trainer<'a> {
         t.elapsed = state.elapsed_seconds;
         t.rng = SplitMix64::from_state(state.rng_state);
         t.anchor = state.schedule_anchor;
+        match (&mut t.refiner, state.pose_refinement) {
+            (Some(r), Some(recorded)) if recorded.frames == t.frames => {
+                *r = PoseRefiner::from_state(dataset, recorded, r.opts.clone());
+            }
+            (None, None) => {}
+            _ => {
+                return Err(TrainError::Resume {
+                    file: state_file,
+                    problem: "`pose_refinement` does not match the recorded options and \
+                              training frames"
+                        .into(),
+                });
+            }
+        }
         t.last_checkpoint = Some((state.step, checkpoint.dir.clone()));
         t.notes = notes;
         Ok(t)
@@ -349,18 +370,17 @@ impl<'a> Trainer<'a> {
             source,
         })?;
         clear_run(out)?;
-        write_recipe(out, opts, &config, None)?;
+        // `auto` is decided once, here, and recorded as what it decided.
+        let mut opts = opts.clone();
+        opts.refine.refine_poses = if opts.refine.is_on(is_imported(dataset)) {
+            RefineMode::On
+        } else {
+            RefineMode::Off
+        };
+        write_recipe(out, &opts, &config, None)?;
         let log = TrainLog::open(&out.join(LOG_FILE), None)?;
         Trainer::assemble(
-            dataset,
-            out,
-            opts.clone(),
-            config,
-            field,
-            subjects,
-            frames,
-            slot_of,
-            log,
+            dataset, out, opts, config, field, subjects, frames, slot_of, log,
         )
     }
 
@@ -395,7 +415,10 @@ impl<'a> Trainer<'a> {
         };
         let optim = optimizer(opts.preset);
         let dataset_sha256 = dataset_sha256(dataset)?;
+        let refiner = (opts.refine.refine_poses == RefineMode::On)
+            .then(|| PoseRefiner::new(dataset, &frames, opts.refine.clone()));
         Ok(Trainer {
+            refiner,
             dataset,
             out: out.to_path_buf(),
             rng: SplitMix64::new(opts.seed ^ 0x7A1C_11E5_EED5_0001),
@@ -457,6 +480,18 @@ impl Trainer<'_> {
         self.field().valid()
     }
 
+    /// The training fits' corrections (`None`: the run trusts its fits).
+    pub fn refiner(&self) -> Option<&PoseRefiner> {
+        self.refiner.as_ref()
+    }
+
+    /// The refined training fits as renders read them (`None`: the run trusts its fits).
+    pub fn refined_fits(&self) -> Option<crate::refine::RefinedFits> {
+        self.refiner
+            .as_ref()
+            .map(|r| crate::refine::RefinedFits::new(&r.state, &self.dataset_sha256))
+    }
+
     /// The field's configuration.
     pub fn config(&self) -> &FieldConfig {
         &self.config
@@ -509,6 +544,7 @@ impl Trainer<'_> {
             frames: self.frames.clone(),
             slot_of: self.slot_of.clone(),
             schedule_anchor: self.anchor,
+            pose_refinement: self.refiner.as_ref().map(|r| r.state.clone()),
         };
         let state = serde_json::to_value(&state).map_err(|e| {
             CheckpointError::format(
@@ -598,6 +634,15 @@ pub fn train(
     progress: &mut dyn FnMut(&StepLog),
 ) -> Result<TrainReport, TrainError> {
     Trainer::new(dataset, out, opts)?.run(progress)
+}
+
+/// Whether `dataset` came from `talkin import` (its report sits beside `dataset.json`):
+/// its fits are an estimator's, worth refining.
+pub fn is_imported(dataset: &Dataset) -> bool {
+    dataset
+        .root
+        .join(talkin_data::import::IMPORT_REPORT)
+        .is_file()
 }
 
 /// Whether `a` and `b` name the same existing directory.

@@ -18,6 +18,7 @@ pub use error::DatasetError;
 pub use images::{FrameImages, LABEL_NAMES, N_LABELS};
 pub use load::camera_field;
 pub use load::parse_camera;
+pub use write::write_atomic;
 
 use talkin_human::body::{FrameParams, Skeleton};
 use talkin_human::camera::Camera;

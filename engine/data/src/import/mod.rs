@@ -35,6 +35,9 @@ pub use body::{complete_from_body, fit_body_joints};
 pub use error::ImportError;
 pub use write::ImportReport;
 
+/// The import report written beside `dataset.json`.
+pub const IMPORT_REPORT: &str = "import.json";
+
 /// Frames per second assumed when `--fps` is not given (phone videos, and what the
 /// fitters' frame extraction defaults to).
 pub const DEFAULT_FPS: f64 = 30.0;

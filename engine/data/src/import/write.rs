@@ -138,7 +138,7 @@ pub(crate) fn write(
         skipped: source.skipped,
         notes: source.notes,
     };
-    let report_file = tmp.path().join("import.json");
+    let report_file = tmp.path().join(super::IMPORT_REPORT);
     let text = serde_json::to_string_pretty(&report)
         .map_err(|e| ImportError::Usage(format!("cannot serialise import.json: {e}")))?;
     crate::atomic::write_atomic(&report_file, text.as_bytes())

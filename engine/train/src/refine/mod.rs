@@ -1,0 +1,196 @@
+//! Pose refinement: learned per-frame corrections of the training fits (global
+//! orientation, body and hand joints, jaw, expression, translation), because fits from
+//! monocular video are noisy and the field would otherwise blur a misfit limb into the
+//! canonical space.
+//!
+//! Each training frame owns a correction (zero at the start, [`layout`]). The step that
+//! draws a frame differentiates its loss through the correction ([`chain`]) and moves it
+//! with its own Adam at `--pose-lr`; then two quadratic penalties take a plain (proximal)
+//! step: toward zero (`--pose-prior`, the fraction of the correction removed per visit)
+//! and toward the neighbouring frames' corrected poses (`--pose-smooth`, the fraction of
+//! the way to their mean per visit; neighbours are the same subject's training frames
+//! next in time). Corrections learn only after `--pose-warmup` steps, once the field
+//! renders something worth matching. The per-frame sampler and conditions are rebuilt
+//! from the corrected pose whenever a frame's correction moved, so the capsule intervals
+//! follow the refined body; the occupancy grid lives in canonical space and needs nothing.
+
+pub mod chain;
+mod export;
+mod fits;
+pub mod layout;
+mod options;
+#[cfg(test)]
+mod tests;
+
+use serde::{Deserialize, Serialize};
+use talkin_data::dataset::Dataset;
+use talkin_human::body::FrameParams;
+
+pub use export::{ExportSummary, export_poses};
+pub use fits::RefinedFits;
+pub use options::{RefineMode, RefineOptions};
+
+/// Adam's moment decays and epsilon for the corrections.
+const BETA_1: f64 = 0.9;
+const BETA_2: f64 = 0.999;
+const EPSILON: f64 = 1e-8;
+
+/// The corrections of a run's training frames and their optimizer state: what a
+/// checkpoint records (`state.json`'s `pose_refinement`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct RefinerState {
+    /// Dataset frame of each slot (the run's training frames, in order).
+    pub frames: Vec<usize>,
+    /// Per slot: the correction ([`layout::DIM`] numbers).
+    pub delta: Vec<Vec<f32>>,
+    /// Per slot: Adam's first and second moments and its step count.
+    pub m: Vec<Vec<f32>>,
+    pub v: Vec<Vec<f32>>,
+    pub t: Vec<u32>,
+}
+
+/// A run's pose refinement.
+#[derive(Clone, Debug)]
+pub struct PoseRefiner {
+    pub opts: RefineOptions,
+    pub state: RefinerState,
+    /// Per slot: the fit, flattened ([`layout::flatten`]).
+    fits: Vec<[f64; layout::DIM]>,
+    /// Per slot: the slots of its neighbours in time (same subject).
+    neighbours: Vec<Vec<usize>>,
+    /// Slot of each dataset frame.
+    slot_of: std::collections::HashMap<usize, usize>,
+}
+
+/// Two training frames further apart than this many times the subject's median spacing
+/// are not neighbours (a cut between clips).
+const MAX_GAP_FACTOR: f64 = 3.0;
+
+impl PoseRefiner {
+    /// Zero corrections for `frames` of `dataset`.
+    pub fn new(dataset: &Dataset, frames: &[usize], opts: RefineOptions) -> PoseRefiner {
+        let n = frames.len();
+        let zeros = || vec![vec![0.0f32; layout::DIM]; n];
+        let state = RefinerState {
+            frames: frames.to_vec(),
+            delta: zeros(),
+            m: zeros(),
+            v: zeros(),
+            t: vec![0; n],
+        };
+        PoseRefiner::from_state(dataset, state, opts)
+    }
+
+    /// The refiner a checkpoint recorded (its frames must be `dataset`'s).
+    pub fn from_state(dataset: &Dataset, state: RefinerState, opts: RefineOptions) -> Self {
+        let frames = &state.frames;
+        let fits = frames
+            .iter()
+            .map(|&i| layout::flatten(&dataset.frames[i].params))
+            .collect();
+        let slot_of = frames.iter().enumerate().map(|(s, &i)| (i, s)).collect();
+        PoseRefiner {
+            neighbours: neighbours(dataset, frames),
+            opts,
+            state,
+            fits,
+            slot_of,
+        }
+    }
+
+    /// Whether the corrections learn at step `step` (0-based: the step being taken).
+    pub fn learning_at(&self, step: usize) -> bool {
+        step >= self.opts.pose_warmup
+    }
+
+    /// The correction of dataset frame `i` (`None`: not a training frame).
+    pub fn delta_of(&self, i: usize) -> Option<&[f32]> {
+        self.slot_of
+            .get(&i)
+            .map(|&s| self.state.delta[s].as_slice())
+    }
+
+    /// Dataset frame `i`'s fit with its correction (the fit itself if it has none).
+    pub fn params_of(&self, dataset: &Dataset, i: usize) -> FrameParams {
+        let fit = &dataset.frames[i].params;
+        match self.delta_of(i) {
+            Some(d) => layout::corrected(fit, d),
+            None => fit.clone(),
+        }
+    }
+
+    /// One visit of dataset frame `i`: Adam on `grad` (the loss's gradient w.r.t. its
+    /// correction), then the proximal steps of the prior and the smoothness penalty.
+    /// A non-finite gradient leaves the correction as it was.
+    pub fn update(&mut self, i: usize, grad: &[f64; layout::DIM]) {
+        let Some(&s) = self.slot_of.get(&i) else {
+            return;
+        };
+        if !grad.iter().all(|g| g.is_finite()) {
+            return;
+        }
+        let st = &mut self.state;
+        st.t[s] += 1;
+        let t = st.t[s] as i32;
+        let (c1, c2) = (1.0 - BETA_1.powi(t), 1.0 - BETA_2.powi(t));
+        let mut next = [0.0f64; layout::DIM];
+        for (_, range, scale) in layout::GROUPS {
+            for k in range {
+                let m = BETA_1 * st.m[s][k] as f64 + (1.0 - BETA_1) * grad[k];
+                let v = BETA_2 * st.v[s][k] as f64 + (1.0 - BETA_2) * grad[k] * grad[k];
+                st.m[s][k] = m as f32;
+                st.v[s][k] = v as f32;
+                let step = self.opts.pose_lr * scale * (m / c1) / ((v / c2).sqrt() + EPSILON);
+                next[k] = st.delta[s][k] as f64 - step;
+            }
+        }
+        // Proximal steps: toward the fit, then toward the neighbours' corrected poses.
+        let keep = 1.0 - self.opts.pose_prior;
+        next.iter_mut().for_each(|d| *d *= keep);
+        let nb = &self.neighbours[s];
+        if !nb.is_empty() && self.opts.pose_smooth > 0.0 {
+            for k in 0..layout::DIM {
+                let here = self.fits[s][k] + next[k];
+                let mean = nb
+                    .iter()
+                    .map(|&o| self.fits[o][k] + st.delta[o][k] as f64)
+                    .sum::<f64>()
+                    / nb.len() as f64;
+                next[k] += self.opts.pose_smooth * (mean - here);
+            }
+        }
+        for k in 0..layout::DIM {
+            st.delta[s][k] = next[k] as f32;
+        }
+    }
+}
+
+/// Per slot, the slots of the same subject's training frames just before and after it
+/// in time, unless further than [`MAX_GAP_FACTOR`] times that subject's median spacing.
+fn neighbours(dataset: &Dataset, frames: &[usize]) -> Vec<Vec<usize>> {
+    let mut out = vec![Vec::new(); frames.len()];
+    let mut subjects: Vec<usize> = frames.iter().map(|&i| dataset.frames[i].subject).collect();
+    subjects.sort_unstable();
+    subjects.dedup();
+    for subject in subjects {
+        let mut slots: Vec<usize> = (0..frames.len())
+            .filter(|&s| dataset.frames[frames[s]].subject == subject)
+            .collect();
+        let time = |s: usize| dataset.frames[frames[s]].time;
+        slots.sort_by(|&a, &b| time(a).total_cmp(&time(b)).then(a.cmp(&b)));
+        let mut gaps: Vec<f64> = slots.windows(2).map(|w| time(w[1]) - time(w[0])).collect();
+        if gaps.is_empty() {
+            continue;
+        }
+        gaps.sort_by(f64::total_cmp);
+        let limit = MAX_GAP_FACTOR * gaps[gaps.len() / 2];
+        for w in slots.windows(2) {
+            let gap = time(w[1]) - time(w[0]);
+            if gap <= limit && gap > 0.0 {
+                out[w[0]].push(w[1]);
+                out[w[1]].push(w[0]);
+            }
+        }
+    }
+    out
+}
