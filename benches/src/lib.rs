@@ -8,6 +8,7 @@
 pub mod ablations;
 pub mod device;
 pub mod error;
+pub mod noisy_fits;
 pub mod novel_identity;
 pub mod sampling;
 pub mod shared;

@@ -19,7 +19,7 @@
 //!   reached, or its budget ends. A target the dense run never reaches gives a lower bound
 //!   (its training seconds over the accelerated run's time), marked as one.
 
-mod plot;
+pub(crate) mod plot;
 mod report;
 mod run;
 pub mod targets;

@@ -19,7 +19,7 @@ pub type Curve<'a> = (&'a str, [u8; 3], Vec<(f64, f64)>);
 pub const TARGET_COLOUR: [u8; 3] = [120, 120, 120];
 
 /// Registers DejaVu Sans as plotters' "sans-serif" once; false if it could not be.
-fn font_ready() -> bool {
+pub(crate) fn font_ready() -> bool {
     static READY: OnceLock<bool> = OnceLock::new();
     *READY.get_or_init(|| {
         register_font("sans-serif", FontStyle::Normal, dejavu::sans::regular()).is_ok()
