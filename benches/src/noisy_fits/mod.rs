@@ -283,3 +283,34 @@ pub fn table(s: &Summary) -> String {
     }
     t
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use talkin_human::body::canonical_params;
+    use talkin_synth::body::default_rest_joints;
+
+    /// The two error measures are zero on the truth and grow with the noise; the same seed
+    /// gives the same noise.
+    #[test]
+    fn errors_grow_with_the_noise() {
+        let skeleton = default_rest_joints(0);
+        let truth = canonical_params();
+        assert_eq!(joint_position_error(&skeleton, &truth, &truth), 0.0);
+        assert!(joint_rotation_error(&truth, &truth) < 1e-6);
+        let mean = |deg: f64| -> (f64, f64) {
+            let (mut p, mut r) = (0.0, 0.0);
+            for seed in 0..20 {
+                let fit = noisy(&truth, deg, seed);
+                p += joint_position_error(&skeleton, &truth, &fit);
+                r += joint_rotation_error(&truth, &fit);
+            }
+            (p / 20.0, r / 20.0)
+        };
+        let (p3, r3) = mean(3.0);
+        let (p6, r6) = mean(6.0);
+        assert!(p6 > 1.5 * p3 && r6 > 1.5 * r3, "{p3} {p6} {r3} {r6}");
+        // 6 degrees a joint along the chains, plus 2 cm of translation: centimetres.
+        assert!(p6 > 0.02 && p6 < 0.15, "{p6}");
+    }
+}

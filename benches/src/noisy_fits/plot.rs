@@ -53,12 +53,14 @@ pub fn plot_levels(levels: &[Level]) -> Result<RgbImage, String> {
                 });
             let (lo, hi) = if lo.is_finite() { (lo, hi) } else { (0.0, 1.0) };
             let pad = 0.1 * (hi - lo).max(1.0);
+            // Headroom above the points for the legend (top right), so it hides none.
+            let headroom = 0.45 * (hi - lo).max(1.0);
             let mut chart = ChartBuilder::on(panel)
                 .margin(14)
                 .caption(title, ("sans-serif", 18))
                 .x_label_area_size(40)
                 .y_label_area_size(52)
-                .build_cartesian_2d(-0.3..x_max, (lo - pad).min(0.0f64.max(lo - pad))..hi + pad)
+                .build_cartesian_2d(-0.3..x_max, lo - pad..hi + pad + headroom)
                 .map_err(e)?;
             chart
                 .configure_mesh()
@@ -102,4 +104,48 @@ pub fn plot_levels(levels: &[Level]) -> Result<RgbImage, String> {
         root.present().map_err(e)?;
     }
     RgbImage::from_raw(W, H, buffer).ok_or_else(|| "plot buffer of the wrong size".into())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::shared::Scores;
+
+    fn level(noise_deg: f64, without: f64, with: f64, before: f64, after: f64) -> Level {
+        let scores = |psnr| Scores {
+            psnr,
+            ssim: 0.9,
+            lpips: None,
+            psnr_face: None,
+            psnr_hands: None,
+        };
+        Level {
+            noise_deg,
+            psnr_without: without,
+            psnr_with: with,
+            without: scores(without),
+            with: scores(with),
+            joint_error_before_m: before,
+            joint_error_after_m: after,
+            rotation_error_before_deg: 0.0,
+            rotation_error_after_deg: 0.0,
+            steps_without: 1,
+            steps_with: 1,
+        }
+    }
+
+    #[test]
+    fn plots_levels_and_survives_degenerate_input() {
+        let levels = [
+            level(0.0, 24.0, 23.9, 0.0, 0.004),
+            level(6.0, 15.4, 18.2, 0.063, 0.024),
+        ];
+        let img = plot_levels(&levels).unwrap();
+        assert_eq!(img.dimensions(), (W, H));
+        // Both colours are drawn.
+        let has = |c: [u8; 3]| img.pixels().any(|p| p.0 == c);
+        assert!(has([200, 80, 40]) && has([40, 110, 200]));
+        assert!(plot_levels(&[]).is_ok());
+        assert!(plot_levels(&[level(3.0, f64::NAN, f64::NAN, f64::NAN, 0.01)]).is_ok());
+    }
 }

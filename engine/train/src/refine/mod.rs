@@ -58,6 +58,9 @@ pub struct PoseRefiner {
     fits: Vec<[f64; layout::DIM]>,
     /// Per slot: the slots of its neighbours in time (same subject).
     neighbours: Vec<Vec<usize>>,
+    /// Per slot and correction group ([`layout::GROUPS`]): how much of the smoothness
+    /// pull applies, from how jittery its subject's fits are ([`jitter_gains`]).
+    smooth_gain: Vec<[f64; layout::GROUPS.len()]>,
     /// Slot of each dataset frame.
     slot_of: std::collections::HashMap<usize, usize>,
 }
@@ -84,13 +87,15 @@ impl PoseRefiner {
     /// The refiner a checkpoint recorded (its frames must be `dataset`'s).
     pub fn from_state(dataset: &Dataset, state: RefinerState, opts: RefineOptions) -> Self {
         let frames = &state.frames;
-        let fits = frames
+        let fits: Vec<[f64; layout::DIM]> = frames
             .iter()
             .map(|&i| layout::flatten(&dataset.frames[i].params))
             .collect();
         let slot_of = frames.iter().enumerate().map(|(s, &i)| (i, s)).collect();
+        let neighbours = neighbours(dataset, frames);
         PoseRefiner {
-            neighbours: neighbours(dataset, frames),
+            smooth_gain: jitter_gains(dataset, frames, &fits, &neighbours),
+            neighbours,
             opts,
             state,
             fits,
@@ -149,20 +154,81 @@ impl PoseRefiner {
         next.iter_mut().for_each(|d| *d *= keep);
         let nb = &self.neighbours[s];
         if !nb.is_empty() && self.opts.pose_smooth > 0.0 {
-            for k in 0..layout::DIM {
-                let here = self.fits[s][k] + next[k];
-                let mean = nb
-                    .iter()
-                    .map(|&o| self.fits[o][k] + st.delta[o][k] as f64)
-                    .sum::<f64>()
-                    / nb.len() as f64;
-                next[k] += self.opts.pose_smooth * (mean - here);
+            for (g, (_, range, _)) in layout::GROUPS.into_iter().enumerate() {
+                let pull = self.opts.pose_smooth * self.smooth_gain[s][g];
+                if pull == 0.0 {
+                    continue;
+                }
+                for k in range {
+                    let here = self.fits[s][k] + next[k];
+                    let mean = nb
+                        .iter()
+                        .map(|&o| self.fits[o][k] + st.delta[o][k] as f64)
+                        .sum::<f64>()
+                        / nb.len() as f64;
+                    next[k] += pull * (mean - here);
+                }
             }
         }
         for k in 0..layout::DIM {
             st.delta[s][k] = next[k] as f32;
         }
     }
+}
+
+/// Per slot and correction group, the share of the smoothness pull that applies: how
+/// jittery the subject's fits of that group are. The ratio `q` of the power of the fits'
+/// second differences in time to that of their first differences is 3 for white jitter
+/// (each pose independent of the last), 2 for a random walk and near 0 for smooth
+/// motion; the gain is `clamp(q - 2, 0, 1)`: fits rougher than a random walk are taken as
+/// jitter and smoothed, motion at least as smooth is left to the images. On the default
+/// scene the clean fits give q = 0.3 (body and hands) and 1.6-2.1 (the talking jaw), and
+/// 6 degrees of noise 2.8-2.9 (see docs/design.md, pose refinement).
+fn jitter_gains(
+    dataset: &Dataset,
+    frames: &[usize],
+    fits: &[[f64; layout::DIM]],
+    neighbours: &[Vec<usize>],
+) -> Vec<[f64; layout::GROUPS.len()]> {
+    let n_groups = layout::GROUPS.len();
+    let mut out = vec![[0.0; layout::GROUPS.len()]; frames.len()];
+    let mut subjects: Vec<usize> = frames.iter().map(|&i| dataset.frames[i].subject).collect();
+    subjects.sort_unstable();
+    subjects.dedup();
+    for subject in subjects {
+        let slots: Vec<usize> = (0..frames.len())
+            .filter(|&s| dataset.frames[frames[s]].subject == subject)
+            .collect();
+        let (mut p1, mut p2) = (vec![0.0f64; n_groups], vec![0.0f64; n_groups]);
+        for &s in &slots {
+            // Each neighbour pair once (first differences), each frame with two
+            // neighbours as a middle (second differences).
+            for (g, (_, range, _)) in layout::GROUPS.into_iter().enumerate() {
+                for &o in neighbours[s].iter().filter(|&&o| o > s) {
+                    p1[g] += range
+                        .clone()
+                        .map(|k| (fits[o][k] - fits[s][k]).powi(2))
+                        .sum::<f64>();
+                }
+                if let [a, b] = neighbours[s][..] {
+                    p2[g] += range
+                        .map(|k| (fits[a][k] - 2.0 * fits[s][k] + fits[b][k]).powi(2))
+                        .sum::<f64>();
+                }
+            }
+        }
+        let gains: [f64; layout::GROUPS.len()] = std::array::from_fn(|g| {
+            if p1[g] > 1e-18 {
+                (p2[g] / p1[g] - 2.0).clamp(0.0, 1.0)
+            } else {
+                0.0
+            }
+        });
+        for &s in &slots {
+            out[s] = gains;
+        }
+    }
+    out
 }
 
 /// Per slot, the slots of the same subject's training frames just before and after it

@@ -40,7 +40,8 @@ pub struct RefineOptions {
     #[arg(long = "pose-prior", default_value_t = RefineOptions::default().pose_prior)]
     pub pose_prior: f64,
     /// Pull of a frame's corrected pose toward its neighbours' in time: the fraction of
-    /// the way to their mean at each visit.
+    /// the way to their mean at each visit, for fits that jitter like white noise (less
+    /// for smoother fits, none for fits as smooth as a random walk).
     #[arg(long = "pose-smooth", default_value_t = RefineOptions::default().pose_smooth)]
     pub pose_smooth: f64,
 }
@@ -49,7 +50,7 @@ impl Default for RefineOptions {
     fn default() -> Self {
         RefineOptions {
             refine_poses: RefineMode::Auto,
-            pose_lr: 5e-3,
+            pose_lr: 2.5e-3,
             pose_warmup: 300,
             pose_prior: 0.01,
             pose_smooth: 0.25,

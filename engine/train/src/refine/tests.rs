@@ -187,18 +187,18 @@ fn a_gradient_that_is_not_finite_changes_nothing() {
 }
 
 #[test]
-fn the_smoothness_pull_brings_a_jittered_frame_toward_its_neighbours() {
-    let mut data = dataset(3, &canonical_params());
-    data.frames[1].params.body_pose[3].x += 0.2; // one frame jitters
-    let mut r = PoseRefiner::new(
-        &data,
-        &[0, 1, 2],
-        RefineOptions {
-            pose_smooth: 0.5,
-            pose_prior: 0.0,
-            ..opts()
-        },
-    );
+fn the_smoothness_pull_brings_jitter_toward_the_neighbours_and_leaves_smooth_motion() {
+    // Jitter: every other frame off by 0.2 rad (rougher than a random walk).
+    let mut data = dataset(5, &canonical_params());
+    for i in [1, 3] {
+        data.frames[i].params.body_pose[3].x += 0.2;
+    }
+    let smoothing = RefineOptions {
+        pose_smooth: 0.5,
+        pose_prior: 0.0,
+        ..opts()
+    };
+    let mut r = PoseRefiner::new(&data, &[0, 1, 2, 3, 4], smoothing.clone());
     for _ in 0..10 {
         r.update(1, &[0.0; DIM]);
     }
@@ -206,4 +206,15 @@ fn the_smoothness_pull_brings_a_jittered_frame_toward_its_neighbours() {
     let p = r.params_of(&data, 1).body_pose[3].x - canonical_params().body_pose[3].x;
     assert!(p.abs() < 0.01, "{p} left of the 0.2 jitter");
     assert!(r.delta_of(1).unwrap()[k] < -0.19);
+
+    // Smooth motion (a steady turn): nothing pulls it, however often a frame is visited.
+    let mut data = dataset(5, &canonical_params());
+    for i in 0..5 {
+        data.frames[i].params.body_pose[3].x += 0.05 * i as f64;
+    }
+    let mut r = PoseRefiner::new(&data, &[0, 1, 2, 3, 4], smoothing);
+    for _ in 0..10 {
+        r.update(2, &[0.0; DIM]);
+    }
+    assert!(r.delta_of(2).unwrap().iter().all(|&v| v == 0.0));
 }
