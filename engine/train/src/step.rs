@@ -57,8 +57,8 @@ impl Trainer<'_> {
 
         // Optimizer (and the frame's pose correction).
         self.optimize(lr, grads);
-        if let Some(pose) = pose {
-            self.refine_pose(frame, &pose);
+        if self.refiner.is_some() {
+            self.refine_pose(frame, pose.as_ref());
         }
         self.step += 1;
 
@@ -182,8 +182,9 @@ impl Trainer<'_> {
     }
 
     /// Moves frame `frame`'s pose correction down the loss's gradient `pose` (w.r.t. the
-    /// frame's skinning transforms and conditions, at its corrected pose).
-    fn refine_pose(&mut self, frame: usize, pose: &PoseGrads) {
+    /// frame's skinning transforms and conditions, at its corrected pose; `None` during
+    /// the warm-up), then by the prior and smoothness steps.
+    fn refine_pose(&mut self, frame: usize, pose: Option<&PoseGrads>) {
         let model = self.model_of(frame);
         let (skeleton, canonical) = (model.skeleton.clone(), model.canonical.clone());
         let Some(refiner) = self.refiner.as_mut() else {
@@ -193,8 +194,8 @@ impl Trainer<'_> {
             return;
         };
         let fit = &self.dataset.frames[frame].params;
-        let g = correction_gradient(&skeleton, &canonical, fit, &delta, pose);
-        refiner.update(frame, &g);
+        let g = pose.map(|p| correction_gradient(&skeleton, &canonical, fit, &delta, p));
+        refiner.update(frame, g.as_ref());
     }
 
     /// The field at the samples, rendered, scored against the batch's targets and

@@ -8,8 +8,9 @@
 //! with its own Adam at `--pose-lr`; then two quadratic penalties take a plain (proximal)
 //! step: toward zero (`--pose-prior`, the fraction of the correction removed per visit)
 //! and toward the neighbouring frames' corrected poses (`--pose-smooth`, the fraction of
-//! the way to their mean per visit; neighbours are the same subject's training frames
-//! next in time). Corrections learn only after `--pose-warmup` steps, once the field
+//! the way to their mean per visit, scaled by how jittery the subject's fits are:
+//! `jitter_gains`; neighbours are the same subject's training frames next in time).
+//! Corrections learn only after `--pose-warmup` steps, once the field
 //! renders something worth matching. The per-frame sampler and conditions are rebuilt
 //! from the corrected pose whenever a frame's correction moved, so the capsule intervals
 //! follow the refined body; the occupancy grid lives in canonical space and needs nothing.
@@ -125,28 +126,30 @@ impl PoseRefiner {
     }
 
     /// One visit of dataset frame `i`: Adam on `grad` (the loss's gradient w.r.t. its
-    /// correction), then the proximal steps of the prior and the smoothness penalty.
-    /// A non-finite gradient leaves the correction as it was.
-    pub fn update(&mut self, i: usize, grad: &[f64; layout::DIM]) {
+    /// correction; `None` before the warm-up ends), then the proximal steps of the prior
+    /// and the smoothness penalty, which need no field and act from the first step. A
+    /// gradient that is not finite leaves the correction as it was.
+    pub fn update(&mut self, i: usize, grad: Option<&[f64; layout::DIM]>) {
         let Some(&s) = self.slot_of.get(&i) else {
             return;
         };
-        if !grad.iter().all(|g| g.is_finite()) {
+        if grad.is_some_and(|g| !g.iter().all(|v| v.is_finite())) {
             return;
         }
         let st = &mut self.state;
-        st.t[s] += 1;
-        let t = st.t[s] as i32;
-        let (c1, c2) = (1.0 - BETA_1.powi(t), 1.0 - BETA_2.powi(t));
-        let mut next = [0.0f64; layout::DIM];
-        for (_, range, scale) in layout::GROUPS {
-            for k in range {
-                let m = BETA_1 * st.m[s][k] as f64 + (1.0 - BETA_1) * grad[k];
-                let v = BETA_2 * st.v[s][k] as f64 + (1.0 - BETA_2) * grad[k] * grad[k];
-                st.m[s][k] = m as f32;
-                st.v[s][k] = v as f32;
-                let step = self.opts.pose_lr * scale * (m / c1) / ((v / c2).sqrt() + EPSILON);
-                next[k] = st.delta[s][k] as f64 - step;
+        let mut next: [f64; layout::DIM] = std::array::from_fn(|k| st.delta[s][k] as f64);
+        if let Some(grad) = grad {
+            st.t[s] += 1;
+            let t = st.t[s] as i32;
+            let (c1, c2) = (1.0 - BETA_1.powi(t), 1.0 - BETA_2.powi(t));
+            for (_, range, scale) in layout::GROUPS {
+                for k in range {
+                    let m = BETA_1 * st.m[s][k] as f64 + (1.0 - BETA_1) * grad[k];
+                    let v = BETA_2 * st.v[s][k] as f64 + (1.0 - BETA_2) * grad[k] * grad[k];
+                    st.m[s][k] = m as f32;
+                    st.v[s][k] = v as f32;
+                    next[k] -= self.opts.pose_lr * scale * (m / c1) / ((v / c2).sqrt() + EPSILON);
+                }
             }
         }
         // Proximal steps: toward the fit, then toward the neighbours' corrected poses.

@@ -33,7 +33,8 @@ pub struct RefineOptions {
     /// Learning rate of the corrections (radians per step; translation at 0.2x, metres).
     #[arg(long = "pose-lr", default_value_t = RefineOptions::default().pose_lr)]
     pub pose_lr: f64,
-    /// Steps before the corrections start learning.
+    /// Steps before the corrections start learning from the images (the prior and the
+    /// smoothness act from the first step).
     #[arg(long = "pose-warmup", value_name = "STEPS", default_value_t = RefineOptions::default().pose_warmup)]
     pub pose_warmup: usize,
     /// Pull of a correction toward zero: the fraction of it removed at each visit.
@@ -50,10 +51,10 @@ impl Default for RefineOptions {
     fn default() -> Self {
         RefineOptions {
             refine_poses: RefineMode::Auto,
-            pose_lr: 2.5e-3,
-            pose_warmup: 300,
+            pose_lr: 1e-3,
+            pose_warmup: 500,
             pose_prior: 0.01,
-            pose_smooth: 0.25,
+            pose_smooth: 0.5,
         }
     }
 }
