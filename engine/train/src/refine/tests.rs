@@ -165,7 +165,8 @@ fn hands_nothing_sees_only_follow_the_prior_and_their_neighbours() {
         "moved down its gradient: {}",
         d[LEFT_ELBOW_X]
     );
-    // Adam moves it by at most the learning rate a visit; its neighbours did not move.
+    // Adam moves it by at most the learning rate a visit, and the fits do not jitter, so
+    // the pull toward them holds it within a few: its neighbours did not move.
     assert!(d[LEFT_ELBOW_X].abs() <= 5.0 * r.opts.pose_lr as f32 + 1e-6);
     assert!(r.delta_of(0).unwrap().iter().all(|&v| v == 0.0));
 }
