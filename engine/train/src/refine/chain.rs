@@ -116,10 +116,12 @@ mod tests {
     fn the_chain_rule_matches_differences_of_the_loss() {
         let s = skeleton();
         let canonical = s.pose(&canonical_params());
-        let mut fit = FrameParams::default();
-        fit.global_orient = DVec3::new(0.2, -0.4, 0.1);
+        let mut fit = FrameParams {
+            global_orient: DVec3::new(0.2, -0.4, 0.1),
+            transl: DVec3::new(0.1, 0.9, 2.0),
+            ..FrameParams::default()
+        };
         fit.body_pose[17] = DVec3::new(0.0, 3.1, 0.0); // left elbow, near pi
-        fit.transl = DVec3::new(0.1, 0.9, 2.0);
         let mut delta = vec![0.0f32; DIM];
         delta[BODY.start + 3 * 17 + 1] = 0.1; // past pi
         let w: Vec<[f32; TRANSFORM_ROWS]> = (0..N_BODY_JOINTS)
