@@ -185,17 +185,15 @@ impl Trainer<'_> {
     /// frame's skinning transforms and conditions, at its corrected pose; `None` during
     /// the warm-up), then by the prior and smoothness steps.
     fn refine_pose(&mut self, frame: usize, pose: Option<&PoseGrads>) {
+        let Some(delta) = self.refiner.as_ref().and_then(|r| r.delta_of(frame)) else {
+            return;
+        };
         let model = self.model_of(frame);
-        let (skeleton, canonical) = (model.skeleton.clone(), model.canonical.clone());
-        let Some(refiner) = self.refiner.as_mut() else {
-            return;
-        };
-        let Some(delta) = refiner.delta_of(frame).map(<[f32]>::to_vec) else {
-            return;
-        };
         let fit = &self.dataset.frames[frame].params;
-        let g = pose.map(|p| correction_gradient(&skeleton, &canonical, fit, &delta, p));
-        refiner.update(frame, g.as_ref());
+        let g = pose.map(|p| correction_gradient(&model.skeleton, &model.canonical, fit, delta, p));
+        if let Some(refiner) = self.refiner.as_mut() {
+            refiner.update(frame, g.as_ref());
+        }
     }
 
     /// The field at the samples, rendered, scored against the batch's targets and

@@ -4,7 +4,7 @@
 //! central differences in f64 (69 coordinates, two 22-joint chains each: microseconds,
 //! and exact to ~1e-9 relative, far below the gradient's own noise).
 
-use talkin_human::body::{FrameParams, PosedSkeleton, Skeleton};
+use talkin_human::body::{FrameParams, PosedSkeleton, Skeleton, canonical_from_posed};
 use talkin_nets::PoseGrads;
 use talkin_nets::field::leaves::TRANSFORM_ROWS;
 
@@ -20,9 +20,7 @@ fn transforms(
     canonical: &PosedSkeleton,
     params: &FrameParams,
 ) -> [[f64; TRANSFORM_ROWS]; N_BODY_JOINTS] {
-    let posed = skeleton.pose(params);
-    std::array::from_fn(|b| {
-        let m = canonical.world_from_rest[b] * posed.world_from_rest[b].inverse();
+    canonical_from_posed(&skeleton.pose(params), canonical).map(|m| {
         let (r, t) = (m.matrix3, m.translation);
         [
             r.x_axis.x, r.y_axis.x, r.z_axis.x, t.x, //
