@@ -5,7 +5,7 @@
 //!
 //! Each training frame owns a correction (zero at the start, [`layout`]). The step that
 //! draws a frame differentiates its loss through the correction ([`chain`]) and moves it
-//! with its own Adam at `--pose-lr`; then two quadratic penalties take a plain (proximal)
+//! with its own Adam at `--pose-lr` (`--pose-lr-jitter` for fits that jitter); then two quadratic penalties take a plain (proximal)
 //! step: toward zero (`--pose-prior`, the fraction of the correction removed per visit,
 //! plus up to `CLEAN_FIT_TRUST` for fits that do not jitter)
 //! and toward the neighbouring frames' corrected poses (`--pose-smooth`, the fraction of
@@ -62,7 +62,7 @@ pub struct PoseRefiner {
     neighbours: Vec<Vec<usize>>,
     /// Per slot and correction group ([`layout::GROUPS`]): how much of the smoothness
     /// pull applies, from how jittery its subject's fits are ([`jitter_gains`]).
-    smooth_gain: Vec<[f64; layout::GROUPS.len()]>,
+    jitter_gain: Vec<[f64; layout::GROUPS.len()]>,
     /// Slot of each dataset frame.
     slot_of: std::collections::HashMap<usize, usize>,
 }
@@ -104,7 +104,7 @@ impl PoseRefiner {
         let slot_of = frames.iter().enumerate().map(|(s, &i)| (i, s)).collect();
         let neighbours = neighbours(dataset, frames);
         PoseRefiner {
-            smooth_gain: jitter_gains(dataset, frames, &fits, &neighbours),
+            jitter_gain: jitter_gains(dataset, frames, &fits, &neighbours),
             neighbours,
             opts,
             state,
@@ -151,27 +151,29 @@ impl PoseRefiner {
             st.t[s] += 1;
             let t = st.t[s] as i32;
             let (c1, c2) = (1.0 - BETA_1.powi(t), 1.0 - BETA_2.powi(t));
-            for (_, range, scale) in layout::GROUPS {
+            for (g, (_, range, scale)) in layout::GROUPS.into_iter().enumerate() {
+                let gain = self.jitter_gain[s][g];
+                let lr = self.opts.pose_lr + (self.opts.pose_lr_jitter - self.opts.pose_lr) * gain;
                 for k in range {
                     let m = BETA_1 * st.m[s][k] as f64 + (1.0 - BETA_1) * grad[k];
                     let v = BETA_2 * st.v[s][k] as f64 + (1.0 - BETA_2) * grad[k] * grad[k];
                     st.m[s][k] = m as f32;
                     st.v[s][k] = v as f32;
-                    next[k] -= self.opts.pose_lr * scale * (m / c1) / ((v / c2).sqrt() + EPSILON);
+                    next[k] -= lr * scale * (m / c1) / ((v / c2).sqrt() + EPSILON);
                 }
             }
         }
         // Proximal steps: toward the fit (harder for fits that look clean), then toward
         // the neighbours' corrected poses (harder for fits that jitter).
         for (g, (_, range, _)) in layout::GROUPS.into_iter().enumerate() {
-            let trust = CLEAN_FIT_TRUST * (1.0 - self.smooth_gain[s][g]);
+            let trust = CLEAN_FIT_TRUST * (1.0 - self.jitter_gain[s][g]);
             let keep = 1.0 - (self.opts.pose_prior + trust).min(1.0);
             range.for_each(|k| next[k] *= keep);
         }
         let nb = &self.neighbours[s];
         if !nb.is_empty() && self.opts.pose_smooth > 0.0 {
             for (g, (_, range, _)) in layout::GROUPS.into_iter().enumerate() {
-                let pull = self.opts.pose_smooth * self.smooth_gain[s][g];
+                let pull = self.opts.pose_smooth * self.jitter_gain[s][g];
                 if pull == 0.0 {
                     continue;
                 }

@@ -30,9 +30,15 @@ pub struct RefineOptions {
         value_name = "on|off|auto"
     )]
     pub refine_poses: RefineMode,
-    /// Learning rate of the corrections (radians per step; translation at 0.2x, metres).
+    /// Learning rate of the corrections of fits that move at least as smoothly as a
+    /// random walk (radians per step; translation at 0.2x, metres).
     #[arg(long = "pose-lr", default_value_t = RefineOptions::default().pose_lr)]
     pub pose_lr: f64,
+    /// Learning rate of the corrections of fits that jitter like white noise (fits in
+    /// between get a rate in between, by the same measure of jitter as `--pose-smooth`).
+    #[arg(long = "pose-lr-jitter", default_value_t = RefineOptions::default().pose_lr_jitter)]
+    #[serde(default = "RefineOptions::default_pose_lr_jitter")]
+    pub pose_lr_jitter: f64,
     /// Steps before the corrections start learning from the images (the prior and the
     /// smoothness act from the first step).
     #[arg(long = "pose-warmup", value_name = "STEPS", default_value_t = RefineOptions::default().pose_warmup)]
@@ -52,6 +58,7 @@ impl Default for RefineOptions {
         RefineOptions {
             refine_poses: RefineMode::Auto,
             pose_lr: 1e-3,
+            pose_lr_jitter: RefineOptions::default_pose_lr_jitter(),
             pose_warmup: 500,
             pose_prior: 0.01,
             pose_smooth: 0.5,
@@ -68,6 +75,10 @@ impl RefineOptions {
         }
     }
 
+    fn default_pose_lr_jitter() -> f64 {
+        5e-3
+    }
+
     /// Whether the options turn refinement on for a dataset that is (or is not)
     /// imported.
     pub fn is_on(&self, imported: bool) -> bool {
@@ -82,6 +93,9 @@ impl RefineOptions {
     pub fn check(&self) -> Result<(), (&'static str, &'static str)> {
         if !(self.pose_lr.is_finite() && self.pose_lr > 0.0) {
             return Err(("--pose-lr", "must be a positive number"));
+        }
+        if !(self.pose_lr_jitter.is_finite() && self.pose_lr_jitter > 0.0) {
+            return Err(("--pose-lr-jitter", "must be a positive number"));
         }
         if !(0.0..1.0).contains(&self.pose_prior) {
             return Err(("--pose-prior", "must lie in [0, 1)"));

@@ -217,3 +217,41 @@ fn the_smoothness_pull_brings_jitter_toward_the_neighbours_and_leaves_smooth_mot
     }
     assert!(r.delta_of(2).unwrap().iter().all(|&v| v == 0.0));
 }
+
+#[test]
+fn jittery_fits_learn_at_the_jitter_rate_and_smooth_ones_at_the_base_rate() {
+    // Adam's first step moves a coordinate by exactly its rate; with no prior and no
+    // smoothness pull, what moved is the rate the group was given.
+    let free = RefineOptions {
+        pose_lr: 1e-3,
+        pose_lr_jitter: 5e-3,
+        pose_prior: 0.0,
+        pose_smooth: 0.0,
+        ..opts()
+    };
+    let k = BODY.start + 9;
+    let mut g = [0.0f64; DIM];
+    g[k] = 0.3;
+
+    let mut jittery = dataset(5, &canonical_params());
+    for i in [1, 3] {
+        jittery.frames[i].params.body_pose[3].x += 0.2;
+    }
+    let mut r = PoseRefiner::new(&jittery, &[0, 1, 2, 3, 4], free.clone());
+    r.update(2, Some(&g));
+    let moved = r.delta_of(2).unwrap()[k] as f64;
+    assert!((moved + 5e-3).abs() < 1e-6, "jittery body moved {moved}");
+
+    // A steady turn: trusted, so the pull toward the fit (0.25 a visit) follows Adam.
+    let mut smooth = dataset(5, &canonical_params());
+    for i in 0..5 {
+        smooth.frames[i].params.body_pose[3].x += 0.05 * i as f64;
+    }
+    let mut r = PoseRefiner::new(&smooth, &[0, 1, 2, 3, 4], free);
+    r.update(2, Some(&g));
+    let moved = r.delta_of(2).unwrap()[k] as f64;
+    assert!(
+        (moved + 1e-3 * 0.75).abs() < 1e-6,
+        "smooth body moved {moved}"
+    );
+}
