@@ -52,6 +52,7 @@ fn reports_time_to_each_target_for_both_samplers() {
     for key in [
         "highest_common_target_db",
         "speedup_at_highest_common_target",
+        "highest_common_is_lower_bound",
     ] {
         assert!(json.get(key).is_some(), "{key}");
     }

@@ -59,9 +59,12 @@ pub struct Summary {
     /// Per target: the dense run never reached it, so its speed-up is its training
     /// seconds over the accelerated run's time: a lower bound.
     pub is_lower_bound: Vec<bool>,
-    /// The highest target both runs reached.
+    /// The highest target the accelerated run reached, with the dense run's time to it
+    /// measured or, where dense trained its whole budget without reaching it, bounded.
     pub highest_common_target_db: Option<f64>,
+    /// The speed-up there (a lower bound with `highest_common_is_lower_bound`).
     pub speedup_at_highest_common_target: Option<f64>,
+    pub highest_common_is_lower_bound: bool,
     /// Per target: the speed-up as (dense / accelerated steps) x (dense / accelerated
     /// seconds a step).
     pub targets: Vec<TargetRow>,
@@ -194,11 +197,22 @@ pub fn format_summary(s: &Summary) -> String {
         ));
     }
     t.push_str(&format!(
-        "\nHighest target both reached: {}; speed-up there: {}.\n\n",
+        "\nHighest common target: {}; speed-up there: {}{}.\n\n",
         s.highest_common_target_db
             .map_or("none".into(), |v| format!("{v:.1} dB")),
+        if s.highest_common_is_lower_bound {
+            ">= "
+        } else {
+            ""
+        },
         opt(s.speedup_at_highest_common_target, 2) + "x",
     ));
+    if s.highest_common_is_lower_bound {
+        t.push_str(&format!(
+            "Dense did not reach it in its {:.0} s: the speed-up is a lower bound.\n\n",
+            d.trained_s
+        ));
+    }
     t.push_str(
         "| run | lr | budget s | trained s | steps | stopped | best dB | median step ms | \
          mean step ms | samples/ray | bones/sample | sampling share |\n\
