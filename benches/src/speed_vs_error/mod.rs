@@ -405,6 +405,7 @@ mod tests {
             "speedup_at_target",
             "highest_common_target_db",
             "speedup_at_highest_common_target",
+            "highest_common_is_lower_bound",
             "is_lower_bound",
             "dense_lr_sweep",
         ] {
@@ -429,5 +430,14 @@ mod tests {
             }
         }
         assert_eq!(json["accelerated"]["stopped"], "budget");
+
+        // The report marks a highest common target that dense only bounds.
+        let line = "Highest common target: 18.0 dB; speed-up there: ";
+        assert!(format_summary(&summary).contains(&format!("{line}1.00x.")));
+        let bounded = Summary {
+            highest_common_is_lower_bound: true,
+            ..summary
+        };
+        assert!(format_summary(&bounded).contains(&format!("{line}>= 1.00x.")));
     }
 }

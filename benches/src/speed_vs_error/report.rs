@@ -207,12 +207,6 @@ pub fn format_summary(s: &Summary) -> String {
         },
         opt(s.speedup_at_highest_common_target, 2) + "x",
     ));
-    if s.highest_common_is_lower_bound {
-        t.push_str(&format!(
-            "Dense did not reach it in its {:.0} s: the speed-up is a lower bound.\n\n",
-            d.trained_s
-        ));
-    }
     t.push_str(
         "| run | lr | budget s | trained s | steps | stopped | best dB | median step ms | \
          mean step ms | samples/ray | bones/sample | sampling share |\n\

@@ -57,9 +57,7 @@ impl Trainer<'_> {
 
         // Optimizer (and the frame's pose correction).
         self.optimize(lr, grads);
-        if self.refiner.is_some() {
-            self.refine_pose(frame, pose.as_ref());
-        }
+        self.refine_pose(frame, pose.as_ref());
         self.step += 1;
 
         // Grid update, when due.
@@ -183,7 +181,7 @@ impl Trainer<'_> {
 
     /// Moves frame `frame`'s pose correction down the loss's gradient `pose` (w.r.t. the
     /// frame's skinning transforms and conditions, at its corrected pose; `None` during
-    /// the warm-up), then by the prior and smoothness steps.
+    /// the warm-up), then by the prior and smoothness steps. Nothing without refinement.
     fn refine_pose(&mut self, frame: usize, pose: Option<&PoseGrads>) {
         let Some(delta) = self.refiner.as_ref().and_then(|r| r.delta_of(frame)) else {
             return;

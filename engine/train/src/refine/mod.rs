@@ -5,8 +5,8 @@
 //!
 //! Each training frame owns a correction (zero at the start, [`layout`]). The step that
 //! draws a frame differentiates its loss through the correction ([`chain`]) and moves it
-//! with its own Adam at `--pose-lr` (`--pose-lr-jitter` for fits that jitter); then two quadratic penalties take a plain (proximal)
-//! step: toward zero (`--pose-prior`, the fraction of the correction removed per visit,
+//! with its own Adam at `--pose-lr` (`--pose-lr-jitter` for fits that jitter); then two
+//! quadratic penalties take a plain (proximal) step: toward zero (`--pose-prior`, the fraction of the correction removed per visit,
 //! plus up to `CLEAN_FIT_TRUST` for fits that do not jitter)
 //! and toward the neighbouring frames' corrected poses (`--pose-smooth`, the fraction of
 //! the way to their mean per visit, scaled by how jittery the subject's fits are:
@@ -60,8 +60,10 @@ pub struct PoseRefiner {
     fits: Vec<[f64; layout::DIM]>,
     /// Per slot: the slots of its neighbours in time (same subject).
     neighbours: Vec<Vec<usize>>,
-    /// Per slot and correction group ([`layout::GROUPS`]): how much of the smoothness
-    /// pull applies, from how jittery its subject's fits are ([`jitter_gains`]).
+    /// Per slot and correction group ([`layout::GROUPS`]): how jittery its subject's fits
+    /// are, 0 to 1 ([`jitter_gains`]). It sets Adam's rate (from `--pose-lr` to
+    /// `--pose-lr-jitter`), the share of the smoothness pull that applies, and the extra
+    /// trust in fits that do not jitter.
     jitter_gain: Vec<[f64; layout::GROUPS.len()]>,
     /// Slot of each dataset frame.
     slot_of: std::collections::HashMap<usize, usize>,
