@@ -1,10 +1,11 @@
 //! train: one training step and the run around it. The modules read in the order a step
 //! runs: a frame's [`scene`] (the posed capsules and the canonical map that `grids`
-//! samples with), its [`rays`], the [`field_inputs`] and the [`loss`], the [`adam`]
-//! optimizer, the [`grid_update`]; [`step`] strings them together and [`trainer`] runs
-//! steps until the budget is spent, writing the [`log`] and [`checkpoint`]s. A run is
-//! told its [`recipe`], whose [`preset`] names the architecture and optimiser settings;
-//! with [`refine`] it also learns per-frame corrections of the training fits.
+//! samples with), its [`rays`], the [`field_inputs`] and the [`loss`] (whose two halves'
+//! gradients `grad_sum` adds), the [`adam`] optimizer, the [`grid_update`]; [`step`]
+//! strings them together and [`trainer`] runs steps until the budget is spent, writing
+//! the [`log`] and [`checkpoint`]s. A run is told its [`recipe`], whose [`preset`] names
+//! the architecture and optimiser settings; with [`refine`] it also learns per-frame
+//! corrections of the training fits.
 //!
 //! Must not know about rendering whole frames, evaluation, the server or the
 //! experiments: they read what it writes (checkpoints) or drive a [`Trainer`].
@@ -13,6 +14,7 @@ pub mod adam;
 pub mod checkpoint;
 pub mod error;
 pub mod field_inputs;
+mod grad_sum;
 pub mod grid_update;
 pub mod log;
 pub mod loss;

@@ -10,7 +10,7 @@
 //! the whole batch's gradient. The split does not depend on the machine: one core runs
 //! the same two halves in turn.
 
-use burn::optim::{GradientsAccumulator, GradientsParams};
+use burn::optim::GradientsParams;
 use burn::prelude::*;
 use talkin_grids::{PackedSamples, Ray};
 use talkin_nets::field::leaves::zero_grads;
@@ -18,6 +18,7 @@ use talkin_nets::loss::{PerceptualLoss, mse, seg_cross_entropy};
 use talkin_nets::{FieldInput, FrameConditions, NetsError, PoseGrads, PoseLeaves, TalkinField};
 
 use crate::field_inputs::packed_layout;
+use crate::grad_sum::sum_grads;
 
 /// Weight of the segmentation cross-entropy.
 pub const SEG_WEIGHT: f32 = 0.05;
@@ -80,9 +81,6 @@ pub(crate) fn loss_and_grads(
     // A panic in the other thread is a bug; pass it on as one.
     let a = a.unwrap_or_else(|p| std::panic::resume_unwind(p))?;
     let b = b?;
-    let mut sum = GradientsAccumulator::new();
-    sum.accumulate(field, a.grads);
-    sum.accumulate(field, b.grads);
     let pose = match (a.pose, b.pose) {
         (Some(mut a), Some(b)) => {
             a.accumulate(&b);
@@ -93,7 +91,7 @@ pub(crate) fn loss_and_grads(
     Ok(StepLoss {
         loss: a.loss + b.loss,
         mse: a.mse + b.mse,
-        grads: sum.grads(),
+        grads: sum_grads(field, a.grads, b.grads),
         pose,
     })
 }
