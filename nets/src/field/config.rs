@@ -16,11 +16,21 @@ use crate::error::NetsError;
 use crate::mlp::MlpConfig;
 use crate::skinning::{BoneSegment, SkinningConfig};
 
+/// Entries per level (log2) of the `fast` preset's F_face and F_hands tables. The head
+/// and hands fill a few percent of the canonical cube, so a table a quarter of F_body's
+/// holds their fine levels; every table row costs a training step its gradient, its sum
+/// over the two half-batches and Adam's pass, whether a sample touched it or not.
+pub const PART_LOG2_ENTRIES: usize = 15;
+
 /// Everything that decides the field's architecture; saved as JSON beside checkpoints.
 #[derive(Config, Debug)]
 pub struct FieldConfig {
-    /// Point encoding of F_body, F_face and F_hands.
+    /// Point encoding of F_body (and of F_face and F_hands without `part_encoding`).
     pub encoding: EncodingConfig,
+    /// Point encoding of F_face and F_hands, which see only the head's and hands' few
+    /// samples; `None` (checkpoints written before the choice existed): `encoding`.
+    #[config(default = "None")]
+    pub part_encoding: Option<EncodingConfig>,
     /// F_body.
     pub body: MlpConfig,
     /// F_face.
@@ -117,18 +127,22 @@ impl FieldConfig {
 
     /// The CPU default: a 12-level hash grid (2^17 entries per level, shared by the
     /// identities: 2^15 left the finer levels of three people's clothes colliding; the
-    /// demo's test_same PSNR went 21.97 -> 22.24 dB in the same 8 minutes) and 2x64 MLPs, with
-    /// the paper's step schedule (D_nr from 100k, the same Hann windows): training maps
-    /// any run onto the paper's 400k iterations.
+    /// demo's test_same PSNR went 21.97 -> 22.24 dB in the same 8 minutes; F_face's and
+    /// F_hands' tables 2^[`PART_LOG2_ENTRIES`]) and 2x64 MLPs, with the paper's step
+    /// schedule (D_nr from 100k, the same Hann windows): training maps any run onto the
+    /// paper's 400k iterations.
     pub fn fast(n_identities: usize) -> Self {
         let small = MlpConfig::new(2, 64);
-        FieldConfig::new(
+        let grid = |log2_entries: usize| {
             EncodingConfig::HashGrid(
                 HashGridConfig::new()
                     .with_n_levels(12)
-                    .with_log2_hashmap_size(17)
+                    .with_log2_hashmap_size(log2_entries)
                     .with_n_identities(n_identities.max(1)),
-            ),
+            )
+        };
+        FieldConfig::new(
+            grid(17),
             small.clone(),
             small.clone(),
             small.clone(),
@@ -137,6 +151,7 @@ impl FieldConfig {
             HannWindowConfig::new(0, 50_000),
             SkinningConfig::new().with_posed_tau(Some(POSED_TAU_M)),
         )
+        .with_part_encoding(Some(grid(PART_LOG2_ENTRIES)))
         .with_n_identities(n_identities)
         .with_unit_map(Some(UnitMap::Isotropic))
     }
@@ -148,14 +163,15 @@ impl FieldConfig {
     /// Builds the field; `prior` initialises the skinning weights. Modules the config
     /// switches off are not built.
     pub fn init(&self, prior: &[BoneSegment], device: &Device) -> Result<TalkinField, NetsError> {
-        let radiance = |mlp: &MlpConfig, d_cond: usize, d_out: usize| {
-            let encoding = self.encoding.init(device);
+        let radiance = |encoding: &EncodingConfig, mlp: &MlpConfig, d_cond: usize, d_out: usize| {
+            let encoding = encoding.init(device);
             let d_in = encoding.output_dim() + d_cond + self.identity_dim;
             RadianceNet {
                 mlp: mlp.init(d_in, d_out, None, device),
                 encoding,
             }
         };
+        let part_encoding = self.part_encoding.as_ref().unwrap_or(&self.encoding);
         let deform = |window: HannWindowConfig, d_cond: usize| {
             let encoding = FrequencyConfig::new(self.deform_bands)
                 .with_window(Some(window))
@@ -179,13 +195,15 @@ impl FieldConfig {
             non_rigid: self
                 .non_rigid_start_step
                 .map(|_| deform(self.non_rigid_window, self.pose_dim)),
-            body: radiance(&self.body, 0, 4 + N_SEG_CLASSES),
+            body: radiance(&self.encoding, &self.body, 0, 4 + N_SEG_CLASSES),
             face: self
                 .has_face
-                .then(|| radiance(&self.face, self.expression_dim(), 4)),
+                .then(|| radiance(part_encoding, &self.face, self.expression_dim(), 4)),
             hand_deform: (self.has_hands && self.use_d_hands)
                 .then(|| deform(self.hand_window, HAND_POSE_DIM)),
-            hands: self.has_hands.then(|| radiance(&self.hands, 0, 4)),
+            hands: self
+                .has_hands
+                .then(|| radiance(part_encoding, &self.hands, 0, 4)),
             settings: FieldSettings {
                 aabb_min: self.aabb_min,
                 aabb_max: self.aabb_max,

@@ -21,7 +21,7 @@ mod config;
 pub mod leaves;
 mod routing;
 
-pub use config::{FieldConfig, POSED_TAU_M, UnitMap};
+pub use config::{FieldConfig, PART_LOG2_ENTRIES, POSED_TAU_M, UnitMap};
 pub use leaves::{PoseGrads, PoseLeaves};
 use routing::Router;
 pub use routing::Routing;
@@ -662,6 +662,40 @@ mod tests {
         let old: FieldConfig = serde_json::from_value(json).unwrap();
         assert_eq!(old.unit_map, None);
         assert_eq!(unit(&old), unit(&config));
+    }
+
+    /// The `fast` preset's F_face and F_hands tables hold 2^PART_LOG2_ENTRIES rows a level
+    /// where F_body's hold 2^17; a config written before the choice existed builds them
+    /// as large as F_body's, so its checkpoints load.
+    #[test]
+    fn part_tables_are_smaller_unless_an_old_config_says_otherwise() {
+        let device = Device::flex();
+        let rows = |e: &Encoding| match e {
+            Encoding::HashGrid(g) => g.n_entries(),
+            Encoding::Frequency(_) => 0,
+        };
+        let config = FieldConfig::fast(3);
+        let field = config.init(&prior(), &device).unwrap();
+        let body = rows(&field.body.encoding);
+        let face = rows(&field.face.as_ref().unwrap().encoding);
+        let hands = rows(&field.hands.as_ref().unwrap().encoding);
+        assert_eq!(face, hands);
+        assert!(face * 3 < body, "face {face} rows, body {body}");
+        let per_level = |config: &FieldConfig, field: &TalkinField| {
+            let Some(EncodingConfig::HashGrid(g)) = &config.part_encoding else {
+                panic!("the fast preset sets the parts' encoding");
+            };
+            assert_eq!(g.log2_hashmap_size, super::config::PART_LOG2_ENTRIES);
+            rows(&field.face.as_ref().unwrap().encoding)
+        };
+        assert_eq!(per_level(&config, &field), face);
+        let mut json = serde_json::to_value(&config).unwrap();
+        json.as_object_mut().unwrap().remove("part_encoding");
+        let old: FieldConfig = serde_json::from_value(json).unwrap();
+        assert!(old.part_encoding.is_none());
+        let old_field = old.init(&prior(), &device).unwrap();
+        assert_eq!(rows(&old_field.face.as_ref().unwrap().encoding), body);
+        assert_eq!(rows(&old_field.hands.as_ref().unwrap().encoding), body);
     }
 
     #[test]
