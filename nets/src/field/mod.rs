@@ -18,6 +18,7 @@ use crate::skinning::{BlendWeightVolume, BoneCapsule, N_BODY_JOINTS, RigidWarp};
 use crate::util::{floats, ints, softplus};
 
 mod config;
+mod fork;
 pub mod leaves;
 mod routing;
 
