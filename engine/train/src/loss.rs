@@ -5,9 +5,9 @@
 //! burn's Flex backend runs most ops on one core, so a step left the second core idle.
 //! The batch's rays are split in two; each half runs forward and backward on its own
 //! fork of the field (`TalkinField::fork_leaves`: fresh autodiff leaves, the same
-//! parameter ids, so the two graphs never merge), and the halves' gradients are summed. Each half's loss is weighted by
-//! its share of the rays, so the sum is the whole batch's loss and the summed gradient
-//! the whole batch's gradient. The split does not depend on the machine: one core runs
+//! parameter ids, so the two graphs never merge), and the halves' gradients are summed.
+//! Each half's loss is weighted by its share of the rays, so the sum is the whole batch's
+//! loss and the summed gradient the whole batch's gradient. The split does not depend on the machine: one core runs
 //! the same two halves in turn.
 
 use burn::optim::GradientsParams;
