@@ -126,6 +126,7 @@ pub fn write_tiny_dataset(dir: &Path) -> Dataset {
     let dataset = Dataset {
         root: dir.to_path_buf(),
         background: [1.0, 1.0, 1.0],
+        matting: talkin_data::dataset::Matting::Matted,
         subjects: vec![Subject {
             name: "tiny".into(),
             skeleton: t_pose_skeleton(),

@@ -54,6 +54,7 @@ fn valid_document() -> Value {
     Dataset {
         root: ".".into(),
         background: [1.0, 1.0, 1.0],
+        matting: talkin_data::dataset::Matting::Matted,
         subjects: vec![Subject {
             name: "ada".into(),
             skeleton: Skeleton { rest_joints: rest },

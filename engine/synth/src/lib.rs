@@ -187,6 +187,7 @@ pub fn generate(
     let dataset = Dataset {
         root: out.to_path_buf(),
         background: BACKGROUND,
+        matting: talkin_data::dataset::Matting::Matted,
         subjects,
         frames,
     };

@@ -370,6 +370,22 @@ impl<'a> Trainer<'a> {
             source,
         })?;
         clear_run(out)?;
+        // The mask defines the person: a frame declared matted that shows its
+        // surroundings is composited by its mask when decoded; say so before training.
+        let contradicting = dataset.contradicting_frames(&frames)?;
+        if !contradicting.is_empty() {
+            tracing::warn!(
+                "{}: {} of {} training frames are not over the declared background outside \
+                 their masks: they are composited by their masks (declare `\"matting\": \
+                 \"by_mask\"` in dataset.json to say so; `talkin inspect` lists them)",
+                dataset
+                    .root
+                    .join(talkin_data::dataset::INDEX_FILE)
+                    .display(),
+                contradicting.len(),
+                frames.len()
+            );
+        }
         // `auto` is decided once, here, and recorded as what it decided.
         let mut opts = opts.clone();
         opts.refine.refine_poses = if opts.refine.is_on(is_imported(dataset)) {

@@ -6,6 +6,7 @@ use std::path::Path;
 
 use image::{DynamicImage, GrayImage, ImageFormat, ImageReader, RgbImage};
 
+use super::matting::{Composited, Matting, composite, surroundings};
 use super::{Dataset, DatasetError, derived_segmentation};
 
 /// Number of segmentation labels: 0 background, 1 body, 2 arms, 3 hands, 4 head.
@@ -16,7 +17,12 @@ pub const LABEL_NAMES: [&str; N_LABELS] = ["background", "body", "arms", "hands"
 /// A frame's decoded images, all of the camera's size.
 #[derive(Clone, Debug)]
 pub struct FrameImages {
+    /// The target every command trains on, scores against and shows: the person over the
+    /// dataset's background (the file composited by its mask, unless the file already is).
     pub rgb: RgbImage,
+    /// Whether and why `rgb` was composited from the file ([`Dataset::file_rgb`] gives
+    /// the file as it is).
+    pub composited: Composited,
     /// 255 = person (values >= 128 count as person for soft mattes).
     pub mask: GrayImage,
     /// Labels 0..=4.
@@ -87,18 +93,49 @@ fn over_background(img: DynamicImage, background: [f32; 3]) -> RgbImage {
 }
 
 impl Dataset {
-    /// Decodes frame `index`'s image (composited over the background if it has alpha),
-    /// mask and segmentation (derived if the frame has none), checking sizes and labels.
+    /// Frame `index`'s image file as RGB, not composited by its mask (an alpha channel is
+    /// still composited over the background): what overlays draw on.
+    pub fn file_rgb(&self, index: usize) -> Result<RgbImage, DatasetError> {
+        let frame = &self.frames[index];
+        let size = (frame.camera.width, frame.camera.height);
+        Ok(over_background(
+            decode_png(&self.root, &frame.image, size)?,
+            self.background,
+        ))
+    }
+
+    /// Decodes frame `index`'s target image (the person over the background: composited
+    /// by the mask when the dataset's matting says so, or when the frame's surroundings
+    /// contradict a declared matting), mask and segmentation (derived if the frame has
+    /// none), checking sizes and labels.
     pub fn images(&self, index: usize) -> Result<FrameImages, DatasetError> {
         let frame = &self.frames[index];
         let size = (frame.camera.width, frame.camera.height);
-        let rgb = over_background(decode_png(&self.root, &frame.image, size)?, self.background);
+        let file_rgb = self.file_rgb(index)?;
         let mask = decode_png(&self.root, &frame.mask, size)?.into_luma8();
+        let (rgb, composited) = match self.matting {
+            Matting::ByMask => (
+                composite(&file_rgb, &mask, self.background),
+                Composited::Declared,
+            ),
+            Matting::Matted => {
+                let s = surroundings(&file_rgb, &mask, self.background);
+                if s.contradicts() {
+                    (
+                        composite(&file_rgb, &mask, self.background),
+                        Composited::Contradicted(s),
+                    )
+                } else {
+                    (file_rgb, Composited::No)
+                }
+            }
+        };
         let Some(rel) = &frame.segmentation else {
             let skeleton = &self.subjects[frame.subject].skeleton;
             let segmentation = derived_segmentation(&mask, &frame.camera, skeleton, &frame.params);
             return Ok(FrameImages {
                 rgb,
+                composited,
                 mask,
                 segmentation,
                 labels_derived: true,
@@ -118,10 +155,36 @@ impl Dataset {
         }
         Ok(FrameImages {
             rgb,
+            composited,
             mask,
             segmentation,
             labels_derived: false,
         })
+    }
+
+    /// Of `frames`, those the dataset declares matted but whose surroundings contradict
+    /// the background (they are composited by their masks when decoded); decodes each
+    /// frame's image and mask, in parallel. Empty for a `by_mask` dataset.
+    pub fn contradicting_frames(&self, frames: &[usize]) -> Result<Vec<usize>, DatasetError> {
+        use rayon::prelude::*;
+        if self.matting == Matting::ByMask {
+            return Ok(Vec::new());
+        }
+        let flags = frames
+            .par_iter()
+            .map(|&i| {
+                let frame = &self.frames[i];
+                let size = (frame.camera.width, frame.camera.height);
+                let mask = decode_png(&self.root, &frame.mask, size)?.into_luma8();
+                Ok(surroundings(&self.file_rgb(i)?, &mask, self.background).contradicts())
+            })
+            .collect::<Result<Vec<bool>, DatasetError>>()?;
+        Ok(frames
+            .iter()
+            .zip(flags)
+            .filter(|(_, c)| *c)
+            .map(|(&i, _)| i)
+            .collect())
     }
 
     /// Decodes frame `index`'s ground-truth depth (camera z in metres per pixel, row-major,

@@ -6,7 +6,7 @@ use std::path::{Component, Path, PathBuf};
 use glam::DVec3;
 use serde_json::Value;
 
-use super::{Dataset, DatasetError, FORMAT, Frame, INDEX_FILE, Split, Subject, VERSION};
+use super::{Dataset, DatasetError, FORMAT, Frame, INDEX_FILE, Matting, Split, Subject, VERSION};
 use crate::json_shape::{self, ShapeError};
 use crate::params_json::ParamsJson;
 use talkin_human::body::{FrameParams, N_JOINTS, Skeleton};
@@ -56,6 +56,7 @@ impl Dataset {
             message: e.to_string(),
         })?;
         let background = r.header(&doc)?;
+        let matting = r.matting(&doc)?;
         let subjects = r.subjects(&doc)?;
         let frames_json = json_shape::member(&doc, "", "frames").map_err(|e| r.shape(e))?;
         let Some(frames_json) = frames_json.as_array().filter(|a| !a.is_empty()) else {
@@ -69,6 +70,7 @@ impl Dataset {
         Ok(Dataset {
             root: root.to_path_buf(),
             background,
+            matting,
             subjects,
             frames,
         })
@@ -208,6 +210,22 @@ impl Reader {
             ));
         }
         Ok([bg[0] as f32, bg[1] as f32, bg[2] as f32])
+    }
+
+    /// `matting`: absent (matted, as every dataset before the field), "matted" or "by_mask".
+    fn matting(&self, doc: &Value) -> Result<Matting, DatasetError> {
+        let Some(v) = doc.get("matting") else {
+            return Ok(Matting::Matted);
+        };
+        let name = json_shape::string(v, "matting").map_err(|e| self.shape(e))?;
+        Matting::from_name(name).ok_or_else(|| {
+            self.invalid(
+                "matting",
+                format!(
+                    "expected \"matted\" (the images show the person over `background`) or \"by_mask\" (camera frames, composited by their masks), found {name:?}"
+                ),
+            )
+        })
     }
 
     /// The subjects: unique names and human-sized rest skeletons.

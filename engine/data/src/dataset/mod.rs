@@ -9,6 +9,7 @@ mod derive_labels;
 mod error;
 mod images;
 mod load;
+mod matting;
 mod write;
 
 use std::path::PathBuf;
@@ -18,6 +19,9 @@ pub use error::DatasetError;
 pub use images::{FrameImages, LABEL_NAMES, N_LABELS};
 pub use load::camera_field;
 pub use load::parse_camera;
+pub use matting::{
+    Composited, EDGE_BAND_PX, MAX_OFF_SHARE, Matting, OFF_BY, Surroundings, composite, surroundings,
+};
 pub use write::write_atomic;
 
 use talkin_human::body::{FrameParams, Skeleton};
@@ -115,8 +119,11 @@ pub struct Frame {
 pub struct Dataset {
     /// The directory holding dataset.json.
     pub root: PathBuf,
-    /// Colour the matted images are composited on, RGB in [0, 1].
+    /// Colour the person is shown over, RGB in [0, 1].
     pub background: [f32; 3],
+    /// Whether the image files already show the person over `background`, or are camera
+    /// frames that every command composites by their masks ([`Dataset::images`]).
+    pub matting: Matting,
     pub subjects: Vec<Subject>,
     pub frames: Vec<Frame>,
 }

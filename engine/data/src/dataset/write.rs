@@ -54,6 +54,7 @@ impl Dataset {
             "format": FORMAT,
             "version": VERSION,
             "background": self.background.map(|c| round9(c as f64)),
+            "matting": self.matting.name(),
             "subjects": subjects,
             "frames": frames,
         })

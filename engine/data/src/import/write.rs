@@ -109,6 +109,7 @@ pub(crate) fn write(
     let dataset = Dataset {
         root: tmp.path().to_path_buf(),
         background: [1.0, 1.0, 1.0],
+        matting: crate::dataset::Matting::ByMask,
         subjects: vec![Subject {
             name: subject.clone(),
             skeleton: Skeleton {

@@ -60,16 +60,16 @@ pub fn overlay_sheet(
     Ok(draw::tile(&tiles, columns.max(1), 4, [24, 24, 24]))
 }
 
-/// One frame: the image, each posed capsule's outline and the skeleton in part colours,
+/// One frame: the image file as it is (not composited: the fit is judged against what
+/// the camera saw), each posed capsule's outline and the skeleton in part colours,
 /// a caption with the frame index and its share of body joints on the person (red when
 /// flagged).
 fn overlay_tile(dataset: &Dataset, summary: &Summary, i: usize) -> Result<RgbImage, DatasetError> {
-    let images = dataset.images(i)?;
     let frame = &dataset.frames[i];
     let skeleton = &dataset.subjects[frame.subject].skeleton;
     let posed = skeleton.pose(&frame.params);
     let camera = &frame.camera;
-    let mut img = images.rgb;
+    let mut img = dataset.file_rgb(i)?;
     let fx = camera.intrinsics.x_axis.x;
     let pixel = |p: glam::DVec3| camera.project(p).map(|q| ((q.x, q.y), fx / q.z.max(1e-9)));
     for c in limb_capsules(skeleton, &posed) {

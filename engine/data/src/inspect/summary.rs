@@ -2,7 +2,11 @@
 
 use rayon::prelude::*;
 
-use crate::dataset::{Dataset, DatasetError, LABEL_NAMES, N_LABELS, Split};
+use crate::dataset::OFF_BY;
+use crate::dataset::{
+    Composited, Dataset, DatasetError, LABEL_NAMES, Matting, N_LABELS, Split, Surroundings,
+    surroundings,
+};
 use talkin_human::body::{N_BODY_JOINTS, N_JOINTS};
 
 /// What one frame's pixels say about its fit.
@@ -20,6 +24,14 @@ pub struct FrameCheck {
     /// Pixels where `mask >= 128` disagrees with `segmentation > 0` (0 when derived).
     pub disagreeing_pixels: u64,
     pub pixels: u64,
+    /// How far the image file's pixels outside the mask lie from the declared background.
+    #[serde(skip)]
+    pub surroundings: Surroundings,
+    /// Share of those pixels off the background (`Surroundings::off_share`).
+    pub surroundings_off_share: f32,
+    /// The file is composited by its mask for training and scoring: the dataset says so
+    /// (`"matting": "by_mask"`), or it says matted and the surroundings contradict it.
+    pub composited: bool,
 }
 
 impl FrameCheck {
@@ -52,8 +64,17 @@ pub struct Summary {
     /// low values mean poses or cameras do not line up with the images.
     pub joints_on_person: f64,
     pub frames_with_depth: usize,
+    /// The dataset's declared matting.
+    #[serde(serialize_with = "matting_name")]
+    pub matting: Matting,
+    /// Frames declared matted whose surroundings contradict the background.
+    pub contradicting_frames: Vec<usize>,
     /// Per frame, in dataset order.
     pub frames: Vec<FrameCheck>,
+}
+
+fn matting_name<S: serde::Serializer>(m: &Matting, s: S) -> Result<S::Ok, S::Error> {
+    s.serialize_str(m.name())
 }
 
 /// Decodes every frame (in parallel) and summarises; the first broken file is the error.
@@ -115,6 +136,12 @@ pub fn summarize(
             on_person as f64 / in_image as f64
         },
         frames_with_depth: dataset.frames.iter().filter(|f| f.depth.is_some()).count(),
+        matting: dataset.matting,
+        contradicting_frames: checks
+            .iter()
+            .filter(|c| dataset.matting == Matting::Matted && c.surroundings.contradicts())
+            .map(|c| c.frame)
+            .collect(),
         frames: checks,
     })
 }
@@ -126,6 +153,7 @@ fn check_frame(
     labels: &mut [u64; N_LABELS],
 ) -> Result<FrameCheck, DatasetError> {
     let images = dataset.images(i)?;
+    let around = surroundings(&dataset.file_rgb(i)?, &images.mask, dataset.background);
     dataset.depth(i)?;
     let mut disagreeing_pixels = 0;
     let mut person_pixels = 0;
@@ -160,6 +188,9 @@ fn check_frame(
             disagreeing_pixels
         },
         pixels: images.mask.len() as u64,
+        surroundings: around,
+        surroundings_off_share: around.off_share,
+        composited: images.composited != Composited::No,
     })
 }
 
@@ -223,11 +254,43 @@ impl std::fmt::Display for Summary {
                 frame_list(&derived)
             )?;
         }
-        write!(
+        writeln!(
             f,
             "frames with ground-truth depth: {}",
             self.frames_with_depth
-        )
+        )?;
+        let mut off: Vec<f32> = self
+            .frames
+            .iter()
+            .map(|c| c.surroundings_off_share)
+            .collect();
+        off.sort_by(f32::total_cmp);
+        let median = off.get(off.len() / 2).copied().unwrap_or(0.0);
+        let max = off.last().copied().unwrap_or(0.0);
+        write!(
+            f,
+            "image files outside the mask, off the background by more than {:.0}/255: \
+             median {:.1}%, worst {:.1}% of pixels; ",
+            OFF_BY * 255.0,
+            100.0 * median,
+            100.0 * max
+        )?;
+        match self.matting {
+            Matting::ByMask => write!(
+                f,
+                "matting \"by_mask\": every frame is composited over the background by its mask"
+            ),
+            Matting::Matted if self.contradicting_frames.is_empty() => write!(
+                f,
+                "matting \"matted\": the images show the person over the background"
+            ),
+            Matting::Matted => write!(
+                f,
+                "matting \"matted\", but {} frames are not over the background: {}",
+                self.contradicting_frames.len(),
+                frame_list(&self.contradicting_frames)
+            ),
+        }
     }
 }
 

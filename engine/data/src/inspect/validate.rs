@@ -82,6 +82,28 @@ impl Summary {
                 fatal: true,
             });
         }
+        if !self.contradicting_frames.is_empty() {
+            fatal.push(Problem {
+                field: "matting".into(),
+                message: format!(
+                    "the dataset declares its images matted over the background, but {} of {} \
+                     frames are not: outside their masks up to {:.0}% of pixels are off the \
+                     background (frames {}). Every command composites those frames by their \
+                     masks and training says so; declare it with `\"matting\": \"by_mask\"` \
+                     in dataset.json (what `talkin import` writes)",
+                    self.contradicting_frames.len(),
+                    self.frames.len(),
+                    100.0
+                        * self
+                            .frames
+                            .iter()
+                            .map(|c| c.surroundings_off_share)
+                            .fold(0.0f32, f32::max),
+                    super::summary::frame_list(&self.contradicting_frames)
+                ),
+                fatal: true,
+            });
+        }
         fatal.extend(flagged);
         fatal
     }

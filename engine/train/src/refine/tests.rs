@@ -32,6 +32,7 @@ fn dataset(n: usize, params: &FrameParams) -> Dataset {
     Dataset {
         root: PathBuf::from("/nonexistent"),
         background: [1.0; 3],
+        matting: talkin_data::dataset::Matting::Matted,
         subjects: vec![Subject {
             name: "ada".into(),
             skeleton,

@@ -1,0 +1,202 @@
+//! The mask defines the person: how a frame's file becomes its training target
+//! (image x alpha + background x (1 - alpha), alpha = mask / 255 with soft edges kept),
+//! and how far a frame's surroundings lie from the declared background.
+
+use image::{GrayImage, RgbImage};
+
+/// How a dataset's image files relate to its `background`.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Matting {
+    /// The files already show the person over `background` (what `synth` writes, and the
+    /// default of a dataset.json without `matting`). A frame whose surroundings contradict
+    /// the background is composited by its mask anyway and flagged
+    /// ([`super::FrameImages::composited`]).
+    #[default]
+    Matted,
+    /// The files are camera frames (what `import` writes): every frame is composited by
+    /// its mask when it is decoded; the file stays as it was for overlays.
+    ByMask,
+}
+
+impl Matting {
+    pub const fn name(self) -> &'static str {
+        match self {
+            Matting::Matted => "matted",
+            Matting::ByMask => "by_mask",
+        }
+    }
+
+    pub fn from_name(name: &str) -> Option<Matting> {
+        [Matting::Matted, Matting::ByMask]
+            .into_iter()
+            .find(|m| m.name() == name)
+    }
+}
+
+/// Why a frame's target is not its file as it is.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Composited {
+    /// The file is the target (a matted dataset whose frame agrees with its background).
+    No,
+    /// The dataset declares `"matting": "by_mask"`.
+    Declared,
+    /// The dataset declares its images matted, but this frame's surroundings contradict
+    /// the background: composited by its mask, and every command that trains says so.
+    Contradicted(Surroundings),
+}
+
+/// A channel farther than this from the background (in [0, 1]) makes a pixel "off".
+pub const OFF_BY: f32 = 0.1;
+/// A frame whose surroundings hold more than this share of off pixels contradicts its
+/// background. JPEG noise or a slightly different white stay far below it; a studio,
+/// a room or a dark backdrop lie far above (a camera frame is 60-100% off).
+pub const MAX_OFF_SHARE: f32 = 0.05;
+/// Pixels within this many pixels of any mask value above 0 are the mask's soft edge,
+/// not the surroundings.
+pub const EDGE_BAND_PX: u32 = 3;
+
+/// How far a frame's surroundings (pixels outside the mask and its edge band) lie from
+/// the background.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Surroundings {
+    /// Pixels counted.
+    pub pixels: usize,
+    /// Mean over them of the largest channel difference from the background, in [0, 1].
+    pub mean_abs: f32,
+    /// Share of them with a channel more than [`OFF_BY`] from the background.
+    pub off_share: f32,
+}
+
+impl Surroundings {
+    /// The frame does not show the person over the background.
+    pub fn contradicts(&self) -> bool {
+        self.pixels > 0 && self.off_share > MAX_OFF_SHARE
+    }
+}
+
+/// Measures `rgb`'s surroundings against `background` (RGB in [0, 1]).
+pub fn surroundings(rgb: &RgbImage, mask: &GrayImage, background: [f32; 3]) -> Surroundings {
+    let near = dilated(mask, EDGE_BAND_PX);
+    let bg = background.map(|c| c * 255.0);
+    let (mut pixels, mut sum, mut off) = (0usize, 0f64, 0usize);
+    for ((p, m), n) in rgb.pixels().zip(mask.pixels()).zip(near.iter()) {
+        if m.0[0] > 0 || *n {
+            continue;
+        }
+        let d = (0..3)
+            .map(|c| (f32::from(p.0[c]) - bg[c]).abs() / 255.0)
+            .fold(0.0f32, f32::max);
+        pixels += 1;
+        sum += f64::from(d);
+        off += usize::from(d > OFF_BY);
+    }
+    let share = |n: usize| {
+        if pixels == 0 {
+            0.0
+        } else {
+            n as f32 / pixels as f32
+        }
+    };
+    Surroundings {
+        pixels,
+        mean_abs: if pixels == 0 {
+            0.0
+        } else {
+            (sum / pixels as f64) as f32
+        },
+        off_share: share(off),
+    }
+}
+
+/// image x alpha + background x (1 - alpha), alpha = mask / 255.
+pub fn composite(rgb: &RgbImage, mask: &GrayImage, background: [f32; 3]) -> RgbImage {
+    let bg = background.map(|c| c * 255.0);
+    RgbImage::from_fn(rgb.width(), rgb.height(), |x, y| {
+        let a = f32::from(mask.get_pixel(x, y).0[0]) / 255.0;
+        let p = rgb.get_pixel(x, y).0;
+        image::Rgb(std::array::from_fn(|c| {
+            (f32::from(p[c]) * a + bg[c] * (1.0 - a))
+                .round()
+                .clamp(0.0, 255.0) as u8
+        }))
+    })
+}
+
+/// Whether each pixel (row-major) lies within `r` px (Chebyshev) of a mask value above 0.
+fn dilated(mask: &GrayImage, r: u32) -> Vec<bool> {
+    let (w, h) = (mask.width() as usize, mask.height() as usize);
+    let r = r as usize;
+    let any: Vec<bool> = mask.iter().map(|&m| m > 0).collect();
+    let mut rows = vec![false; w * h];
+    for y in 0..h {
+        let row = &any[y * w..(y + 1) * w];
+        for x in 0..w {
+            let (a, b) = (x.saturating_sub(r), (x + r).min(w - 1));
+            rows[y * w + x] = row[a..=b].iter().any(|&v| v);
+        }
+    }
+    let mut out = vec![false; w * h];
+    for y in 0..h {
+        let (a, b) = (y.saturating_sub(r), (y + r).min(h - 1));
+        for x in 0..w {
+            out[y * w + x] = (a..=b).any(|yy| rows[yy * w + x]);
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A 40x40 frame: a 10x10 person at (15, 15) over `bg` (8-bit), its exact mask.
+    fn frame(bg: [u8; 3]) -> (RgbImage, GrayImage) {
+        let mut rgb = RgbImage::from_pixel(40, 40, image::Rgb(bg));
+        let mut mask = GrayImage::new(40, 40);
+        for y in 15..25 {
+            for x in 15..25 {
+                rgb.put_pixel(x, y, image::Rgb([200, 30, 30]));
+                mask.put_pixel(x, y, image::Luma([255]));
+            }
+        }
+        (rgb, mask)
+    }
+
+    #[test]
+    fn a_matted_frame_agrees_and_a_studio_contradicts() {
+        let (rgb, mask) = frame([255, 255, 255]);
+        let s = surroundings(&rgb, &mask, [1.0; 3]);
+        assert_eq!(s.off_share, 0.0);
+        assert!(!s.contradicts());
+        // Band excluded: 40^2 - 16^2 pixels.
+        assert_eq!(s.pixels, 40 * 40 - 16 * 16);
+        let (dark, mask) = frame([20, 22, 25]);
+        let s = surroundings(&dark, &mask, [1.0; 3]);
+        assert!(s.contradicts() && s.off_share == 1.0, "{s:?}");
+        assert!((s.mean_abs - 235.0 / 255.0).abs() < 1e-6);
+    }
+
+    #[test]
+    fn compositing_keeps_the_person_and_soft_edges() {
+        let (dark, mut mask) = frame([20, 22, 25]);
+        mask.put_pixel(14, 20, image::Luma([128]));
+        let out = composite(&dark, &mask, [1.0; 3]);
+        assert_eq!(out.get_pixel(20, 20).0, [200, 30, 30]);
+        assert_eq!(out.get_pixel(0, 0).0, [255, 255, 255]);
+        // Half alpha: halfway between the dark pixel and white.
+        let a = 128.0f32 / 255.0;
+        let want = (20.0 * a + 255.0 * (1.0 - a)).round() as u8;
+        assert_eq!(out.get_pixel(14, 20).0[0], want);
+        assert!(!surroundings(&out, &mask, [1.0; 3]).contradicts());
+    }
+
+    #[test]
+    fn an_empty_or_full_mask_is_no_contradiction() {
+        let (rgb, _) = frame([0, 0, 0]);
+        let full = GrayImage::from_pixel(40, 40, image::Luma([255]));
+        let s = surroundings(&rgb, &full, [1.0; 3]);
+        assert_eq!((s.pixels, s.contradicts()), (0, false));
+        let empty = GrayImage::new(40, 40);
+        assert!(surroundings(&rgb, &empty, [1.0; 3]).contradicts());
+    }
+}
