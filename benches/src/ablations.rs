@@ -247,6 +247,7 @@ fn merge(scores: &[(usize, Scores)]) -> Option<Scores> {
         psnr: mean(&|r| r.psnr),
         ssim: mean(&|r| r.ssim),
         lpips: mean_opt(&|r| r.lpips),
+        psnr_person: mean_opt(&|r| r.psnr_person),
         psnr_face: mean_opt(&|r| r.psnr_face),
         psnr_hands: mean_opt(&|r| r.psnr_hands),
     })

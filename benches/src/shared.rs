@@ -36,6 +36,7 @@ pub struct Scores {
     pub ssim: f64,
     /// x1000.
     pub lpips: Option<f64>,
+    pub psnr_person: Option<f64>,
     pub psnr_face: Option<f64>,
     pub psnr_hands: Option<f64>,
 }
@@ -46,6 +47,7 @@ impl Scores {
             psnr: r.psnr,
             ssim: r.ssim,
             lpips: r.lpips,
+            psnr_person: r.psnr_person,
             psnr_face: r.psnr_face,
             psnr_hands: r.psnr_hands,
         }

@@ -116,6 +116,7 @@ mod tests {
             psnr,
             ssim: 0.9,
             lpips: None,
+            psnr_person: None,
             psnr_face: None,
             psnr_hands: None,
         };

@@ -87,6 +87,11 @@ pub struct EvalReport {
     pub ssim: f64,
     /// x1000.
     pub lpips: Option<f64>,
+    /// Means over the person boxes that were scored (the posed body's projected bounds:
+    /// what Neural Body and Instant-NVR score).
+    pub psnr_person: Option<f64>,
+    pub ssim_person: Option<f64>,
+    pub lpips_person: Option<f64>,
     /// Means over the face crops that were scored.
     pub psnr_face: Option<f64>,
     pub ssim_face: Option<f64>,
@@ -95,6 +100,7 @@ pub struct EvalReport {
     pub psnr_hands: Option<f64>,
     pub ssim_hands: Option<f64>,
     pub lpips_hands: Option<f64>,
+    pub person_crops: usize,
     pub face_crops: usize,
     pub hand_crops: usize,
     pub skipped_crops: usize,
@@ -140,14 +146,18 @@ impl EvalReport {
             .iter()
             .all(|s| *s == splits[0])
             .then(|| splits[0].name().to_string());
-        let crops = |hand: bool| -> Vec<&CropScore> {
+        let crops = |kinds: &[CropKind]| -> Vec<&CropScore> {
             frames
                 .iter()
                 .flat_map(|f| &f.crops)
-                .filter(|c| (c.kind != CropKind::Face) == hand)
+                .filter(|c| kinds.contains(&c.kind))
                 .collect()
         };
-        let (face, hands) = (crops(false), crops(true));
+        let (person, face, hands) = (
+            crops(&[CropKind::Person]),
+            crops(&[CropKind::Face]),
+            crops(&[CropKind::LeftHand, CropKind::RightHand]),
+        );
         let skipped_crops = frames.iter().map(|f| f.skipped_crops.len()).sum();
         if skipped_crops > 0 {
             notes.push(format!(
@@ -162,6 +172,7 @@ impl EvalReport {
                 mean_all(&cs.iter().map(|c| c.lpips).collect::<Vec<_>>()),
             )
         };
+        let (psnr_person, ssim_person, lpips_person) = crop_means(&person);
         let (psnr_face, ssim_face, lpips_face) = crop_means(&face);
         let (psnr_hands, ssim_hands, lpips_hands) = crop_means(&hands);
         EvalReport {
@@ -173,12 +184,16 @@ impl EvalReport {
             psnr: mean(frames.iter().map(|f| f.psnr)).unwrap_or(f64::NAN),
             ssim: mean_all(&frames.iter().map(|f| f.ssim).collect::<Vec<_>>()).unwrap_or(f64::NAN),
             lpips: mean_all(&frames.iter().map(|f| f.lpips).collect::<Vec<_>>()),
+            psnr_person,
+            ssim_person,
+            lpips_person,
             psnr_face,
             ssim_face,
             lpips_face,
             psnr_hands,
             ssim_hands,
             lpips_hands,
+            person_crops: person.len(),
             face_crops: face.len(),
             hand_crops: hands.len(),
             skipped_crops,
@@ -233,6 +248,12 @@ impl EvalReport {
                 Some(self.psnr),
                 Some(self.ssim).filter(|v| v.is_finite()),
                 self.lpips,
+            ),
+            (
+                format!("person ({})", self.person_crops),
+                self.psnr_person,
+                self.ssim_person,
+                self.lpips_person,
             ),
             (
                 format!("face ({})", self.face_crops),

@@ -15,6 +15,7 @@ use talkin_data::draw::LABEL_COLOURS;
 /// Outline colour of a crop on the sheet: its part's segmentation colour.
 fn crop_colour(kind: CropKind) -> [u8; 3] {
     match kind {
+        CropKind::Person => LABEL_COLOURS[1],
         CropKind::Face => LABEL_COLOURS[4],
         CropKind::LeftHand | CropKind::RightHand => LABEL_COLOURS[3],
     }
