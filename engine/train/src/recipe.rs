@@ -60,6 +60,13 @@ pub struct TrainOptions {
     // Runs recorded before the term existed read as 0.
     #[serde(default)]
     pub mask_weight: f32,
+    /// D_nr's learning rate as a fraction of the field's (HumanNeRF trains its non-rigid
+    /// MLP at 0.1 of its rate): Adam moves every weight by about the rate per step
+    /// whatever its gradient, and at the field's rate D_nr's start undid the body.
+    #[arg(long, default_value_t = TrainOptions::default().non_rigid_lr_scale)]
+    // Runs recorded before the option existed trained D_nr at the field's rate.
+    #[serde(default = "one")]
+    pub non_rigid_lr_scale: f64,
     /// Occupancy-grid update period in steps (0: never; accelerated sampler only).
     #[arg(long, default_value_t = TrainOptions::default().occ_every)]
     pub occ_every: u32,
@@ -88,6 +95,10 @@ pub struct TrainOptions {
     // Runs recorded before refinement existed trusted their fits.
     #[serde(default = "RefineOptions::recorded_before")]
     pub refine: RefineOptions,
+}
+
+fn one() -> f64 {
+    1.0
 }
 
 /// How long to train: `--steps N` or `--minutes M` on the command line.
@@ -248,6 +259,7 @@ impl Default for TrainOptions {
             lr: None,
             bbox_fraction: 0.8,
             mask_weight: 0.0,
+            non_rigid_lr_scale: 1.0,
             occ_every: 64,
             grid_resolution: 128,
             perceptual: None,
@@ -296,6 +308,9 @@ impl TrainOptions {
         }
         if !(self.mask_weight.is_finite() && self.mask_weight >= 0.0) {
             return bad("--mask-weight", "must be a finite number >= 0");
+        }
+        if !(self.non_rigid_lr_scale.is_finite() && self.non_rigid_lr_scale > 0.0) {
+            return bad("--non-rigid-lr-scale", "must be a positive number");
         }
         if !(0.0..=1.0).contains(&self.bbox_fraction) {
             return bad("--bbox-fraction", "must lie in [0, 1]");

@@ -225,14 +225,25 @@ impl Trainer<'_> {
         .map_err(|source| TrainError::Field { source })
     }
 
-    /// Adam at learning rate `lr`. The field is moved through the optimizer so that no
-    /// other handle shares its buffers and Adam updates them in place.
-    fn optimize(&mut self, lr: f64, grads: GradientsParams) {
+    /// Adam at learning rate `lr` (D_nr at `lr` times `--non-rigid-lr-scale`). The field
+    /// is moved through the optimizer so that no other handle shares its buffers and Adam
+    /// updates them in place.
+    fn optimize(&mut self, lr: f64, mut grads: GradientsParams) {
         let field = self
             .field
             .take()
             .expect("the field is back after every step");
-        self.field = Some(self.optim.step(lr, field, grads));
+        let slow = match &field.non_rigid {
+            Some(nr) if self.opts.non_rigid_lr_scale != 1.0 => take_grads(nr, &mut grads),
+            _ => GradientsParams::new(),
+        };
+        let mut field = self.optim.step(lr, field, grads);
+        if !slow.is_empty() {
+            field = self
+                .optim
+                .step(lr * self.opts.non_rigid_lr_scale, field, slow);
+        }
+        self.field = Some(field);
     }
 
     /// Every `occ_every` steps (accelerated sampler only), one trained subject's
@@ -283,6 +294,30 @@ fn mean_candidate_bones(bone_masks: &[u64]) -> f64 {
         .map(|&m| u64::from(talkin_nets::skinning::body_candidates(m).count_ones()))
         .sum();
     total as f64 / bone_masks.len().max(1) as f64
+}
+
+/// Moves `module`'s parameters' gradients out of `grads` into their own set.
+fn take_grads<M: Module>(module: &M, grads: &mut GradientsParams) -> GradientsParams {
+    struct Take<'a> {
+        from: &'a mut GradientsParams,
+        to: GradientsParams,
+    }
+    impl burn::module::ModuleVisitor for Take<'_> {
+        fn visit_float<const D: usize>(
+            &mut self,
+            param: &burn::module::Param<burn::prelude::Tensor<D>>,
+        ) {
+            if let Some(g) = self.from.remove::<D>(param.id) {
+                self.to.register::<D>(param.id, g);
+            }
+        }
+    }
+    let mut take = Take {
+        from: grads,
+        to: GradientsParams::new(),
+    };
+    module.visit(&mut take);
+    take.to
 }
 
 /// A sampling error at dataset frame `frame`, naming the index file.
