@@ -703,8 +703,10 @@ fn npz_scalar(w: &mut NpzWriter, key: &str, v: i64) {
         .unwrap();
 }
 
-/// Writes the scene as InstantAvatar's processed PeopleSnapshot: train, val and test
-/// poses of consecutive frames, 0/1 uint8 masks as .npy.
+/// Writes the scene as InstantAvatar's processed PeopleSnapshot: 0/1 uint8 masks as .npy,
+/// every frame's pose in `poses.npz`, and train, val and test poses whose ranges overlap
+/// as InstantAvatar's do (val's one frame is also test's first). The folder's name is no
+/// PeopleSnapshot subject: the rows are found in `poses.npz`.
 fn write_peoplesnapshot(name: &str) -> (PathBuf, PathBuf) {
     let dir = common::temp_dir(name);
     for d in ["images", "masks", "poses"] {
@@ -743,10 +745,31 @@ fn write_peoplesnapshot(name: &str) -> (PathBuf, PathBuf) {
         std::fs::write(dir.join(format!("masks/mask_{i:04}.npy")), bytes).unwrap();
     }
     let n = frames.len();
+    let mut w = NpzWriter::create(dir.join("poses.npz")).unwrap();
+    npz_f32(&mut w, "betas", &[10], BETAS.to_vec());
+    npz_f32(
+        &mut w,
+        "thetas",
+        &[n, 72],
+        frames
+            .iter()
+            .flat_map(|f| smpl72(&f.params, f.params.global_orient))
+            .collect(),
+    );
+    npz_f32(
+        &mut w,
+        "transl",
+        &[n, 3],
+        frames
+            .iter()
+            .flat_map(|f| f.params.transl.to_array())
+            .collect(),
+    );
+    w.finish().unwrap();
     let splits = [
         ("train", 0..n - 2),
         ("val", n - 2..n - 1),
-        ("test", n - 1..n),
+        ("test", n - 2..n),
     ];
     for (split, range) in splits {
         let fs = &frames[range];

@@ -47,6 +47,12 @@ pub struct ImportArgs {
     /// 0.72 x the longer image side, a phone's main camera).
     #[arg(long, value_name = "PX")]
     pub focal: Option<f64>,
+    /// peoplesnapshot: InstantAvatar's yaml of the subject
+    /// (confs/dataset/peoplesnapshot/<subject>.yaml), whose train, val and test ranges
+    /// place the rows of poses/anim_nerf_*.npz. Needed when SRC's folder is not named after
+    /// the subject and those rows are not rows of SRC/poses.npz.
+    #[arg(long, value_name = "FILE.yaml")]
+    pub splits: Option<PathBuf>,
 }
 
 pub fn run(args: ImportArgs) -> anyhow::Result<()> {
@@ -63,6 +69,7 @@ pub fn run(args: ImportArgs) -> anyhow::Result<()> {
         test_every: args.test_every,
         max_size: args.max_size,
         focal: args.focal,
+        splits: args.splits,
     };
     let mut progress: Option<Progress> = None;
     let report = import::import(&opts, &mut |done, total| {

@@ -103,6 +103,10 @@ pub struct ImportOptions {
     pub max_size: Option<u32>,
     /// Focal length in pixels of the one camera replacing SMPLer-X's virtual ones.
     pub focal: Option<f64>,
+    /// PeopleSnapshot: InstantAvatar's yaml of the subject
+    /// (`confs/dataset/peoplesnapshot/<subject>.yaml`), whose train, val and test ranges
+    /// say which frames the rows of the split files belong to.
+    pub splits: Option<PathBuf>,
 }
 
 impl ImportOptions {
@@ -121,6 +125,7 @@ impl ImportOptions {
             test_every: None,
             max_size: None,
             focal: None,
+            splits: None,
         }
     }
 
@@ -200,6 +205,12 @@ pub fn import(
     {
         return Err(ImportError::Usage(format!(
             "--focal {f} is not a positive number of pixels"
+        )));
+    }
+    if opts.splits.is_some() && opts.format != Format::PeopleSnapshot {
+        return Err(ImportError::Usage(format!(
+            "--splits is for peoplesnapshot (InstantAvatar's subject yaml), not {}",
+            opts.format.name()
         )));
     }
     if !opts.src.is_dir() {
