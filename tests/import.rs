@@ -824,6 +824,44 @@ fn peoplesnapshot_brings_back_poses_joints_cameras_and_splits() {
     assert_eq!(&splits[n - 3..], &["train", "test_same", "test_same"]);
 }
 
+#[test]
+fn peoplesnapshot_splits_yaml_places_the_rows_of_a_renamed_folder() {
+    let (src, model) = write_peoplesnapshot("import_ps_yaml");
+    // Without poses.npz only the subject's yaml says which frames the rows belong to.
+    std::fs::remove_file(src.join("poses.npz")).unwrap();
+    let out = common::temp_dir("import_ps_yaml_out").join("ds");
+    let base = [
+        "import",
+        "peoplesnapshot",
+        p(&src),
+        "--out",
+        p(&out),
+        "--body-model",
+        p(&model),
+    ];
+    import_fails(&base, &out, &["anim_nerf_train.npz", "--splits"]);
+    let n = scene_frames().len();
+    let yaml = common::temp_dir("import_ps_yaml_conf").join("subject.yaml");
+    std::fs::write(
+        &yaml,
+        format!(
+            "opt:\n  train:\n    start: 0\n    end: {}\n    skip: 1\n  val:\n    start: {}\n    end: {}\n  test:\n    start: {}\n    end: {}\n",
+            n - 3,
+            n - 2,
+            n - 2,
+            n - 2,
+            n - 1
+        ),
+    )
+    .unwrap();
+    let mut args = base.to_vec();
+    args.extend(["--splits", p(&yaml)]);
+    let got = import_ok(&args);
+    check_frames(&got, 0..22, false, 0.5);
+    let splits: Vec<&str> = got.frames.iter().map(|f| f.split.name()).collect();
+    assert_eq!(&splits[n - 3..], &["train", "test_same", "test_same"]);
+}
+
 // ---------------------------------------------------------------------------------------
 // Bad input: one clean message naming file, field and shape; nothing left under --out.
 
