@@ -48,7 +48,7 @@ enum Command {
     Adapt(adapt::AdaptArgs),
     /// Render a pose sequence (a dataset split or a poses file), optionally as another subject.
     Render(render::RenderArgs),
-    /// Render a split, score it (PSNR, SSIM, LPIPS on frame, face and hands), write JSON.
+    /// Render a split, score it (PSNR, SSIM, LPIPS on frame, person box, face and hands), write JSON.
     Eval(eval::EvalArgs),
     /// Write a run's refined training fits in the dataset's layout (`--refine-poses`).
     ExportPoses(export_poses::ExportPosesArgs),

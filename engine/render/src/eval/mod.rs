@@ -1,5 +1,5 @@
 //! Evaluation of an avatar against a dataset's frames: PSNR, SSIM and LPIPS (x1000, the
-//! paper's LPIPS*) on the full frame, the face crop and the two hand crops.
+//! paper's LPIPS*) on the full frame, the person box, the face crop and the two hand crops.
 //!
 //! What is scored is the 8-bit render exactly as written to PNG, so re-scoring a written
 //! PNG gives the same numbers. Crops come from the ground-truth pose projected through the
