@@ -67,6 +67,13 @@ pub struct TrainOptions {
     // Runs recorded before the option existed trained D_nr at the field's rate.
     #[serde(default = "one")]
     pub non_rigid_lr_scale: f64,
+    /// The hash grids' finest cell in pixel footprints (a training pixel's size at the
+    /// subject, the median over frames): levels finer than the images resolve learn noise
+    /// from a few hundred rays a step. 0: the preset's levels as they are.
+    #[arg(long, value_name = "PIXELS", default_value_t = TrainOptions::default().finest_cell_px)]
+    // Runs recorded before the option existed kept the preset's levels.
+    #[serde(default)]
+    pub finest_cell_px: f64,
     /// Occupancy-grid update period in steps (0: never; accelerated sampler only).
     #[arg(long, default_value_t = TrainOptions::default().occ_every)]
     pub occ_every: u32,
@@ -260,6 +267,7 @@ impl Default for TrainOptions {
             bbox_fraction: 0.8,
             mask_weight: 0.0,
             non_rigid_lr_scale: 1.0,
+            finest_cell_px: 0.0,
             occ_every: 64,
             grid_resolution: 128,
             perceptual: None,
@@ -311,6 +319,9 @@ impl TrainOptions {
         }
         if !(self.non_rigid_lr_scale.is_finite() && self.non_rigid_lr_scale > 0.0) {
             return bad("--non-rigid-lr-scale", "must be a positive number");
+        }
+        if !(self.finest_cell_px.is_finite() && self.finest_cell_px >= 0.0) {
+            return bad("--finest-cell-px", "must be a finite number >= 0");
         }
         if !(0.0..=1.0).contains(&self.bbox_fraction) {
             return bad("--bbox-fraction", "must lie in [0, 1]");

@@ -134,6 +134,17 @@ impl<'a> Trainer<'a> {
         config.face_uses_jaw = opts.ablation.face_uses_jaw;
         let subjects = fit_subjects(dataset, &frames, opts.grid_resolution)?;
         fit_field_box(&mut config, &subjects);
+        if opts.finest_cell_px > 0.0
+            && let Some(footprint) = crate::footprint::pixel_footprint_m(dataset, &frames)
+        {
+            let finest =
+                crate::footprint::limit_finest_cell(&mut config, footprint * opts.finest_cell_px);
+            tracing::info!(
+                "a training pixel spans {:.1} mm at the subject: the hash grids' finest \
+                 level is {finest:?} cells across the box",
+                footprint * 1e3
+            );
+        }
         let device = open_device(opts.device)?;
         let skeletons = subjects
             .iter()
