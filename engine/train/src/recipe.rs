@@ -74,6 +74,13 @@ pub struct TrainOptions {
     // Runs recorded before the option existed kept the preset's levels.
     #[serde(default)]
     pub finest_cell_px: f64,
+    /// Adam leaves a parameter element whose gradient is exactly zero alone, moments
+    /// included (tiny-cuda-nn's rule for hash tables): a table row no sample touched in a
+    /// step does not move. `false`: every element steps every time, as burn's Adam.
+    #[arg(long, value_name = "BOOL", default_value_t = TrainOptions::default().sparse_adam, action = clap::ArgAction::Set)]
+    // Runs recorded before the option existed stepped every element.
+    #[serde(default)]
+    pub sparse_adam: bool,
     /// Occupancy-grid update period in steps (0: never; accelerated sampler only).
     #[arg(long, default_value_t = TrainOptions::default().occ_every)]
     pub occ_every: u32,
@@ -268,6 +275,7 @@ impl Default for TrainOptions {
             mask_weight: 0.0,
             non_rigid_lr_scale: 1.0,
             finest_cell_px: 0.0,
+            sparse_adam: false,
             occ_every: 64,
             grid_resolution: 128,
             perceptual: None,

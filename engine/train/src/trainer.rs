@@ -21,7 +21,6 @@ use crate::adam::FusedAdam;
 use crate::checkpoint::{Checkpoint, CheckpointContents, CheckpointError, path_json};
 use crate::error::TrainError;
 use crate::log::{LOG_FILE, StepLog, TrainLog};
-use crate::preset::Preset;
 use crate::rays::FrameCache;
 use crate::recipe::TrainOptions;
 use crate::refine::{PoseRefiner, RefineMode, RefinerState};
@@ -334,7 +333,7 @@ impl<'a> Trainer<'a> {
             state.slot_of.clone(),
             log,
         )?;
-        t.optim = optimizer(t.opts.preset)
+        t.optim = optimizer(&t.opts)
             .from_bytes(Bytes::from_bytes_vec(optim_bytes))
             .map_err(|e| TrainError::Resume {
                 file: checkpoint.optimizer_file(),
@@ -440,7 +439,7 @@ impl<'a> Trainer<'a> {
             warmup_steps: 0,
             ..OccUpdateOpts::default()
         };
-        let optim = optimizer(opts.preset);
+        let optim = optimizer(&opts);
         let dataset_sha256 = dataset_sha256(dataset)?;
         let refiner = (opts.refine.refine_poses == RefineMode::On)
             .then(|| PoseRefiner::new(dataset, &frames, opts.refine.clone()));
@@ -681,9 +680,11 @@ fn same_dir(a: &Path, b: &Path) -> bool {
 }
 
 /// Adam with the preset's settings, fused into one pass per parameter ([`FusedAdam`]).
-fn optimizer(preset: Preset) -> ModuleOptimizer {
-    let a = preset.adam();
-    ModuleOptimizer::from(FusedAdam::new(a.beta_1, a.beta_2, a.epsilon))
+fn optimizer(opts: &TrainOptions) -> ModuleOptimizer {
+    let a = opts.preset.adam();
+    ModuleOptimizer::from(
+        FusedAdam::new(a.beta_1, a.beta_2, a.epsilon).with_sparse(opts.sparse_adam),
+    )
 }
 
 /// `on`, opened for training (with autodiff).
