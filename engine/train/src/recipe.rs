@@ -81,6 +81,12 @@ pub struct TrainOptions {
     // Runs recorded before the option existed stepped every element.
     #[serde(default)]
     pub sparse_adam: bool,
+    /// The posed-space skinning prior's temperature in millimetres (how far around where
+    /// two limbs' cores meet their weights blend); default: the preset's (5 mm).
+    #[arg(long, value_name = "MM")]
+    // Runs recorded before the option existed used the preset's.
+    #[serde(default)]
+    pub skinning_tau_mm: Option<f64>,
     /// Occupancy-grid update period in steps (0: never; accelerated sampler only).
     #[arg(long, default_value_t = TrainOptions::default().occ_every)]
     pub occ_every: u32,
@@ -276,6 +282,7 @@ impl Default for TrainOptions {
             non_rigid_lr_scale: 1.0,
             finest_cell_px: 0.0,
             sparse_adam: false,
+            skinning_tau_mm: None,
             occ_every: 64,
             grid_resolution: 128,
             perceptual: None,
@@ -330,6 +337,14 @@ impl TrainOptions {
         }
         if !(self.finest_cell_px.is_finite() && self.finest_cell_px >= 0.0) {
             return bad("--finest-cell-px", "must be a finite number >= 0");
+        }
+        if let Some(t) = self.skinning_tau_mm
+            && !(t.is_finite() && t > 0.0)
+        {
+            return bad(
+                "--skinning-tau-mm",
+                "must be a positive number of millimetres",
+            );
         }
         if !(0.0..=1.0).contains(&self.bbox_fraction) {
             return bad("--bbox-fraction", "must lie in [0, 1]");

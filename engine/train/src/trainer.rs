@@ -131,6 +131,9 @@ impl<'a> Trainer<'a> {
         config.use_d_hands = opts.ablation.use_d_hands;
         config.hand_background = opts.ablation.hand_background;
         config.face_uses_jaw = opts.ablation.face_uses_jaw;
+        if let Some(mm) = opts.skinning_tau_mm {
+            config.skinning.posed_tau = Some(mm * 1e-3);
+        }
         let subjects = fit_subjects(dataset, &frames, opts.grid_resolution)?;
         fit_field_box(&mut config, &subjects);
         if opts.finest_cell_px > 0.0
