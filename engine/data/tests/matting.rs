@@ -57,7 +57,7 @@ fn dataset(dir: &Path, matting: Matting, first: [u8; 3]) -> Dataset {
         mask: format!("masks/{i}.png").into(),
         segmentation: None,
         depth: None,
-        camera: camera.clone(),
+        camera,
         params: FrameParams::default(),
     };
     let d = Dataset {
