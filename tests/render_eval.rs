@@ -219,7 +219,7 @@ fn library_eval_matches_identities_by_name_and_smooths() {
     for f in &plain.frames {
         assert_eq!(f.subject, f.rendered_as, "identity matched by name");
         assert!(f.render.is_none());
-        assert!(f.crops.len() + f.skipped_crops.len() == 3);
+        assert!(f.crops.len() + f.skipped_crops.len() == CropKind::ALL.len());
     }
     let smooth = EvalOptions {
         smooth: true,
