@@ -1,25 +1,27 @@
 //! `talkin import` end to end: a tiny synthetic scene is written in each tool's exact
-//! layout (pickles, npz, JSON, JPEG/PNG frames, PNG/npy masks), with a small SMPL-X model
-//! file of the real layout whose regressor reproduces the scene's rest joints, and the
-//! import must bring back the scene's poses, rest joints and cameras. Damaged inputs fail
-//! with a message naming the file and field, leaving no output directory.
+//! layout (pickles, npz, JSON, JPEG/PNG frames, PNG/npy masks: `common::layouts`), with
+//! a small SMPL-X model file of the real layout whose regressor reproduces the scene's
+//! rest joints, and the import must bring back the scene's poses, rest joints and
+//! cameras. Damaged inputs fail with a message naming the file and field, leaving no
+//! output directory.
 
 mod common;
 
-use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::path::Path;
 use std::sync::OnceLock;
 
-use glam::{DMat3, DVec2, DVec3};
-use talkin::data::array::{ArrayData, NdArray};
+use common::cli::{import_ok, p, stderr, talkin};
+use common::layouts::{
+    Clip, SmplerxFixture, f32_array, f64_array, root_in_camera, smplerx_args,
+    write_humannerf_prepared, write_humannerf_wild, write_model, write_peoplesnapshot,
+    write_smplerx,
+};
+use glam::{DVec2, DVec3};
+use talkin::data::array::NdArray;
 use talkin::data::dataset::{Dataset, Frame};
-use talkin::data::import::undistort;
 use talkin::data::npz::NpzWriter;
 use talkin::data::pickle::{Value, write_protocol4};
-use talkin::human::body::{
-    FrameParams, N_JOINTS, PARENTS, axis_angle_from_rotation, rotation_from_axis_angle,
-};
-use talkin::human::camera::Camera;
+use talkin::human::body::N_JOINTS;
 
 /// The scene every fixture is written from: 1 identity, 64 px high.
 fn scene() -> &'static Dataset {
@@ -27,28 +29,10 @@ fn scene() -> &'static Dataset {
     SCENE.get_or_init(|| common::synthetic_scene("import_scene", 1, 64, 5))
 }
 
-fn talkin(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_talkin"))
-        .args(args)
-        .output()
-        .unwrap()
-}
-
-fn stderr(out: &Output) -> String {
-    String::from_utf8_lossy(&out.stderr).into_owned()
-}
-
-fn p(path: &Path) -> &str {
-    path.to_str().unwrap()
-}
-
-/// Runs `talkin import`, which must succeed, and loads the result.
-fn import_ok(args: &[&str]) -> Dataset {
-    let out = talkin(args);
-    assert!(out.status.success(), "import failed: {}", stderr(&out));
-    let dir = args[args.iter().position(|a| *a == "--out").unwrap() + 1];
-    assert!(Path::new(dir).join("import.json").is_file());
-    Dataset::load(dir).unwrap()
+/// The scene's frames with their own files, as the layout writers take them.
+fn clip() -> &'static Clip<'static> {
+    static CLIP: OnceLock<Clip<'static>> = OnceLock::new();
+    CLIP.get_or_init(|| Clip::subject0(scene()))
 }
 
 /// Runs `talkin import`, which must fail mentioning every `needles` and leave no `out`.
@@ -66,121 +50,6 @@ fn import_fails(args: &[&str], out_dir: &Path, needles: &[&str]) {
         let name = e.unwrap().file_name().to_string_lossy().into_owned();
         assert!(!name.contains(".import-"), "temporary {name} left behind");
     }
-}
-
-/// K with OpenCV's pixel centres (integers), as the tools store it.
-fn opencv_k(c: &Camera) -> [[f64; 3]; 3] {
-    let mut k = c.intrinsics_rows();
-    k[0][2] -= 0.5;
-    k[1][2] -= 0.5;
-    k
-}
-
-fn f32_array(shape: &[usize], v: impl IntoIterator<Item = f64>) -> Value {
-    Value::array(NdArray::f32(shape, v.into_iter().map(|x| x as f32).collect()).unwrap())
-}
-
-fn f64_array(shape: &[usize], v: impl IntoIterator<Item = f64>) -> Value {
-    Value::array(NdArray::f64(shape, v.into_iter().collect()).unwrap())
-}
-
-fn rows<const N: usize>(m: [[f64; N]; N]) -> Vec<f64> {
-    m.iter().flatten().copied().collect()
-}
-
-/// SMPL's 24 joints of a 55-joint SMPL-X skeleton: 0..21, then the hands (middle knuckles).
-fn smpl24(j: &[DVec3; N_JOINTS]) -> Vec<f64> {
-    (0..22)
-        .chain([28, 43])
-        .flat_map(|i| j[i].to_array())
-        .collect()
-}
-
-/// SMPL's 72 pose numbers: the root, joints 1..21, zero hands.
-fn smpl72(params: &FrameParams, root: DVec3) -> Vec<f64> {
-    let mut v: Vec<f64> = root.to_array().to_vec();
-    for r in &params.body_pose {
-        v.extend(r.to_array());
-    }
-    v.extend([0.0; 6]);
-    v
-}
-
-const BETAS: [f64; 10] = [0.8, -0.5, 0.3, 0.2, -0.1, 0.6, -0.4, 0.1, 0.05, -0.2];
-
-/// An SMPL-X model file of the real layout (v1.0: 10 shape and 10 expression columns)
-/// whose 55 "vertices" regress one to one onto the joints, shaped so that [`BETAS`] give
-/// the scene's rest joints.
-fn write_model(file: &Path, rest: &[DVec3; N_JOINTS]) {
-    const S: usize = 20;
-    let mut seed = 11u64;
-    let mut rnd = || {
-        seed = seed
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        ((seed >> 11) as f64 / (1u64 << 53) as f64) - 0.5
-    };
-    // Expression columns (10..20) are zero: SMPLer-X's expressions then leave the joints
-    // where the scene has them.
-    let shapedirs: Vec<f64> = (0..N_JOINTS * 3 * S)
-        .map(|i| if i % S < 10 { 0.02 * rnd() } else { 0.0 })
-        .collect();
-    let mut v_template = Vec::with_capacity(N_JOINTS * 3);
-    for (j, r) in rest.iter().enumerate() {
-        for k in 0..3 {
-            let offset: f64 = (0..10)
-                .map(|c| shapedirs[(j * 3 + k) * S + c] * BETAS[c])
-                .sum();
-            v_template.push(r[k] - offset);
-        }
-    }
-    let mut regressor = vec![0.0; N_JOINTS * N_JOINTS];
-    for j in 0..N_JOINTS {
-        regressor[j * N_JOINTS + j] = 1.0;
-    }
-    let mut kintree: Vec<i64> = PARENTS.iter().map(|&p| i64::from(p)).collect();
-    kintree.extend(0..N_JOINTS as i64);
-    let mut w = NpzWriter::create(file).unwrap();
-    w.array(
-        "v_template",
-        &NdArray::f64(&[N_JOINTS, 3], v_template).unwrap(),
-    )
-    .unwrap()
-    .array(
-        "shapedirs",
-        &NdArray::f64(&[N_JOINTS, 3, S], shapedirs).unwrap(),
-    )
-    .unwrap()
-    .array(
-        "J_regressor",
-        &NdArray::f64(&[N_JOINTS, N_JOINTS], regressor).unwrap(),
-    )
-    .unwrap()
-    .array(
-        "kintree_table",
-        &NdArray::new(vec![2, N_JOINTS], ArrayData::I64(kintree)).unwrap(),
-    )
-    .unwrap()
-    .array(
-        "hands_meanl",
-        &NdArray::f64(&[45], hands_mean(1.0)).unwrap(),
-    )
-    .unwrap()
-    .array(
-        "hands_meanr",
-        &NdArray::f64(&[45], hands_mean(-1.0)).unwrap(),
-    )
-    .unwrap();
-    w.finish().unwrap();
-}
-
-fn hands_mean(side: f64) -> Vec<f64> {
-    (0..45)
-        .map(|i| match i % 3 {
-            0 => 0.1 + 0.002 * i as f64,
-            _ => side * 0.05 * ((i % 7) as f64 - 3.0) / 3.0,
-        })
-        .collect()
 }
 
 fn scene_frames() -> Vec<&'static Frame> {
@@ -237,121 +106,9 @@ fn assert_joints(got: &[DVec3], want: &[DVec3], tol: f64) {
 // ---------------------------------------------------------------------------------------
 // HumanNeRF, prepared layout
 
-/// Writes the scene as HumanNeRF's prepare scripts do: ZJU's (raw joints, `distortions`)
-/// or the wild script's (pelvis-centred joints). Returns the folder.
-fn write_humannerf_prepared(name: &str, centred: bool, distortion: Option<[f64; 5]>) -> PathBuf {
-    write_humannerf_prepared_from(scene(), &scene_frames(), name, centred, distortion)
-}
-
-fn write_humannerf_prepared_from(
-    ds: &Dataset,
-    frames: &[&Frame],
-    name: &str,
-    centred: bool,
-    distortion: Option<[f64; 5]>,
-) -> PathBuf {
-    let dir = common::temp_dir(name);
-    for d in ["images", "masks"] {
-        std::fs::create_dir_all(dir.join(d)).unwrap();
-    }
-    let s = ds.subjects[0].skeleton.rest_joints;
-    let s0 = s[0];
-    let origin = if centred { s0 } else { DVec3::ZERO };
-    let tpose: Vec<f64> = smpl24(&s.map(|j| j - origin));
-    let mut cameras = Vec::new();
-    let mut meshes = Vec::new();
-    for (i, f) in frames.iter().enumerate() {
-        let stem = format!("frame_{i:06}");
-        let (image, mask) = (
-            dir.join(format!("images/{stem}.png")),
-            dir.join(format!("masks/{stem}.png")),
-        );
-        match distortion {
-            None => {
-                std::fs::copy(ds.root.join(&f.image), &image).unwrap();
-                std::fs::copy(ds.root.join(&f.mask), &mask).unwrap();
-            }
-            Some(d) => {
-                // What the lens recorded: each stored pixel shows the undistorted scene
-                // where the distortion sends it.
-                let k = opencv_k(&f.camera);
-                let rgb = image::open(ds.root.join(&f.image)).unwrap().to_rgb8();
-                let m = image::open(ds.root.join(&f.mask)).unwrap().to_luma8();
-                let (w, h) = rgb.dimensions();
-                let at = |x: u32, y: u32| {
-                    undistort::undistort_point(&k, &d, DVec2::new(x as f64, y as f64))
-                };
-                image::RgbImage::from_fn(w, h, |x, y| {
-                    let q = at(x, y).round();
-                    let (qx, qy) = (
-                        q.x.clamp(0.0, w as f64 - 1.0),
-                        q.y.clamp(0.0, h as f64 - 1.0),
-                    );
-                    *rgb.get_pixel(qx as u32, qy as u32)
-                })
-                .save(&image)
-                .unwrap();
-                image::GrayImage::from_fn(w, h, |x, y| {
-                    let q = at(x, y).round();
-                    if q.x < 0.0 || q.y < 0.0 || q.x > w as f64 - 1.0 || q.y > h as f64 - 1.0 {
-                        return image::Luma([0]);
-                    }
-                    *m.get_pixel(q.x as u32, q.y as u32)
-                })
-                .save(&mask)
-                .unwrap();
-            }
-        }
-        let g = f.params.global_orient;
-        let r = rotation_from_axis_angle(g);
-        let mut rootless = f.params.clone();
-        rootless.global_orient = DVec3::ZERO;
-        rootless.transl = DVec3::ZERO;
-        let posed = ds.subjects[0].skeleton.pose(&rootless).joints();
-        // x_world = R(Rh) x_body + Th; x_body is SMPL without the root (pelvis at S0).
-        let th = if centred {
-            s0 + f.params.transl
-        } else {
-            s0 + f.params.transl - r * s0
-        };
-        let mut cam = vec![
-            ("intrinsics", f32_array(&[3, 3], rows(opencv_k(&f.camera)))),
-            (
-                "extrinsics",
-                f64_array(&[4, 4], rows(f.camera.extrinsics_rows())),
-            ),
-        ];
-        if let Some(d) = distortion {
-            cam.push(("distortions", f32_array(&[5], d)));
-        }
-        cameras.push((stem.clone(), Value::dict(cam)));
-        meshes.push((
-            stem,
-            Value::dict([
-                ("Rh", f32_array(&[3], g.to_array())),
-                ("Th", f64_array(&[3], th.to_array())),
-                ("poses", f32_array(&[72], smpl72(&f.params, DVec3::ZERO))),
-                (
-                    "joints",
-                    f64_array(&[24, 3], smpl24(&posed.map(|j| j - origin))),
-                ),
-                ("tpose_joints", f64_array(&[24, 3], tpose.clone())),
-            ]),
-        ));
-    }
-    let write = |file: &str, v: Value| std::fs::write(dir.join(file), write_protocol4(&v)).unwrap();
-    write("cameras.pkl", Value::dict(cameras));
-    write("mesh_infos.pkl", Value::dict(meshes));
-    write(
-        "canonical_joints.pkl",
-        Value::dict([("joints", f64_array(&[24, 3], smpl24(&s)))]),
-    );
-    dir
-}
-
 #[test]
 fn humannerf_prepared_brings_back_poses_joints_and_cameras() {
-    let src = write_humannerf_prepared("import_hn_zju", false, None);
+    let src = write_humannerf_prepared(clip(), "import_hn_zju", false, None);
     let out = common::temp_dir("import_hn_zju_out").join("ds");
     let got = import_ok(&[
         "import",
@@ -393,7 +150,7 @@ fn humannerf_prepared_brings_back_poses_joints_and_cameras() {
 
 #[test]
 fn humannerf_prepared_wild_centred_joints_give_the_same_bodies() {
-    let src = write_humannerf_prepared("import_hn_wild", true, None);
+    let src = write_humannerf_prepared(clip(), "import_hn_wild", true, None);
     let out = common::temp_dir("import_hn_wild_out").join("ds");
     let got = import_ok(&["import", "humannerf", p(&src), "--out", p(&out)]);
     let s = rest();
@@ -402,217 +159,12 @@ fn humannerf_prepared_wild_centred_joints_give_the_same_bodies() {
     check_frames(&got, 0..22, false, 0.5);
 }
 
-fn camera_rotation(c: &Camera) -> DMat3 {
-    c.camera_from_world.matrix3
-}
-
-/// A frame's root rotation seen from its camera.
-fn root_in_camera(f: &Frame) -> DVec3 {
-    axis_angle_from_rotation(
-        camera_rotation(&f.camera) * rotation_from_axis_angle(f.params.global_orient),
-    )
-}
-
 // ---------------------------------------------------------------------------------------
 // SMPLer-X
 
-fn npz_f32(w: &mut NpzWriter, key: &str, shape: &[usize], v: Vec<f64>) {
-    w.array(
-        key,
-        &NdArray::f32(shape, v.iter().map(|&x| x as f32).collect()).unwrap(),
-    )
-    .unwrap();
-}
-
-fn flat(v: &[DVec3]) -> Vec<f64> {
-    v.iter().flat_map(|x| x.to_array()).collect()
-}
-
-struct SmplerxFixture {
-    results: PathBuf,
-    images: PathBuf,
-    masks: PathBuf,
-    model: PathBuf,
-}
-
-/// Writes the scene as SMPLer-X's demo leaves it: `%06d.jpg` frames from 1, one
-/// `smplx/{frame:05}_{id}.npz` and `meta/...json` per person in its virtual crop camera
-/// (plus a smaller second person in frame 1), a last frame without a detection, and
-/// masks from a "matting tool".
-fn write_smplerx(name: &str) -> SmplerxFixture {
-    let dir = common::temp_dir(name);
-    let results = dir.join("results");
-    let (images, masks) = (dir.join("images"), dir.join("masks"));
-    for d in [
-        results.join("smplx"),
-        results.join("meta"),
-        images.clone(),
-        masks.clone(),
-    ] {
-        std::fs::create_dir_all(d).unwrap();
-    }
-    let model = dir.join("SMPLX_NEUTRAL.npz");
-    write_model(&model, &rest());
-    let s = rest();
-    let skeleton = &scene().subjects[0].skeleton;
-    let frames = scene_frames();
-    for (i, f) in frames.iter().enumerate() {
-        let n = i + 1;
-        let rgb = image::open(scene().root.join(&f.image)).unwrap().to_rgb8();
-        rgb.save(images.join(format!("{n:06}.jpg"))).unwrap();
-        std::fs::copy(
-            scene().root.join(&f.mask),
-            masks.join(format!("{n:06}.png")),
-        )
-        .unwrap();
-        // The body in the camera frame, as SMPLer-X predicts it.
-        let re = camera_rotation(&f.camera);
-        let te = f.camera.camera_from_world.translation;
-        let mut cam = f.params.clone();
-        cam.global_orient = root_in_camera(f);
-        cam.transl = re * (s[0] + f.params.transl) + te - s[0];
-        let posed = skeleton.pose(&f.params).joints();
-        let truth: Vec<DVec2> = posed
-            .iter()
-            .map(|p| f.camera.project(*p).unwrap().truncate() - DVec2::splat(0.5))
-            .collect();
-        // process_bbox: the joints' box, widened to 3:4 and enlarged 1.25x.
-        let (lo, hi) = truth
-            .iter()
-            .fold((DVec2::splat(1e9), DVec2::splat(-1e9)), |(a, b), p| {
-                (a.min(*p), b.max(*p))
-            });
-        let c = (lo + hi) / 2.0;
-        let (mut bw, mut bh) = (hi.x - lo.x, hi.y - lo.y);
-        if bw > 0.75 * bh {
-            bh = bw / 0.75;
-        } else {
-            bw = bh * 0.75;
-        }
-        let (bw, bh) = (bw * 1.25, bh * 1.25);
-        let bbox = [c.x - bw / 2.0, c.y - bh / 2.0, bw, bh];
-        let kv = [
-            [5000.0 / 192.0 * bw, 0.0, c.x],
-            [0.0, 5000.0 / 256.0 * bh, c.y],
-            [0.0, 0.0, 1.0],
-        ];
-        // The network's transl: the joints land where the true camera shows them.
-        let mut at_zero = cam.clone();
-        at_zero.transl = DVec3::ZERO;
-        let pts = skeleton.pose(&at_zero).joints();
-        let (tv, _) =
-            talkin::data::import::smplerx::solve_translation(&kv, &pts, &truth, cam.transl);
-        let people: &[(usize, f64)] = if i == 0 {
-            &[(0, 1.0), (1, 0.5)]
-        } else {
-            &[(0, 1.0)]
-        };
-        for &(id, shrink) in people {
-            let stem = format!("{n:05}_{id}");
-            let (ml, mr) = (hands_mean(1.0), hands_mean(-1.0));
-            let mut w = NpzWriter::create(results.join(format!("smplx/{stem}.npz"))).unwrap();
-            npz_f32(
-                &mut w,
-                "global_orient",
-                &[1, 3],
-                cam.global_orient.to_array().to_vec(),
-            );
-            npz_f32(&mut w, "body_pose", &[21, 3], flat(&cam.body_pose));
-            let rel = |h: &[DVec3], m: &[f64]| -> Vec<f64> {
-                flat(h).iter().zip(m).map(|(a, b)| a - b).collect()
-            };
-            npz_f32(
-                &mut w,
-                "left_hand_pose",
-                &[15, 3],
-                rel(&cam.left_hand_pose, &ml),
-            );
-            npz_f32(
-                &mut w,
-                "right_hand_pose",
-                &[15, 3],
-                rel(&cam.right_hand_pose, &mr),
-            );
-            npz_f32(
-                &mut w,
-                "jaw_pose",
-                &[1, 3],
-                cam.jaw_pose.to_array().to_vec(),
-            );
-            w.array(
-                "leye_pose",
-                &NdArray::f64(&[1, 3], cam.leye_pose.to_array().to_vec()).unwrap(),
-            )
-            .unwrap();
-            w.array(
-                "reye_pose",
-                &NdArray::f64(&[1, 3], cam.reye_pose.to_array().to_vec()).unwrap(),
-            )
-            .unwrap();
-            npz_f32(&mut w, "betas", &[1, 10], BETAS.to_vec());
-            npz_f32(&mut w, "expression", &[1, 10], cam.expression.to_vec());
-            npz_f32(
-                &mut w,
-                "transl",
-                &[1, 3],
-                (tv * (2.0 - shrink)).to_array().to_vec(),
-            );
-            w.finish().unwrap();
-            let b = [bbox[0], bbox[1], bbox[2] * shrink, bbox[3] * shrink];
-            let meta = serde_json::json!({
-                "focal": [kv[0][0] * shrink, kv[1][1] * shrink],
-                "princpt": [kv[0][2], kv[1][2]],
-                "bbox": b,
-                "bbox_mmdet": b,
-                "bbox_id": id,
-                "img_path": format!("../demo/images/clip/{n:06}.jpg"),
-            });
-            std::fs::write(
-                results.join(format!("meta/{stem}.json")),
-                serde_json::to_string_pretty(&meta).unwrap(),
-            )
-            .unwrap();
-        }
-    }
-    // A last frame where the detector found nobody: no npz, no json.
-    let n = frames.len() + 1;
-    std::fs::copy(
-        images.join("000001.jpg"),
-        images.join(format!("{n:06}.jpg")),
-    )
-    .unwrap();
-    std::fs::copy(masks.join("000001.png"), masks.join(format!("{n:06}.png"))).unwrap();
-    SmplerxFixture {
-        results,
-        images,
-        masks,
-        model,
-    }
-}
-
-fn smplerx_args<'a>(fx: &'a SmplerxFixture, out: &'a Path, focal: &'a str) -> Vec<&'a str> {
-    vec![
-        "import",
-        "smplerx",
-        p(&fx.results),
-        "--out",
-        p(out),
-        "--images",
-        p(&fx.images),
-        "--masks",
-        p(&fx.masks),
-        "--body-model",
-        p(&fx.model),
-        "--focal",
-        focal,
-        "--fps",
-        "25",
-    ]
-}
-
 #[test]
 fn smplerx_brings_back_poses_joints_and_one_real_camera() {
-    let fx = write_smplerx("import_smplerx");
+    let fx = write_smplerx(clip(), "import_smplerx");
     let out = common::temp_dir("import_smplerx_out").join("ds");
     let focal = format!("{}", scene_frames()[0].camera.intrinsics_rows()[0][0]);
     let got = import_ok(&smplerx_args(&fx, &out, &focal));
@@ -630,54 +182,9 @@ fn smplerx_brings_back_poses_joints_and_one_real_camera() {
 // ---------------------------------------------------------------------------------------
 // HumanNeRF, wild-video input
 
-/// Writes the scene as HumanNeRF's wild-video input: SMPL without translation, which the
-/// extrinsics carry instead.
-fn write_humannerf_wild(name: &str) -> (PathBuf, PathBuf) {
-    let dir = common::temp_dir(name);
-    for d in ["images", "masks"] {
-        std::fs::create_dir_all(dir.join(d)).unwrap();
-    }
-    let mut meta = serde_json::Map::new();
-    for (i, f) in scene_frames().into_iter().enumerate() {
-        let stem = format!("{i:06}");
-        std::fs::copy(
-            scene().root.join(&f.image),
-            dir.join(format!("images/{stem}.png")),
-        )
-        .unwrap();
-        std::fs::copy(
-            scene().root.join(&f.mask),
-            dir.join(format!("masks/{stem}.png")),
-        )
-        .unwrap();
-        let mut e = f.camera.extrinsics_rows();
-        let t = camera_rotation(&f.camera) * f.params.transl;
-        for r in 0..3 {
-            e[r][3] += t[r];
-        }
-        meta.insert(
-            stem,
-            serde_json::json!({
-                "poses": smpl72(&f.params, f.params.global_orient),
-                "betas": BETAS,
-                "cam_intrinsics": opencv_k(&f.camera),
-                "cam_extrinsics": e,
-            }),
-        );
-    }
-    std::fs::write(
-        dir.join("metadata.json"),
-        serde_json::to_string_pretty(&meta).unwrap(),
-    )
-    .unwrap();
-    let model = dir.join("SMPLX_NEUTRAL.npz");
-    write_model(&model, &rest());
-    (dir, model)
-}
-
 #[test]
 fn humannerf_wild_metadata_brings_back_poses_joints_and_cameras() {
-    let (src, model) = write_humannerf_wild("import_hn_meta");
+    let (src, model) = write_humannerf_wild(clip(), "import_hn_meta");
     let out = common::temp_dir("import_hn_meta_out").join("ds");
     let got = import_ok(&[
         "import",
@@ -698,115 +205,9 @@ fn humannerf_wild_metadata_brings_back_poses_joints_and_cameras() {
 // ---------------------------------------------------------------------------------------
 // PeopleSnapshot (InstantAvatar)
 
-fn npz_scalar(w: &mut NpzWriter, key: &str, v: i64) {
-    w.array(key, &NdArray::new(vec![], ArrayData::I64(vec![v])).unwrap())
-        .unwrap();
-}
-
-/// Writes the scene as InstantAvatar's processed PeopleSnapshot: 0/1 uint8 masks as .npy,
-/// every frame's pose in `poses.npz`, and train, val and test poses whose ranges overlap
-/// as InstantAvatar's do (val's one frame is also test's first). The folder's name is no
-/// PeopleSnapshot subject: the rows are found in `poses.npz`.
-fn write_peoplesnapshot(name: &str) -> (PathBuf, PathBuf) {
-    let dir = common::temp_dir(name);
-    for d in ["images", "masks", "poses"] {
-        std::fs::create_dir_all(dir.join(d)).unwrap();
-    }
-    let frames = scene_frames();
-    let c = &frames[0].camera;
-    let mut w = NpzWriter::create(dir.join("cameras.npz")).unwrap();
-    w.array(
-        "intrinsic",
-        &NdArray::f64(&[3, 3], rows(opencv_k(c))).unwrap(),
-    )
-    .unwrap()
-    .array(
-        "extrinsic",
-        &NdArray::f64(&[4, 4], rows(c.extrinsics_rows())).unwrap(),
-    )
-    .unwrap();
-    npz_scalar(&mut w, "height", c.height as i64);
-    npz_scalar(&mut w, "width", c.width as i64);
-    w.finish().unwrap();
-    for (i, f) in frames.iter().enumerate() {
-        assert_eq!(f.camera, *c, "one camera per identity");
-        std::fs::copy(
-            scene().root.join(&f.image),
-            dir.join(format!("images/image_{i:04}.png")),
-        )
-        .unwrap();
-        let mask = image::open(scene().root.join(&f.mask)).unwrap().to_luma8();
-        let (mw, mh) = mask.dimensions();
-        let bits: Vec<u8> = mask.pixels().map(|p| u8::from(p[0] >= 128)).collect();
-        let bytes = talkin::data::npz::npy_bytes(
-            &NdArray::new(vec![mh as usize, mw as usize], ArrayData::U8(bits)).unwrap(),
-        )
-        .unwrap();
-        std::fs::write(dir.join(format!("masks/mask_{i:04}.npy")), bytes).unwrap();
-    }
-    let n = frames.len();
-    let mut w = NpzWriter::create(dir.join("poses.npz")).unwrap();
-    npz_f32(&mut w, "betas", &[10], BETAS.to_vec());
-    npz_f32(
-        &mut w,
-        "thetas",
-        &[n, 72],
-        frames
-            .iter()
-            .flat_map(|f| smpl72(&f.params, f.params.global_orient))
-            .collect(),
-    );
-    npz_f32(
-        &mut w,
-        "transl",
-        &[n, 3],
-        frames
-            .iter()
-            .flat_map(|f| f.params.transl.to_array())
-            .collect(),
-    );
-    w.finish().unwrap();
-    let splits = [
-        ("train", 0..n - 2),
-        ("val", n - 2..n - 1),
-        ("test", n - 2..n),
-    ];
-    for (split, range) in splits {
-        let fs = &frames[range];
-        let mut w = NpzWriter::create(dir.join(format!("poses/anim_nerf_{split}.npz"))).unwrap();
-        npz_f32(&mut w, "betas", &[1, 10], BETAS.to_vec());
-        npz_f32(
-            &mut w,
-            "global_orient",
-            &[fs.len(), 3],
-            fs.iter()
-                .flat_map(|f| f.params.global_orient.to_array())
-                .collect(),
-        );
-        npz_f32(
-            &mut w,
-            "body_pose",
-            &[fs.len(), 69],
-            fs.iter()
-                .flat_map(|f| smpl72(&f.params, DVec3::ZERO)[3..].to_vec())
-                .collect(),
-        );
-        npz_f32(
-            &mut w,
-            "transl",
-            &[fs.len(), 3],
-            fs.iter().flat_map(|f| f.params.transl.to_array()).collect(),
-        );
-        w.finish().unwrap();
-    }
-    let model = dir.join("SMPLX_NEUTRAL.npz");
-    write_model(&model, &rest());
-    (dir, model)
-}
-
 #[test]
 fn peoplesnapshot_brings_back_poses_joints_cameras_and_splits() {
-    let (src, model) = write_peoplesnapshot("import_ps");
+    let (src, model) = write_peoplesnapshot(clip(), "import_ps");
     let out = common::temp_dir("import_ps_out").join("ds");
     let got = import_ok(&[
         "import",
@@ -826,7 +227,7 @@ fn peoplesnapshot_brings_back_poses_joints_cameras_and_splits() {
 
 #[test]
 fn peoplesnapshot_splits_yaml_places_the_rows_of_a_renamed_folder() {
-    let (src, model) = write_peoplesnapshot("import_ps_yaml");
+    let (src, model) = write_peoplesnapshot(clip(), "import_ps_yaml");
     // Without poses.npz only the subject's yaml says which frames the rows belong to.
     std::fs::remove_file(src.join("poses.npz")).unwrap();
     let out = common::temp_dir("import_ps_yaml_out").join("ds");
@@ -913,7 +314,7 @@ fn damaged_smplerx_inputs_are_named_and_leave_nothing() {
     let out = out_root.join("ds");
     let focal = "100";
     let case = |name: &str, damage: &dyn Fn(&SmplerxFixture), needles: &[&str]| {
-        let fx = write_smplerx(&format!("import_bad_smplerx_{name}"));
+        let fx = write_smplerx(clip(), &format!("import_bad_smplerx_{name}"));
         damage(&fx);
         import_fails(&smplerx_args(&fx, &out, focal), &out, needles);
     };
@@ -985,7 +386,7 @@ fn damaged_smplerx_inputs_are_named_and_leave_nothing() {
         &["SMPLX_NEUTRAL.npz", "hands_meanl", "(45,)"],
     );
     // No masks at all: SMPLer-X writes none, so --masks is required.
-    let fx = write_smplerx("import_bad_smplerx_nomasks");
+    let fx = write_smplerx(clip(), "import_bad_smplerx_nomasks");
     let mut args = smplerx_args(&fx, &out, focal);
     let at = args.iter().position(|a| *a == "--masks").unwrap();
     args.drain(at..at + 2);
@@ -995,7 +396,9 @@ fn damaged_smplerx_inputs_are_named_and_leave_nothing() {
 #[test]
 fn damaged_humannerf_and_peoplesnapshot_inputs_are_named_and_leave_nothing() {
     let out = common::temp_dir("import_bad_hn_out").join("ds");
-    let hn = |name: &str| write_humannerf_prepared(&format!("import_bad_hn_{name}"), false, None);
+    let hn = |name: &str| {
+        write_humannerf_prepared(clip(), &format!("import_bad_hn_{name}"), false, None)
+    };
     let args = |src: &Path| -> Vec<String> {
         ["import", "humannerf", p(src), "--out", p(&out)]
             .map(String::from)
@@ -1041,7 +444,7 @@ fn damaged_humannerf_and_peoplesnapshot_inputs_are_named_and_leave_nothing() {
     run(&src, &["cameras.pkl"]);
 
     // PeopleSnapshot: wrong betas, a missing npy mask, a model file without a key.
-    let (src, model) = write_peoplesnapshot("import_bad_ps_betas");
+    let (src, model) = write_peoplesnapshot(clip(), "import_bad_ps_betas");
     patch_npz(
         &src.join("poses/anim_nerf_train.npz"),
         "betas",
@@ -1063,11 +466,11 @@ fn damaged_humannerf_and_peoplesnapshot_inputs_are_named_and_leave_nothing() {
         )
     };
     ps(&src, &model, &["anim_nerf_train.npz", "betas", "(1, 10)"]);
-    let (src, model) = write_peoplesnapshot("import_bad_ps_mask");
+    let (src, model) = write_peoplesnapshot(clip(), "import_bad_ps_mask");
     let last = scene_frames().len() - 1;
     std::fs::remove_file(src.join(format!("masks/mask_{last:04}.npy"))).unwrap();
     ps(&src, &model, &["masks", "required"]);
-    let (src, model) = write_peoplesnapshot("import_bad_ps_model");
+    let (src, model) = write_peoplesnapshot(clip(), "import_bad_ps_model");
     patch_npz(&model, "J_regressor", None);
     ps(
         &src,
@@ -1078,7 +481,7 @@ fn damaged_humannerf_and_peoplesnapshot_inputs_are_named_and_leave_nothing() {
 
 #[test]
 fn a_non_empty_out_is_refused_and_kept() {
-    let src = write_humannerf_prepared("import_out_busy", false, None);
+    let src = write_humannerf_prepared(clip(), "import_out_busy", false, None);
     let out = common::temp_dir("import_out_busy_out");
     std::fs::write(out.join("keep.txt"), "mine").unwrap();
     let o = talkin(&["import", "humannerf", p(&src), "--out", p(&out)]);
@@ -1100,7 +503,7 @@ fn humannerf_zju_distortion_is_removed_from_images_and_masks() {
     let r2 = (c.width as f64 / 2.0).powi(2) + (c.height as f64 / 2.0).powi(2);
     let k1 = -0.15 * c.intrinsics_rows()[0][0].powi(2) / r2;
     let d = [k1, 0.0, 0.002, -0.001, 0.0];
-    let src = write_humannerf_prepared("import_hn_distorted", false, Some(d));
+    let src = write_humannerf_prepared(clip(), "import_hn_distorted", false, Some(d));
     let out = common::temp_dir("import_hn_distorted_out").join("ds");
     let got = import_ok(&["import", "humannerf", p(&src), "--out", p(&out)]);
     check_frames(&got, 0..22, false, 0.5);
@@ -1167,7 +570,12 @@ fn training_on_an_imported_dataset_matches_its_source() {
         .iter()
         .filter(|f| matches!(f.split.name(), "train" | "test_same"))
         .collect();
-    let hn = write_humannerf_prepared_from(&ds, &frames, "import_train_hn", false, None);
+    let hn = write_humannerf_prepared(
+        &Clip::from_files(&ds, frames.clone()),
+        "import_train_hn",
+        false,
+        None,
+    );
     let model = root.join("SMPLX_TEST.npz");
     write_model(&model, &ds.subjects[0].skeleton.rest_joints);
     let imported = root.join("imported");
@@ -1234,7 +642,7 @@ fn training_on_an_imported_dataset_matches_its_source() {
 
 #[test]
 fn loading_a_fitters_folder_as_a_dataset_suggests_the_import() {
-    let src = write_humannerf_prepared("import_hint", false, None);
+    let src = write_humannerf_prepared(clip(), "import_hint", false, None);
     let err = Dataset::load(&src).unwrap_err().to_string();
     assert!(err.contains("talkin import humannerf"), "{err}");
     assert!(err.contains("mesh_infos.pkl"), "{err}");
@@ -1249,7 +657,7 @@ fn loading_a_fitters_folder_as_a_dataset_suggests_the_import() {
 
 #[test]
 fn every_and_max_size_keep_frames_and_scale_the_cameras() {
-    let src = write_humannerf_prepared("import_every", false, None);
+    let src = write_humannerf_prepared(clip(), "import_every", false, None);
     let out = common::temp_dir("import_every_out").join("ds");
     let got = import_ok(&[
         "import",

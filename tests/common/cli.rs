@@ -1,0 +1,32 @@
+//! Running the `talkin` binary from a test: its output, its errors, `talkin import`.
+
+use std::path::Path;
+use std::process::{Command, Output};
+
+use talkin::data::dataset::Dataset;
+
+/// Runs `talkin` with `args` and waits for it.
+pub fn talkin(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_talkin"))
+        .args(args)
+        .output()
+        .unwrap()
+}
+
+pub fn stderr(out: &Output) -> String {
+    String::from_utf8_lossy(&out.stderr).into_owned()
+}
+
+/// A path as a command-line argument.
+pub fn p(path: &Path) -> &str {
+    path.to_str().unwrap()
+}
+
+/// Runs `talkin import`, which must succeed and write `import.json`, and loads the result.
+pub fn import_ok(args: &[&str]) -> Dataset {
+    let out = talkin(args);
+    assert!(out.status.success(), "import failed: {}", stderr(&out));
+    let dir = args[args.iter().position(|a| *a == "--out").unwrap() + 1];
+    assert!(Path::new(dir).join("import.json").is_file());
+    Dataset::load(dir).unwrap()
+}
