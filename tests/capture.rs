@@ -1,0 +1,365 @@
+//! Camera-like frames (`common::capture`: a cluttered room, exposure, sensor noise, JPEG,
+//! a matting tool's grown, shrunk, holed and soft masks) written in each fitter's layout
+//! and imported: the dataset says its frames are composited by their masks, the target
+//! is the background wherever the mask says so and the camera's person wherever it says
+//! person, `talkin inspect` accepts it and refuses the same frames declared matted.
+
+mod common;
+
+use std::path::Path;
+use std::sync::OnceLock;
+
+use common::capture::{Capture, FLAWS, MaskFlaws};
+use common::cli::{import_ok, p, stderr, talkin};
+use common::layouts::{
+    Clip, FramePixels, smplerx_args, write_humannerf_prepared, write_humannerf_wild,
+    write_peoplesnapshot, write_smplerx,
+};
+use talkin::data::dataset::{Dataset, EDGE_BAND_PX, Frame, Matting};
+
+/// The scene the fixtures are made from: 1 identity, 96 px high (limbs a few pixels wide,
+/// so a mask a pixel off still covers them).
+fn scene() -> &'static Dataset {
+    static SCENE: OnceLock<Dataset> = OnceLock::new();
+    SCENE.get_or_init(|| common::synthetic_scene("capture_scene", 1, 96, 5))
+}
+
+fn clip() -> &'static Clip<'static> {
+    static CLIP: OnceLock<Clip<'static>> = OnceLock::new();
+    CLIP.get_or_init(|| Clip::subject0(scene()))
+}
+
+/// A phone's flaws with a hole wide enough that its middle stays unmasked under the soft
+/// edge.
+fn phone() -> Capture {
+    let phone = Capture::phone(7);
+    Capture {
+        mask: MaskFlaws {
+            hole_px: 4,
+            ..phone.mask.clone()
+        },
+        ..phone
+    }
+}
+
+/// The scene's frames as the phone saw them.
+fn camera_clip() -> &'static Clip<'static> {
+    static CAMERA: OnceLock<Clip<'static>> = OnceLock::new();
+    CAMERA.get_or_init(|| clip().with_pixels(phone().frames(&clip().pixels)))
+}
+
+/// Whether each pixel lies within `r` px (Chebyshev) of one where `set` holds.
+fn near(set: &[bool], w: usize, h: usize, r: usize) -> Vec<bool> {
+    let mut out = vec![false; w * h];
+    for y in 0..h {
+        for x in 0..w {
+            let ys = y.saturating_sub(r)..=(y + r).min(h - 1);
+            let xs = x.saturating_sub(r)..=(x + r).min(w - 1);
+            out[y * w + x] = ys
+                .flat_map(|yy| xs.clone().map(move |xx| yy * w + xx))
+                .any(|k| set[k]);
+        }
+    }
+    out
+}
+
+/// What the targets of an import of [`camera_clip`] showed, over all frames.
+#[derive(Debug, Default)]
+struct Targets {
+    /// Pixels checked to be the background: outside every mask, and in the holes.
+    background: usize,
+    hole: usize,
+    /// Pixels checked to be the camera's frame: inside the mask, away from its edge.
+    person: usize,
+    /// Over the person's pixels: the target less the clean scene times the gain, in
+    /// 8-bit levels, its sum and sum of squares.
+    sum: f64,
+    sum_sq: f64,
+}
+
+/// The import in `out` holds the camera clip's frames, declared `by_mask`, composited:
+/// away from the mask's edge the background outside the person (and in its holes), the
+/// camera's frame inside; `talkin inspect` accepts it and refuses a copy declared
+/// matted, naming the field.
+fn check_camera_import(got: &Dataset, out: &Path) {
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("dataset.json")).unwrap()).unwrap();
+    assert_eq!(json["matting"], "by_mask");
+    assert_eq!(got.matting, Matting::ByMask);
+    let (clean, camera) = (&clip().pixels, &camera_clip().pixels);
+    assert_eq!(got.frames.len(), camera.len());
+    let background = got.background.map(|c| (c * 255.0).round() as u8);
+    let gain = f64::from(phone().gain);
+    let mut t = Targets::default();
+    for (k, (exact, seen)) in clean.iter().zip(camera).enumerate() {
+        let images = got.images(k).unwrap();
+        let (w, h) = (images.rgb.width() as usize, images.rgb.height() as usize);
+        assert_eq!((w as u32, h as u32), seen.rgb.dimensions());
+        let mask = images.mask.as_raw();
+        let truth = exact.mask.as_raw();
+        let r = EDGE_BAND_PX as usize;
+        let masks = |f: &dyn Fn(u8, u8) -> bool| -> Vec<bool> {
+            mask.iter().zip(truth).map(|(&m, &e)| f(m, e)).collect()
+        };
+        // Within the edge band of either mask's person, or of the true person's edge.
+        let near_person = near(&masks(&|m, e| m > 0 || e > 0), w, h, r);
+        let near_true_edge = near(&masks(&|_, e| e < 255), w, h, r);
+        let near_mask_edge = near(&masks(&|m, _| m < 255), w, h, r);
+        for i in 0..w * h {
+            let (x, y) = ((i % w) as u32, (i / w) as u32);
+            let target = images.rgb.get_pixel(x, y).0;
+            if !near_person[i] {
+                assert_eq!(
+                    target, background,
+                    "frame {k} ({x}, {y}): outside the person"
+                );
+                t.background += 1;
+            } else if mask[i] == 0 && !near_true_edge[i] {
+                // Inside the person, but the matting tool left a hole: the mask decides.
+                assert_eq!(
+                    target, background,
+                    "frame {k} ({x}, {y}): in the mask's hole"
+                );
+                t.hole += 1;
+            } else if !near_true_edge[i] && !near_mask_edge[i] {
+                let camera_px = seen.rgb.get_pixel(x, y).0;
+                assert_eq!(
+                    target, camera_px,
+                    "frame {k} ({x}, {y}): the camera's person"
+                );
+                let clean_px = exact.rgb.get_pixel(x, y).0;
+                for c in 0..3 {
+                    let d = f64::from(target[c]) - gain * f64::from(clean_px[c]);
+                    t.sum += d;
+                    t.sum_sq += d * d;
+                }
+                t.person += 1;
+            }
+        }
+    }
+    let n = 3.0 * t.person as f64;
+    let (mean, sd) = (t.sum / n, (t.sum_sq / n - (t.sum / n).powi(2)).sqrt());
+    println!("{t:?}: target less gain x clean, mean {mean:.2}, sd {sd:.2} levels");
+    assert!(t.background > 0 && t.person > 0, "{t:?}");
+    assert!(t.hole > 0, "no hole checked: {t:?}");
+    // The person is the camera's: exposure-shifted (no offset left after the gain), with
+    // the sensor's noise and JPEG's.
+    let noise = f64::from(phone().noise);
+    assert!(mean.abs() < 1.0, "{mean}");
+    assert!(sd > 0.5 * noise && sd < 3.0 * noise, "{sd}");
+
+    let o = talkin(&["inspect", p(out)]);
+    assert!(
+        o.status.success(),
+        "inspect refused the import: {}",
+        stderr(&o)
+    );
+    let matted = out.with_file_name(format!(
+        "{}_matted",
+        out.file_name().unwrap().to_string_lossy()
+    ));
+    copy_dir(out, &matted);
+    let mut json = json;
+    json["matting"] = "matted".into();
+    std::fs::write(
+        matted.join("dataset.json"),
+        serde_json::to_string_pretty(&json).unwrap(),
+    )
+    .unwrap();
+    let o = talkin(&["inspect", p(&matted)]);
+    assert!(
+        !o.status.success(),
+        "inspect accepted camera frames declared matted"
+    );
+    let err = stderr(&o);
+    assert!(err.contains("matting"), "{err}");
+    assert!(!err.contains("panicked"), "{err}");
+}
+
+fn copy_dir(from: &Path, to: &Path) {
+    let _ = std::fs::remove_dir_all(to);
+    std::fs::create_dir_all(to).unwrap();
+    for e in std::fs::read_dir(from).unwrap() {
+        let e = e.unwrap();
+        if e.file_type().unwrap().is_dir() {
+            copy_dir(&e.path(), &to.join(e.file_name()));
+        } else {
+            std::fs::copy(e.path(), to.join(e.file_name())).unwrap();
+        }
+    }
+}
+
+fn focal(frame: &Frame) -> String {
+    format!("{}", frame.camera.intrinsics_rows()[0][0])
+}
+
+#[test]
+fn smplerx_camera_frames_import_composited_by_their_masks() {
+    let fx = write_smplerx(camera_clip(), "capture_smplerx");
+    let out = common::temp_dir("capture_smplerx_out").join("ds");
+    let f = focal(clip().frames[0]);
+    let got = import_ok(&smplerx_args(&fx, &out, &f));
+    check_camera_import(&got, &out);
+}
+
+#[test]
+fn humannerf_prepared_camera_frames_import_composited_by_their_masks() {
+    let src = write_humannerf_prepared(camera_clip(), "capture_hn", false, None);
+    let out = common::temp_dir("capture_hn_out").join("ds");
+    let got = import_ok(&["import", "humannerf", p(&src), "--out", p(&out)]);
+    check_camera_import(&got, &out);
+}
+
+#[test]
+fn humannerf_wild_camera_frames_import_composited_by_their_masks() {
+    let (src, model) = write_humannerf_wild(camera_clip(), "capture_hn_wild");
+    let out = common::temp_dir("capture_hn_wild_out").join("ds");
+    let got = import_ok(&[
+        "import",
+        "humannerf",
+        p(&src),
+        "--out",
+        p(&out),
+        "--body-model",
+        p(&model),
+    ]);
+    check_camera_import(&got, &out);
+}
+
+#[test]
+fn peoplesnapshot_camera_frames_import_composited_by_their_masks() {
+    let (src, model) = write_peoplesnapshot(camera_clip(), "capture_ps");
+    let out = common::temp_dir("capture_ps_out").join("ds");
+    let got = import_ok(&[
+        "import",
+        "peoplesnapshot",
+        p(&src),
+        "--out",
+        p(&out),
+        "--body-model",
+        p(&model),
+    ]);
+    check_camera_import(&got, &out);
+}
+
+/// The builder itself: seeded, each flaw does what it says and nothing else, and without
+/// flaws the frames come back as they were.
+#[test]
+fn capture_is_seeded_and_each_flaw_acts_alone() {
+    let clean = &clip().pixels[..2];
+    let frames = |c: Capture| c.frames(clean);
+    let same = |a: &[FramePixels], b: &[FramePixels]| {
+        a.iter()
+            .zip(b)
+            .all(|(a, b)| a.rgb == b.rgb && a.mask == b.mask && a.jpeg == b.jpeg)
+    };
+    assert!(same(&frames(Capture::phone(7)), &frames(Capture::phone(7))));
+    assert!(!same(
+        &frames(Capture::phone(7)),
+        &frames(Capture::phone(8))
+    ));
+    assert!(same(&frames(Capture::none(7)), clean));
+    assert!(same(&frames(Capture::phone_with(7, &[])), clean));
+
+    let only = |flaw: &str| frames(Capture::phone_with(7, &[flaw]));
+    let person = |m: &image::GrayImage| -> Vec<bool> { m.iter().map(|&v| v >= 128).collect() };
+    let exact: Vec<Vec<bool>> = clean.iter().map(|f| person(&f.mask)).collect();
+    let unchanged_rgb = |fs: &[FramePixels]| fs.iter().zip(clean).all(|(a, b)| a.rgb == b.rgb);
+    let unchanged_mask = |fs: &[FramePixels]| fs.iter().zip(clean).all(|(a, b)| a.mask == b.mask);
+
+    // The room: dark and cluttered outside the person, with a bright spot; the person kept.
+    let room = only("room");
+    assert!(unchanged_mask(&room));
+    let outside: Vec<[u8; 3]> = room[0]
+        .rgb
+        .pixels()
+        .zip(&exact[0])
+        .filter(|(_, p)| !**p)
+        .map(|(px, _)| px.0)
+        .collect();
+    let luma: Vec<f64> = outside
+        .iter()
+        .map(|c| c.iter().map(|&v| f64::from(v)).sum::<f64>() / 3.0)
+        .collect();
+    let mean = luma.iter().sum::<f64>() / luma.len() as f64;
+    let sd = (luma.iter().map(|l| (l - mean).powi(2)).sum::<f64>() / luma.len() as f64).sqrt();
+    let brightest = luma.iter().copied().fold(0.0, f64::max);
+    assert!(
+        mean < 100.0 && sd > 10.0 && brightest > 200.0,
+        "{mean} {sd} {brightest}"
+    );
+    for (px, (c, p)) in room[0]
+        .rgb
+        .pixels()
+        .zip(clean[0].rgb.pixels().zip(&exact[0]))
+    {
+        if *p {
+            assert_eq!(px, c);
+        }
+    }
+
+    // Exposure: a gain on every pixel.
+    let exposed = only("exposure");
+    assert!(unchanged_mask(&exposed));
+    for (a, b) in exposed[0].rgb.pixels().zip(clean[0].rgb.pixels()) {
+        for c in 0..3 {
+            assert_eq!(a[c], (0.9 * f32::from(b[c])).round() as u8);
+        }
+    }
+
+    // Noise: zero-mean, its standard deviation as asked (less what clips at 0 and 255).
+    let noisy = only("noise");
+    assert!(unchanged_mask(&noisy));
+    let d: Vec<f64> = noisy[0]
+        .rgb
+        .iter()
+        .zip(clean[0].rgb.iter())
+        .filter(|(_, b)| (8..248).contains(*b))
+        .map(|(a, b)| f64::from(*a) - f64::from(*b))
+        .collect();
+    let m = d.iter().sum::<f64>() / d.len() as f64;
+    let sd = (d.iter().map(|x| (x - m).powi(2)).sum::<f64>() / d.len() as f64).sqrt();
+    assert!(m.abs() < 0.3 && (sd - 3.0).abs() < 0.3, "{m} {sd}");
+
+    // JPEG: the stored bytes decode to the frame, which differs from the clean one a little.
+    let jpeg = only("jpeg");
+    assert!(unchanged_mask(&jpeg) && !unchanged_rgb(&jpeg));
+    for f in &jpeg {
+        let bytes = f.jpeg.as_ref().unwrap();
+        assert_eq!(&bytes[..2], &[0xff, 0xd8]);
+        let decoded = image::load_from_memory(bytes).unwrap().to_rgb8();
+        assert_eq!(decoded, f.rgb);
+    }
+
+    // The mask: grown by a pixel in frame 0, shrunk in frame 1; a hole in frame 0 only;
+    // soft values along the edge; the frame untouched by any of them.
+    let grown = only("grow");
+    assert!(unchanged_rgb(&grown));
+    let (g0, g1) = (person(&grown[0].mask), person(&grown[1].mask));
+    let covers = |a: &[bool], b: &[bool]| a.iter().zip(b).all(|(a, b)| *a || !*b);
+    assert!(covers(&g0, &exact[0]) && g0 != exact[0]);
+    assert!(covers(&exact[1], &g1) && g1 != exact[1]);
+    let holed = only("hole");
+    assert!(unchanged_rgb(&holed));
+    assert!(covers(&exact[0], &person(&holed[0].mask)) && person(&holed[0].mask) != exact[0]);
+    assert_eq!(holed[1].mask, clean[1].mask);
+    let soft = only("soft");
+    assert!(unchanged_rgb(&soft));
+    assert!(soft[0].mask.iter().any(|&v| v > 0 && v < 255));
+    // A soft edge, not a moved one: cut at 128 it is the exact mask but for specks.
+    let moved = person(&soft[0].mask)
+        .iter()
+        .zip(&exact[0])
+        .filter(|(a, b)| a != b)
+        .count();
+    assert!(
+        moved * 100 < exact[0].iter().filter(|p| **p).count(),
+        "{moved}"
+    );
+
+    // All flaws by name are the phone's.
+    assert!(same(
+        &frames(Capture::phone_with(7, &FLAWS)),
+        &frames(Capture::phone(7))
+    ));
+}
