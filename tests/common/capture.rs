@@ -1,21 +1,27 @@
 //! Camera-like frames made from synthetic ones: what a phone and a matting tool hand over
-//! instead of a person rendered over white with an exact mask. The person is put by the
-//! exact mask in front of a dark, cluttered room; the camera adds an exposure gain, sensor
-//! noise and JPEG; the matting tool's mask is grown or shrunk, holed and soft. Every flaw
-//! can be turned off on its own, to measure what each costs; the same seed gives the same
-//! bytes.
+//! instead of a person rendered over white with an exact mask. The camera has `scale`
+//! times the scene's pixels along each axis, and its frames are averaged down to the
+//! scene's size, as an import scales a phone's video down (`--max-size`): the flaws are
+//! of the phone's pixels, and a frame without them is the scene's frame exactly. Each
+//! scene pixel, a `scale` x `scale` block, is put by the exact mask in front of a dark,
+//! cluttered room; the camera adds an exposure gain, sensor noise and JPEG; the matting
+//! tool's mask is grown or shrunk, holed and soft. Every flaw can be turned off on its
+//! own, to measure what each costs; the same seed gives the same bytes.
 
 use std::io::Cursor;
 
 use image::{GrayImage, RgbImage};
 
-use super::layouts::FramePixels;
+use super::layouts::{Clip, FramePixels};
 
 /// How the frames differ from the synthetic scene's.
 #[derive(Clone, Debug)]
 pub struct Capture {
     /// Seeds the room, the noise and where the mask's holes fall.
     pub seed: u64,
+    /// The camera's pixels per scene pixel along each axis; every flaw below is in the
+    /// camera's pixels, which are averaged down to the scene's.
+    pub scale: u32,
     /// A dark, cluttered room behind the person (a gradient, striped wall, checked floor,
     /// blobs of furniture, a lamp); without it the scene's white stays.
     pub room: bool,
@@ -47,42 +53,30 @@ pub struct MaskFlaws {
 pub const FLAWS: [&str; 7] = ["room", "exposure", "noise", "jpeg", "grow", "hole", "soft"];
 
 impl Capture {
-    /// A phone video of a person in a living room, cut out by a matting tool: every flaw
-    /// on, each of a size such a capture shows once scaled to the scene's few hundred px.
+    /// A phone video of a person in a living room, cut out by a matting tool, at 4 times
+    /// the scene's size: every flaw on. The mask is 2 px off (half a scene pixel), its
+    /// holes 4 px in radius, its edge soft over about 3 px; the noise and JPEG are a
+    /// phone's at its own size, a quarter as strong once averaged down.
     pub fn phone(seed: u64) -> Capture {
         Capture {
             seed,
+            scale: 4,
             room: true,
             gain: 0.9,
             noise: 3.0,
-            // The scene's person packs a body's detail into a few dozen pixels, where
-            // JPEG's 8x8 blocks cost more than on a full-size frame: at quality 85 the
-            // person's pixels move by 9 levels RMS, three times the noise; at 95 by 3.8.
-            jpeg_quality: Some(95),
+            jpeg_quality: Some(85),
             mask: MaskFlaws {
-                grow_px: vec![1, -1],
-                hole_px: 1,
+                grow_px: vec![2, -2],
+                hole_px: 4,
                 holes_every: 2,
-                soft_px: 0.7,
+                soft_px: 1.5,
             },
         }
     }
 
-    /// No flaw: the synthetic frames as they are.
+    /// No flaw: the synthetic frames, at [`Capture::phone`]'s scale.
     pub fn none(seed: u64) -> Capture {
-        Capture {
-            seed,
-            room: false,
-            gain: 1.0,
-            noise: 0.0,
-            jpeg_quality: None,
-            mask: MaskFlaws {
-                grow_px: Vec::new(),
-                hole_px: 0,
-                holes_every: 0,
-                soft_px: 0.0,
-            },
-        }
+        Capture::phone_with(seed, &[])
     }
 
     /// [`Capture::phone`] with only the flaws named (of [`FLAWS`]).
@@ -90,45 +84,51 @@ impl Capture {
         for f in flaws {
             assert!(FLAWS.contains(f), "unknown flaw {f:?}: one of {FLAWS:?}");
         }
-        let (phone, mut c) = (Capture::phone(seed), Capture::none(seed));
+        let phone = Capture::phone(seed);
         let on = |f: &str| flaws.contains(&f);
-        c.room = on("room");
-        if on("exposure") {
-            c.gain = phone.gain;
+        let hole = on("hole");
+        Capture {
+            seed,
+            scale: phone.scale,
+            room: on("room"),
+            gain: if on("exposure") { phone.gain } else { 1.0 },
+            noise: if on("noise") { phone.noise } else { 0.0 },
+            jpeg_quality: phone.jpeg_quality.filter(|_| on("jpeg")),
+            mask: MaskFlaws {
+                grow_px: if on("grow") {
+                    phone.mask.grow_px
+                } else {
+                    Vec::new()
+                },
+                hole_px: if hole { phone.mask.hole_px } else { 0 },
+                holes_every: if hole { phone.mask.holes_every } else { 0 },
+                soft_px: if on("soft") { phone.mask.soft_px } else { 0.0 },
+            },
         }
-        if on("noise") {
-            c.noise = phone.noise;
-        }
-        if on("jpeg") {
-            c.jpeg_quality = phone.jpeg_quality;
-        }
-        if on("grow") {
-            c.mask.grow_px = phone.mask.grow_px;
-        }
-        if on("hole") {
-            c.mask.hole_px = phone.mask.hole_px;
-            c.mask.holes_every = phone.mask.holes_every;
-        }
-        if on("soft") {
-            c.mask.soft_px = phone.mask.soft_px;
-        }
-        c
+    }
+
+    /// `clip` as the camera saw it: its frames' pixels by [`Capture::frames`].
+    pub fn clip<'a>(&self, clip: &Clip<'a>) -> Clip<'a> {
+        clip.with_pixels(self.frames(&clip.pixels))
     }
 
     /// The camera-like version of `frames` (persons over white with exact 0/255 masks,
-    /// all of one size): the frame as stored (and its JPEG) and the matting tool's mask.
+    /// all of one size), of their size: the frame as stored (and its JPEG, when the
+    /// camera's pixels are the scene's) and the matting tool's mask.
     pub fn frames(&self, frames: &[FramePixels]) -> Vec<FramePixels> {
         let Some(first) = frames.first() else {
             return Vec::new();
         };
         let (w, h) = first.rgb.dimensions();
-        let room = self.room.then(|| room(w, h, self.seed));
+        let room = self
+            .room
+            .then(|| room(w * self.scale, h * self.scale, self.seed));
         frames
             .iter()
             .enumerate()
             .map(|(i, f)| {
                 assert_eq!(f.rgb.dimensions(), (w, h), "frames of one size");
-                self.frame(i, f, room.as_ref())
+                self.frame(i, &upscaled(f, self.scale), room.as_ref())
             })
             .collect()
     }
@@ -164,11 +164,46 @@ impl Capture {
                 (decoded, Some(bytes))
             }
         };
-        FramePixels {
-            rgb,
-            jpeg,
-            mask: self.mask.apply(i, &f.mask, &mut mask_rng),
+        let mask = self.mask.apply(i, &f.mask, &mut mask_rng);
+        if self.scale == 1 {
+            return FramePixels { rgb, jpeg, mask };
         }
+        let s = self.scale;
+        let (sw, sh) = (w / s, h / s);
+        // The mean of each block, rounded: a block of one value keeps it.
+        let mean = |sum: u32| ((sum + s * s / 2) / (s * s)) as u8;
+        let block = |x: u32, y: u32, v: &dyn Fn(u32, u32) -> u8| {
+            let sum: u32 = (0..s * s)
+                .map(|k| u32::from(v(x * s + k % s, y * s + k / s)))
+                .sum();
+            mean(sum)
+        };
+        FramePixels {
+            rgb: RgbImage::from_fn(sw, sh, |x, y| {
+                image::Rgb(std::array::from_fn(|c| {
+                    block(x, y, &|xx, yy| rgb.get_pixel(xx, yy).0[c])
+                }))
+            }),
+            jpeg: None,
+            mask: GrayImage::from_fn(sw, sh, |x, y| {
+                image::Luma([block(x, y, &|xx, yy| mask.get_pixel(xx, yy).0[0])])
+            }),
+        }
+    }
+}
+
+/// `f` at `scale` times its size, each pixel a `scale` x `scale` block (so averaging the
+/// blocks gives `f` back).
+fn upscaled(f: &FramePixels, scale: u32) -> FramePixels {
+    let (w, h) = f.rgb.dimensions();
+    FramePixels {
+        rgb: RgbImage::from_fn(w * scale, h * scale, |x, y| {
+            *f.rgb.get_pixel(x / scale, y / scale)
+        }),
+        jpeg: None,
+        mask: GrayImage::from_fn(w * scale, h * scale, |x, y| {
+            *f.mask.get_pixel(x / scale, y / scale)
+        }),
     }
 }
 
@@ -291,8 +326,9 @@ pub fn room(w: u32, h: u32, seed: u64) -> Vec<[f32; 3]> {
     out
 }
 
-/// Whether each pixel lies within `r` px (Chebyshev) of a set pixel.
-fn dilate(set: &[bool], w: u32, h: u32, r: u32) -> Vec<bool> {
+/// Whether each pixel (row-major, `w` x `h`) lies within `r` px (Chebyshev) of a set
+/// pixel.
+pub fn dilate(set: &[bool], w: u32, h: u32, r: u32) -> Vec<bool> {
     if r == 0 {
         return set.to_vec();
     }

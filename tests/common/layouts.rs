@@ -5,7 +5,6 @@
 //! frames (`super::capture`). A small SMPL-X model file of the real layout, whose
 //! regressor reproduces the dataset's rest joints, stands in for the licensed one.
 
-use std::io::Cursor;
 use std::path::{Path, PathBuf};
 
 use glam::{DMat3, DVec2, DVec3};
@@ -33,17 +32,17 @@ pub struct FramePixels {
 }
 
 impl FramePixels {
-    /// The frame as a JPEG file: its own bytes, or `rgb` encoded at quality 75 (what
-    /// `image` writes for a `.jpg`).
+    /// The frame as a JPEG file: its own bytes, or `rgb` encoded at quality 100, as near
+    /// its pixels as JPEG goes (a level or so), so a clean frame stays clean.
     pub fn jpeg_bytes(&self) -> Vec<u8> {
         if let Some(bytes) = &self.jpeg {
             return bytes.clone();
         }
-        let mut out = Cursor::new(Vec::new());
-        self.rgb
-            .write_to(&mut out, image::ImageFormat::Jpeg)
+        let mut bytes = Vec::new();
+        image::codecs::jpeg::JpegEncoder::new_with_quality(&mut bytes, 100)
+            .encode_image(&self.rgb)
             .unwrap();
-        out.into_inner()
+        bytes
     }
 }
 
@@ -51,13 +50,13 @@ impl FramePixels {
 /// poses and cameras) and each frame's pixels.
 pub struct Clip<'a> {
     pub ds: &'a Dataset,
-    pub frames: Vec<&'a Frame>,
+    pub frames: Vec<Frame>,
     pub pixels: Vec<FramePixels>,
 }
 
 impl<'a> Clip<'a> {
     /// `frames` of `ds` with their own image and mask files.
-    pub fn from_files(ds: &'a Dataset, frames: Vec<&'a Frame>) -> Clip<'a> {
+    pub fn from_files(ds: &'a Dataset, frames: Vec<&Frame>) -> Clip<'a> {
         let pixels = frames
             .iter()
             .map(|f| FramePixels {
@@ -66,6 +65,7 @@ impl<'a> Clip<'a> {
                 mask: image::open(ds.root.join(&f.mask)).unwrap().to_luma8(),
             })
             .collect();
+        let frames = frames.into_iter().cloned().collect();
         Clip { ds, frames, pixels }
     }
 
@@ -74,9 +74,14 @@ impl<'a> Clip<'a> {
         Clip::from_files(ds, ds.frames.iter().filter(|f| f.subject == 0).collect())
     }
 
-    /// The same frames with other pixels.
+    /// The same frames with other pixels, of the cameras' size.
     pub fn with_pixels(&self, pixels: Vec<FramePixels>) -> Clip<'a> {
         assert_eq!(pixels.len(), self.frames.len());
+        for (f, px) in self.frames.iter().zip(&pixels) {
+            let size = (f.camera.width, f.camera.height);
+            assert_eq!(px.rgb.dimensions(), size, "pixels of the camera's size");
+            assert_eq!(px.mask.dimensions(), size, "a mask of the camera's size");
+        }
         Clip {
             ds: self.ds,
             frames: self.frames.clone(),
