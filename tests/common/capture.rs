@@ -13,6 +13,7 @@ use std::io::Cursor;
 use image::{GrayImage, RgbImage};
 
 use super::layouts::{Clip, FramePixels};
+pub use talkin_data::dataset::dilate;
 
 /// How the frames differ from the synthetic scene's.
 #[derive(Clone, Debug)]
@@ -321,30 +322,6 @@ pub fn room(w: u32, h: u32, seed: u64) -> Vec<[f32; 3]> {
             let lamp_colour = [1.0, 0.97, 0.85];
             c = std::array::from_fn(|k| c[k] * (1.0 - glow) + lamp_colour[k] * glow);
             out.push(c.map(|v| v.clamp(0.0, 1.0)));
-        }
-    }
-    out
-}
-
-/// Whether each pixel (row-major, `w` x `h`) lies within `r` px (Chebyshev) of a set
-/// pixel.
-pub fn dilate(set: &[bool], w: u32, h: u32, r: u32) -> Vec<bool> {
-    if r == 0 {
-        return set.to_vec();
-    }
-    let (w, h, r) = (w as usize, h as usize, r as usize);
-    let mut rows = vec![false; w * h];
-    for y in 0..h {
-        for x in 0..w {
-            let (a, b) = (x.saturating_sub(r), (x + r).min(w - 1));
-            rows[y * w + x] = set[y * w + a..=y * w + b].iter().any(|&v| v);
-        }
-    }
-    let mut out = vec![false; w * h];
-    for y in 0..h {
-        let (a, b) = (y.saturating_sub(r), (y + r).min(h - 1));
-        for x in 0..w {
-            out[y * w + x] = (a..=b).any(|yy| rows[yy * w + x]);
         }
     }
     out

@@ -6,7 +6,7 @@ use std::path::Path;
 
 use image::{DynamicImage, GrayImage, ImageFormat, ImageReader, RgbImage};
 
-use super::matting::{Composited, Matting, composite, surroundings};
+use super::matting::{Composited, Matting, Surroundings, composite, surroundings};
 use super::{Dataset, DatasetError, derived_segmentation};
 
 /// Number of segmentation labels: 0 background, 1 body, 2 arms, 3 hands, 4 head.
@@ -23,6 +23,8 @@ pub struct FrameImages {
     /// Whether and why `rgb` was composited from the file ([`Dataset::file_rgb`] gives
     /// the file as it is).
     pub composited: Composited,
+    /// How far the file's pixels outside the mask lie from the background.
+    pub surroundings: Surroundings,
     /// 255 = person (values >= 128 count as person for soft mattes).
     pub mask: GrayImage,
     /// Labels 0..=4.
@@ -104,6 +106,20 @@ impl Dataset {
         ))
     }
 
+    /// Frame `index`'s image file (as [`Dataset::file_rgb`]), its mask, and how far the
+    /// file's surroundings lie from the background.
+    fn file_and_mask(
+        &self,
+        index: usize,
+    ) -> Result<(RgbImage, GrayImage, Surroundings), DatasetError> {
+        let frame = &self.frames[index];
+        let size = (frame.camera.width, frame.camera.height);
+        let file_rgb = self.file_rgb(index)?;
+        let mask = decode_png(&self.root, &frame.mask, size)?.into_luma8();
+        let around = surroundings(&file_rgb, &mask, self.background);
+        Ok((file_rgb, mask, around))
+    }
+
     /// Decodes frame `index`'s target image (the person over the background: composited
     /// by the mask when the dataset's matting says so, or when the frame's surroundings
     /// contradict a declared matting), mask and segmentation (derived if the frame has
@@ -111,24 +127,15 @@ impl Dataset {
     pub fn images(&self, index: usize) -> Result<FrameImages, DatasetError> {
         let frame = &self.frames[index];
         let size = (frame.camera.width, frame.camera.height);
-        let file_rgb = self.file_rgb(index)?;
-        let mask = decode_png(&self.root, &frame.mask, size)?.into_luma8();
-        let (rgb, composited) = match self.matting {
-            Matting::ByMask => (
-                composite(&file_rgb, &mask, self.background),
-                Composited::Declared,
-            ),
-            Matting::Matted => {
-                let s = surroundings(&file_rgb, &mask, self.background);
-                if s.contradicts() {
-                    (
-                        composite(&file_rgb, &mask, self.background),
-                        Composited::Contradicted(s),
-                    )
-                } else {
-                    (file_rgb, Composited::No)
-                }
-            }
+        let (file_rgb, mask, around) = self.file_and_mask(index)?;
+        let composited = match self.matting {
+            Matting::ByMask => Composited::Declared,
+            Matting::Matted if around.contradicts() => Composited::Contradicted,
+            Matting::Matted => Composited::No,
+        };
+        let rgb = match composited {
+            Composited::No => file_rgb,
+            _ => composite(&file_rgb, &mask, self.background),
         };
         let Some(rel) = &frame.segmentation else {
             let skeleton = &self.subjects[frame.subject].skeleton;
@@ -136,6 +143,7 @@ impl Dataset {
             return Ok(FrameImages {
                 rgb,
                 composited,
+                surroundings: around,
                 mask,
                 segmentation,
                 labels_derived: true,
@@ -156,6 +164,7 @@ impl Dataset {
         Ok(FrameImages {
             rgb,
             composited,
+            surroundings: around,
             mask,
             segmentation,
             labels_derived: false,
@@ -172,12 +181,7 @@ impl Dataset {
         }
         let flags = frames
             .par_iter()
-            .map(|&i| {
-                let frame = &self.frames[i];
-                let size = (frame.camera.width, frame.camera.height);
-                let mask = decode_png(&self.root, &frame.mask, size)?.into_luma8();
-                Ok(surroundings(&self.file_rgb(i)?, &mask, self.background).contradicts())
-            })
+            .map(|&i| Ok(self.file_and_mask(i)?.2.contradicts()))
             .collect::<Result<Vec<bool>, DatasetError>>()?;
         Ok(frames
             .iter()

@@ -34,7 +34,7 @@ impl Matting {
 }
 
 /// Why a frame's target is not its file as it is.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Composited {
     /// The file is the target (a matted dataset whose frame agrees with its background).
     No,
@@ -42,7 +42,7 @@ pub enum Composited {
     Declared,
     /// The dataset declares its images matted, but this frame's surroundings contradict
     /// the background: composited by its mask, and every command that trains says so.
-    Contradicted(Surroundings),
+    Contradicted,
 }
 
 /// A channel farther than this from the background (in [0, 1]) makes a pixel "off".
@@ -61,8 +61,6 @@ pub const EDGE_BAND_PX: u32 = 3;
 pub struct Surroundings {
     /// Pixels counted.
     pub pixels: usize,
-    /// Mean over them of the largest channel difference from the background, in [0, 1].
-    pub mean_abs: f32,
     /// Share of them with a channel more than [`OFF_BY`] from the background.
     pub off_share: f32,
 }
@@ -76,35 +74,27 @@ impl Surroundings {
 
 /// Measures `rgb`'s surroundings against `background` (RGB in [0, 1]).
 pub fn surroundings(rgb: &RgbImage, mask: &GrayImage, background: [f32; 3]) -> Surroundings {
-    let near = dilated(mask, EDGE_BAND_PX);
+    let person: Vec<bool> = mask.iter().map(|&m| m > 0).collect();
+    let near = dilate(&person, mask.width(), mask.height(), EDGE_BAND_PX);
     let bg = background.map(|c| c * 255.0);
-    let (mut pixels, mut sum, mut off) = (0usize, 0f64, 0usize);
-    for ((p, m), n) in rgb.pixels().zip(mask.pixels()).zip(near.iter()) {
-        if m.0[0] > 0 || *n {
+    let (mut pixels, mut off) = (0usize, 0usize);
+    for (p, near) in rgb.pixels().zip(near) {
+        if near {
             continue;
         }
         let d = (0..3)
             .map(|c| (f32::from(p.0[c]) - bg[c]).abs() / 255.0)
             .fold(0.0f32, f32::max);
         pixels += 1;
-        sum += f64::from(d);
         off += usize::from(d > OFF_BY);
     }
-    let share = |n: usize| {
-        if pixels == 0 {
-            0.0
-        } else {
-            n as f32 / pixels as f32
-        }
-    };
     Surroundings {
         pixels,
-        mean_abs: if pixels == 0 {
+        off_share: if pixels == 0 {
             0.0
         } else {
-            (sum / pixels as f64) as f32
+            off as f32 / pixels as f32
         },
-        off_share: share(off),
     }
 }
 
@@ -122,14 +112,13 @@ pub fn composite(rgb: &RgbImage, mask: &GrayImage, background: [f32; 3]) -> RgbI
     })
 }
 
-/// Whether each pixel (row-major) lies within `r` px (Chebyshev) of a mask value above 0.
-fn dilated(mask: &GrayImage, r: u32) -> Vec<bool> {
-    let (w, h) = (mask.width() as usize, mask.height() as usize);
-    let r = r as usize;
-    let any: Vec<bool> = mask.iter().map(|&m| m > 0).collect();
+/// `set` (row-major, `w` x `h`) grown by `r` px (Chebyshev): whether each pixel lies
+/// within `r` px of a set pixel.
+pub fn dilate(set: &[bool], w: u32, h: u32, r: u32) -> Vec<bool> {
+    let (w, h, r) = (w as usize, h as usize, r as usize);
     let mut rows = vec![false; w * h];
     for y in 0..h {
-        let row = &any[y * w..(y + 1) * w];
+        let row = &set[y * w..(y + 1) * w];
         for x in 0..w {
             let (a, b) = (x.saturating_sub(r), (x + r).min(w - 1));
             rows[y * w + x] = row[a..=b].iter().any(|&v| v);
@@ -173,7 +162,6 @@ mod tests {
         let (dark, mask) = frame([20, 22, 25]);
         let s = surroundings(&dark, &mask, [1.0; 3]);
         assert!(s.contradicts() && s.off_share == 1.0, "{s:?}");
-        assert!((s.mean_abs - 235.0 / 255.0).abs() < 1e-6);
     }
 
     #[test]

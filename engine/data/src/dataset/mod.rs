@@ -20,7 +20,8 @@ pub use images::{FrameImages, LABEL_NAMES, N_LABELS};
 pub use load::camera_field;
 pub use load::parse_camera;
 pub use matting::{
-    Composited, EDGE_BAND_PX, MAX_OFF_SHARE, Matting, OFF_BY, Surroundings, composite, surroundings,
+    Composited, EDGE_BAND_PX, MAX_OFF_SHARE, Matting, OFF_BY, Surroundings, composite, dilate,
+    surroundings,
 };
 pub use write::write_atomic;
 

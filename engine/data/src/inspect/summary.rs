@@ -5,7 +5,6 @@ use rayon::prelude::*;
 use crate::dataset::OFF_BY;
 use crate::dataset::{
     Composited, Dataset, DatasetError, LABEL_NAMES, Matting, N_LABELS, Split, Surroundings,
-    surroundings,
 };
 use talkin_human::body::{N_BODY_JOINTS, N_JOINTS};
 
@@ -153,7 +152,6 @@ fn check_frame(
     labels: &mut [u64; N_LABELS],
 ) -> Result<FrameCheck, DatasetError> {
     let images = dataset.images(i)?;
-    let around = surroundings(&dataset.file_rgb(i)?, &images.mask, dataset.background);
     dataset.depth(i)?;
     let mut disagreeing_pixels = 0;
     let mut person_pixels = 0;
@@ -188,8 +186,8 @@ fn check_frame(
             disagreeing_pixels
         },
         pixels: images.mask.len() as u64,
-        surroundings: around,
-        surroundings_off_share: around.off_share,
+        surroundings: images.surroundings,
+        surroundings_off_share: images.surroundings.off_share,
         composited: images.composited != Composited::No,
     })
 }
