@@ -7,12 +7,6 @@
 //! moments, in place where the buffers are not shared. Its state is burn's `AdamState`, so
 //! checkpoints written with either optimizer load in the other; tensors off the Flex
 //! backend go through burn's Adam.
-//!
-//! Sparse (tiny-cuda-nn's rule for hash tables): an element whose gradient is exactly zero
-//! is left alone, moments included. A hash-table row that no sample of a step touched gets
-//! a zero gradient; burn's Adam would still move it for the next ~10 steps by the decaying
-//! first moment over the slower-decaying second, about ten times the rate in all after a
-//! single touch, so with a few hundred rays a step the fine levels fill with noise.
 
 use burn::backend::Flex;
 use burn::backend::flex::FlexTensor;
@@ -30,8 +24,6 @@ pub struct FusedAdam {
     beta_1: f32,
     beta_2: f32,
     epsilon: f32,
-    /// Elements with a zero gradient keep their value and moments (see the module doc).
-    sparse: bool,
     /// The same optimizer from burn, for tensors the fused pass cannot take.
     fallback: Adam,
 }
@@ -42,19 +34,12 @@ impl FusedAdam {
             beta_1,
             beta_2,
             epsilon,
-            sparse: false,
             fallback: AdamConfig::new()
                 .with_beta_1(beta_1)
                 .with_beta_2(beta_2)
                 .with_epsilon(epsilon)
                 .build(),
         }
-    }
-
-    /// This optimizer, leaving elements with a zero gradient alone when `sparse`.
-    pub fn with_sparse(mut self, sparse: bool) -> FusedAdam {
-        self.sparse = sparse;
-        self
     }
 
     /// Whether the fused pass takes these tensors: plain (not autodiff) f32 tensors on the
@@ -116,7 +101,6 @@ impl FusedAdam {
         let (b1, b2) = (self.beta_1, self.beta_2);
         let (f1, f2) = (1.0 - b1, 1.0 - b2);
         let lr = lr as f32;
-        let sparse = self.sparse;
         let g = grad.as_slice::<f32>().expect("a contiguous f32 gradient");
         // Copy-on-write: in place unless another tensor shares the buffer.
         let (p_s, m_s, v_s) = (
@@ -131,9 +115,6 @@ impl FusedAdam {
             .zip(g.par_chunks(CHUNK))
             .for_each(|(((p, m), v), g)| {
                 for (((p, m), v), &g) in p.iter_mut().zip(m).zip(v).zip(g) {
-                    if sparse && g == 0.0 {
-                        continue;
-                    }
                     *m = *m * b1 + g * f1;
                     *v = *v * b2 + g * g * f2;
                     let step = (*m * combined) / (v.sqrt() + eps);
@@ -228,37 +209,6 @@ mod tests {
                 );
             }
         }
-    }
-
-    /// Sparse: an element with a zero gradient keeps its value and moments; the others
-    /// step exactly as the dense rule does.
-    #[test]
-    fn sparse_leaves_untouched_elements_alone() {
-        let device = Device::flex();
-        let tensor = |v: Vec<f32>| Tensor::<1>::from_data(TensorData::new(v, [4]), &device);
-        let dense = FusedAdam::new(0.9, 0.99, 1e-15);
-        let sparse = dense.clone().with_sparse(true);
-        let run = |adam: &FusedAdam| {
-            let mut p = tensor(vec![1.0; 4]);
-            let mut state = None;
-            // Every element touched once, then only the first two.
-            for g in [vec![0.5, -0.5, 0.5, -0.5], vec![0.5, -0.5, 0.0, 0.0]] {
-                let (q, s) = adam.fused(1e-2, p, tensor(g), state);
-                (p, state) = (q, Some(s));
-            }
-            (host(&p), host(&state.unwrap().momentum.moment_1))
-        };
-        let (p_dense, m_dense) = run(&dense);
-        let (p_sparse, m_sparse) = run(&sparse);
-        // Touched every step: the same update.
-        assert_eq!(&p_sparse[..2], &p_dense[..2]);
-        assert_eq!(&m_sparse[..2], &m_dense[..2]);
-        // Untouched in the second step: one step of 1e-2 only, moments as after it.
-        assert!((p_sparse[2] - 0.99).abs() < 1e-6, "{p_sparse:?}");
-        assert!((p_sparse[3] - 1.01).abs() < 1e-6, "{p_sparse:?}");
-        assert!((m_sparse[2] - 0.05).abs() < 1e-7, "{m_sparse:?}");
-        // The dense rule kept moving them.
-        assert!(p_dense[2] < p_sparse[2] - 5e-3, "{p_dense:?}");
     }
 
     /// With nobody else holding them, the parameter and both moments are updated in

@@ -14,7 +14,6 @@ pub mod adam;
 pub mod checkpoint;
 pub mod error;
 pub mod field_inputs;
-pub mod footprint;
 mod grad_sum;
 pub mod grid_update;
 pub mod log;

@@ -68,26 +68,6 @@ pub struct TrainOptions {
     // Runs recorded before the option existed trained D_nr at the field's rate.
     #[serde(default = "one")]
     pub non_rigid_lr_scale: f64,
-    /// The hash grids' finest cell in pixel footprints (a training pixel's size at the
-    /// subject, the median over frames): levels finer than the images resolve learn noise
-    /// from a few hundred rays a step. 0: the preset's levels as they are.
-    #[arg(long, value_name = "PIXELS", default_value_t = TrainOptions::default().finest_cell_px)]
-    // Runs recorded before the option existed kept the preset's levels.
-    #[serde(default)]
-    pub finest_cell_px: f64,
-    /// Adam leaves a parameter element whose gradient is exactly zero alone, moments
-    /// included (tiny-cuda-nn's rule for hash tables): a table row no sample touched in a
-    /// step does not move. `false`: every element steps every time, as burn's Adam.
-    #[arg(long, value_name = "BOOL", default_value_t = TrainOptions::default().sparse_adam, action = clap::ArgAction::Set)]
-    // Runs recorded before the option existed stepped every element.
-    #[serde(default)]
-    pub sparse_adam: bool,
-    /// The posed-space skinning prior's temperature in millimetres (how far around where
-    /// two limbs' cores meet their weights blend); default: the preset's (5 mm).
-    #[arg(long, value_name = "MM")]
-    // Runs recorded before the option existed used the preset's.
-    #[serde(default)]
-    pub skinning_tau_mm: Option<f64>,
     /// Occupancy-grid update period in steps (0: never; accelerated sampler only).
     #[arg(long, default_value_t = TrainOptions::default().occ_every)]
     pub occ_every: u32,
@@ -281,9 +261,6 @@ impl Default for TrainOptions {
             bbox_fraction: 0.8,
             mask_weight: 0.0,
             non_rigid_lr_scale: 0.1,
-            finest_cell_px: 0.0,
-            sparse_adam: false,
-            skinning_tau_mm: None,
             occ_every: 64,
             grid_resolution: 128,
             perceptual: None,
@@ -335,17 +312,6 @@ impl TrainOptions {
         }
         if !(self.non_rigid_lr_scale.is_finite() && self.non_rigid_lr_scale > 0.0) {
             return bad("--non-rigid-lr-scale", "must be a positive number");
-        }
-        if !(self.finest_cell_px.is_finite() && self.finest_cell_px >= 0.0) {
-            return bad("--finest-cell-px", "must be a finite number >= 0");
-        }
-        if let Some(t) = self.skinning_tau_mm
-            && !(t.is_finite() && t > 0.0)
-        {
-            return bad(
-                "--skinning-tau-mm",
-                "must be a positive number of millimetres",
-            );
         }
         if !(0.0..=1.0).contains(&self.bbox_fraction) {
             return bad("--bbox-fraction", "must lie in [0, 1]");

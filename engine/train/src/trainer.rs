@@ -21,6 +21,7 @@ use crate::adam::FusedAdam;
 use crate::checkpoint::{Checkpoint, CheckpointContents, CheckpointError, path_json};
 use crate::error::TrainError;
 use crate::log::{LOG_FILE, StepLog, TrainLog};
+use crate::preset::Preset;
 use crate::rays::FrameCache;
 use crate::recipe::TrainOptions;
 use crate::refine::{PoseRefiner, RefineMode, RefinerState};
@@ -131,22 +132,8 @@ impl<'a> Trainer<'a> {
         config.use_d_hands = opts.ablation.use_d_hands;
         config.hand_background = opts.ablation.hand_background;
         config.face_uses_jaw = opts.ablation.face_uses_jaw;
-        if let Some(mm) = opts.skinning_tau_mm {
-            config.skinning.posed_tau = Some(mm * 1e-3);
-        }
         let subjects = fit_subjects(dataset, &frames, opts.grid_resolution)?;
         fit_field_box(&mut config, &subjects);
-        if opts.finest_cell_px > 0.0
-            && let Some(footprint) = crate::footprint::pixel_footprint_m(dataset, &frames)
-        {
-            let finest =
-                crate::footprint::limit_finest_cell(&mut config, footprint * opts.finest_cell_px);
-            tracing::info!(
-                "a training pixel spans {:.1} mm at the subject: the hash grids' finest \
-                 level is {finest:?} cells across the box",
-                footprint * 1e3
-            );
-        }
         let device = open_device(opts.device)?;
         let skeletons = subjects
             .iter()
@@ -336,7 +323,7 @@ impl<'a> Trainer<'a> {
             state.slot_of.clone(),
             log,
         )?;
-        t.optim = optimizer(&t.opts)
+        t.optim = optimizer(t.opts.preset)
             .from_bytes(Bytes::from_bytes_vec(optim_bytes))
             .map_err(|e| TrainError::Resume {
                 file: checkpoint.optimizer_file(),
@@ -442,7 +429,7 @@ impl<'a> Trainer<'a> {
             warmup_steps: 0,
             ..OccUpdateOpts::default()
         };
-        let optim = optimizer(&opts);
+        let optim = optimizer(opts.preset);
         let dataset_sha256 = dataset_sha256(dataset)?;
         let refiner = (opts.refine.refine_poses == RefineMode::On)
             .then(|| PoseRefiner::new(dataset, &frames, opts.refine.clone()));
@@ -683,11 +670,9 @@ fn same_dir(a: &Path, b: &Path) -> bool {
 }
 
 /// Adam with the preset's settings, fused into one pass per parameter ([`FusedAdam`]).
-fn optimizer(opts: &TrainOptions) -> ModuleOptimizer {
-    let a = opts.preset.adam();
-    ModuleOptimizer::from(
-        FusedAdam::new(a.beta_1, a.beta_2, a.epsilon).with_sparse(opts.sparse_adam),
-    )
+fn optimizer(preset: Preset) -> ModuleOptimizer {
+    let a = preset.adam();
+    ModuleOptimizer::from(FusedAdam::new(a.beta_1, a.beta_2, a.epsilon))
 }
 
 /// `on`, opened for training (with autodiff).
