@@ -10,7 +10,7 @@ use std::path::Path;
 use std::sync::OnceLock;
 
 use common::capture::{Capture, FLAWS, dilate};
-use common::cli::{import_ok, p, stderr, talkin};
+use common::cli::{import_args, import_ok, p, stderr, talkin};
 use common::layouts::{
     Clip, FramePixels, smplerx_args, write_humannerf_prepared, write_humannerf_wild,
     write_peoplesnapshot, write_smplerx,
@@ -220,15 +220,7 @@ fn humannerf_prepared_camera_frames_import_composited_by_their_masks() {
 fn humannerf_wild_camera_frames_import_composited_by_their_masks() {
     let (src, model) = write_humannerf_wild(camera_clip(), "capture_hn_wild");
     let out = common::temp_dir("capture_hn_wild_out").join("ds");
-    let got = import_ok(&[
-        "import",
-        "humannerf",
-        p(&src),
-        "--out",
-        p(&out),
-        "--body-model",
-        p(&model),
-    ]);
+    let got = import_ok(&import_args("humannerf", &src, &out, &model));
     check_camera_import(&got, &out, Stored::Png);
 }
 
@@ -236,15 +228,7 @@ fn humannerf_wild_camera_frames_import_composited_by_their_masks() {
 fn peoplesnapshot_camera_frames_import_composited_by_their_masks() {
     let (src, model) = write_peoplesnapshot(camera_clip(), "capture_ps");
     let out = common::temp_dir("capture_ps_out").join("ds");
-    let got = import_ok(&[
-        "import",
-        "peoplesnapshot",
-        p(&src),
-        "--out",
-        p(&out),
-        "--body-model",
-        p(&model),
-    ]);
+    let got = import_ok(&import_args("peoplesnapshot", &src, &out, &model));
     check_camera_import(&got, &out, Stored::Png);
 }
 

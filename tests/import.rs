@@ -10,7 +10,7 @@ mod common;
 use std::path::Path;
 use std::sync::OnceLock;
 
-use common::cli::{import_ok, p, stderr, talkin};
+use common::cli::{import_args, import_ok, p, stderr, talkin};
 use common::layouts::{
     Clip, SmplerxFixture, f32_array, f64_array, root_in_camera, smplerx_args,
     write_humannerf_prepared, write_humannerf_wild, write_model, write_peoplesnapshot,
@@ -135,15 +135,7 @@ fn humannerf_prepared_brings_back_poses_joints_and_cameras() {
     let model = src.join("SMPLX_TEST.npz");
     write_model(&model, &rest());
     let out = common::temp_dir("import_hn_zju_model").join("ds");
-    let got = import_ok(&[
-        "import",
-        "humannerf",
-        p(&src),
-        "--out",
-        p(&out),
-        "--body-model",
-        p(&model),
-    ]);
+    let got = import_ok(&import_args("humannerf", &src, &out, &model));
     assert_joints(&got.subjects[0].skeleton.rest_joints, &rest(), 1e-5);
     check_frames(&got, 0..22, false, 0.5);
 }
@@ -186,15 +178,7 @@ fn smplerx_brings_back_poses_joints_and_one_real_camera() {
 fn humannerf_wild_metadata_brings_back_poses_joints_and_cameras() {
     let (src, model) = write_humannerf_wild(clip(), "import_hn_meta");
     let out = common::temp_dir("import_hn_meta_out").join("ds");
-    let got = import_ok(&[
-        "import",
-        "humannerf",
-        p(&src),
-        "--out",
-        p(&out),
-        "--body-model",
-        p(&model),
-    ]);
+    let got = import_ok(&import_args("humannerf", &src, &out, &model));
     assert_joints(&got.subjects[0].skeleton.rest_joints, &rest(), 1e-5);
     check_frames(&got, 0..22, false, 0.5);
     for (g, w) in got.frames.iter().zip(scene_frames()) {
@@ -209,15 +193,7 @@ fn humannerf_wild_metadata_brings_back_poses_joints_and_cameras() {
 fn peoplesnapshot_brings_back_poses_joints_cameras_and_splits() {
     let (src, model) = write_peoplesnapshot(clip(), "import_ps");
     let out = common::temp_dir("import_ps_out").join("ds");
-    let got = import_ok(&[
-        "import",
-        "peoplesnapshot",
-        p(&src),
-        "--out",
-        p(&out),
-        "--body-model",
-        p(&model),
-    ]);
+    let got = import_ok(&import_args("peoplesnapshot", &src, &out, &model));
     assert_joints(&got.subjects[0].skeleton.rest_joints, &rest(), 1e-5);
     check_frames(&got, 0..22, false, 0.5);
     let n = got.frames.len();
@@ -231,15 +207,7 @@ fn peoplesnapshot_splits_yaml_places_the_rows_of_a_renamed_folder() {
     // Without poses.npz only the subject's yaml says which frames the rows belong to.
     std::fs::remove_file(src.join("poses.npz")).unwrap();
     let out = common::temp_dir("import_ps_yaml_out").join("ds");
-    let base = [
-        "import",
-        "peoplesnapshot",
-        p(&src),
-        "--out",
-        p(&out),
-        "--body-model",
-        p(&model),
-    ];
+    let base = import_args("peoplesnapshot", &src, &out, &model);
     import_fails(&base, &out, &["anim_nerf_train.npz", "--splits"]);
     let n = scene_frames().len();
     let yaml = common::temp_dir("import_ps_yaml_conf").join("subject.yaml");

@@ -22,6 +22,24 @@ pub fn p(path: &Path) -> &str {
     path.to_str().unwrap()
 }
 
+/// `import FORMAT SRC --out OUT --body-model MODEL`.
+pub fn import_args<'a>(
+    format: &'a str,
+    src: &'a Path,
+    out: &'a Path,
+    model: &'a Path,
+) -> Vec<&'a str> {
+    vec![
+        "import",
+        format,
+        p(src),
+        "--out",
+        p(out),
+        "--body-model",
+        p(model),
+    ]
+}
+
 /// Runs `talkin import`, which must succeed and write `import.json`, and loads the result.
 pub fn import_ok(args: &[&str]) -> Dataset {
     let out = talkin(args);
