@@ -7,6 +7,7 @@ use std::str::FromStr;
 
 use clap::{Arg, ArgMatches, Args, FromArgMatches};
 use serde::{Deserialize, Serialize};
+use talkin_data::dataset::{Dataset, Matting};
 use talkin_grids::SamplerKind;
 use talkin_nets::ComputeDevice;
 
@@ -16,6 +17,9 @@ use crate::refine::RefineOptions;
 
 /// Where `talkin lpips-weights` puts the converted LPIPS weights (a per-user cache).
 pub use talkin_nets::loss::DEFAULT_LPIPS_DIR;
+
+/// The widest mask edge `--mask-edge` takes (a wider one leaves thin limbs no rays).
+pub const MAX_MASK_EDGE_PX: u32 = 16;
 
 /// Everything a run is told.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, Args)]
@@ -60,6 +64,14 @@ pub struct TrainOptions {
     // Runs recorded before the term existed read as 0.
     #[serde(default)]
     pub mask_weight: f32,
+    /// Leave the mask's edge out of the random rays: pixels within PX of the mask's cut,
+    /// on either side, where a matting tool's mask is often a pixel or two off (Neural
+    /// Body leaves out 2 px). Default: 0 on a matted dataset (exact masks), and on a
+    /// `by_mask` one (camera frames) 1 px per 256 px of the frame's longer side, at least 1.
+    #[arg(long = "mask-edge", value_name = "PX")]
+    // Runs recorded before the option existed trained on every pixel.
+    #[serde(default = "every_pixel")]
+    pub mask_edge_px: Option<u32>,
     /// D_nr's learning rate as a fraction of the field's (HumanNeRF trains its non-rigid
     /// MLP at 0.1 of its rate): Adam moves every weight by about the rate per step
     /// whatever its gradient, and at the field's rate D_nr's start set a real capture's
@@ -100,6 +112,10 @@ pub struct TrainOptions {
 
 fn one() -> f64 {
     1.0
+}
+
+fn every_pixel() -> Option<u32> {
+    Some(0)
 }
 
 /// How long to train: `--steps N` or `--minutes M` on the command line.
@@ -260,6 +276,7 @@ impl Default for TrainOptions {
             lr: None,
             bbox_fraction: 0.8,
             mask_weight: 0.0,
+            mask_edge_px: None,
             non_rigid_lr_scale: 0.1,
             occ_every: 64,
             grid_resolution: 128,
@@ -281,6 +298,17 @@ impl TrainOptions {
     /// The perceptual term's weights directory, if the recipe has the term at all.
     pub fn perceptual_dir(&self) -> Option<&PathBuf> {
         self.perceptual.as_ref().filter(|_| self.patches > 0)
+    }
+
+    /// The mask edge left out of frame `i`'s random rays (`--mask-edge`), in pixels.
+    pub fn mask_edge_in(&self, dataset: &Dataset, i: usize) -> u32 {
+        self.mask_edge_px.unwrap_or_else(|| match dataset.matting {
+            Matting::Matted => 0,
+            Matting::ByMask => {
+                let camera = &dataset.frames[i].camera;
+                (camera.width.max(camera.height) as f32 / 256.0).round().max(1.0) as u32
+            }
+        })
     }
 
     /// Checks every option; errors name the flag as the user types it.
@@ -309,6 +337,14 @@ impl TrainOptions {
         }
         if !(self.mask_weight.is_finite() && self.mask_weight >= 0.0) {
             return bad("--mask-weight", "must be a finite number >= 0");
+        }
+        if let Some(px) = self.mask_edge_px
+            && px > MAX_MASK_EDGE_PX
+        {
+            return bad(
+                "--mask-edge",
+                &format!("must be at most {MAX_MASK_EDGE_PX} px"),
+            );
         }
         if !(self.non_rigid_lr_scale.is_finite() && self.non_rigid_lr_scale > 0.0) {
             return bad("--non-rigid-lr-scale", "must be a positive number");

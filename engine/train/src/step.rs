@@ -96,7 +96,8 @@ impl Trainer<'_> {
                 .model
                 .as_ref()
                 .expect("a trained subject has a model");
-            let cached = FrameCache::new(self.dataset, i, slot, model).map_err(|e| match e {
+            let mask_edge = self.opts.mask_edge_in(self.dataset, i);
+            let cached = FrameCache::new(self.dataset, i, slot, model, mask_edge).map_err(|e| match e {
                 CacheError::Dataset(e) => TrainError::Dataset(e),
                 CacheError::Grid(source) => grid_error(self.dataset, i, source),
             })?;

@@ -112,6 +112,27 @@ pub fn composite(rgb: &RgbImage, mask: &GrayImage, background: [f32; 3]) -> RgbI
     })
 }
 
+/// The mask's uncertain edge (row-major): pixels within `r` px (Chebyshev) of a pixel
+/// on the other side of the mask's 128 cut, on either side. A matting tool's mask is
+/// off by a pixel or two along its edge, so a target there may be the room or the
+/// background where the person is, or the reverse; Neural Body's loaders leave out the
+/// band between the mask dilated and eroded by a 5x5 kernel (`r` = 2). Empty for `r` = 0.
+pub fn mask_edge_band(mask: &GrayImage, r: u32) -> Vec<bool> {
+    if r == 0 {
+        return Vec::new();
+    }
+    let (w, h) = mask.dimensions();
+    let person: Vec<bool> = mask.iter().map(|&m| m >= 128).collect();
+    let outside: Vec<bool> = person.iter().map(|&p| !p).collect();
+    let near_person = dilate(&person, w, h, r);
+    let near_outside = dilate(&outside, w, h, r);
+    near_person
+        .into_iter()
+        .zip(near_outside)
+        .map(|(a, b)| a && b)
+        .collect()
+}
+
 /// `set` (row-major, `w` x `h`) grown by `r` px (Chebyshev): whether each pixel lies
 /// within `r` px of a set pixel.
 pub fn dilate(set: &[bool], w: u32, h: u32, r: u32) -> Vec<bool> {
@@ -137,6 +158,24 @@ pub fn dilate(set: &[bool], w: u32, h: u32, r: u32) -> Vec<bool> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn edge_band_lies_within_r_of_the_cut_on_both_sides() {
+        let (_, mask) = frame([0, 0, 0]);
+        assert!(mask_edge_band(&mask, 0).is_empty());
+        let band = mask_edge_band(&mask, 2);
+        let at = |x: usize, y: usize| band[y * 40 + x];
+        // The person is x, y in 15..25: its edge columns 15 and 24.
+        for x in 13..=16 {
+            assert!(at(x, 20), "x = {x} lies within 2 px of the cut");
+        }
+        assert!(!at(12, 20) && !at(17, 20) && !at(20, 20) && !at(0, 0));
+        assert!(at(23, 20) && at(26, 20) && !at(27, 20));
+        // An empty or a full mask has no edge.
+        assert!(!mask_edge_band(&GrayImage::new(8, 8), 2).contains(&true));
+        let full = GrayImage::from_pixel(8, 8, image::Luma([255]));
+        assert!(!mask_edge_band(&full, 2).contains(&true));
+    }
 
     /// A 40x40 frame: a 10x10 person at (15, 15) over `bg` (8-bit), its exact mask.
     fn frame(bg: [u8; 3]) -> (RgbImage, GrayImage) {

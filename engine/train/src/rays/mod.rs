@@ -4,6 +4,10 @@
 use talkin_grids::{GridError, Ray};
 use talkin_nets::FrameConditions;
 
+mod pool;
+
+pub(crate) use pool::PixelPool;
+
 use crate::field_inputs::frame_conditions;
 use crate::rng::SplitMix64;
 use crate::scene::{FrameSampler, FrameScene};
@@ -14,18 +18,12 @@ use talkin_human::body::FrameParams;
 
 /// Side of an LPIPS patch (pixels).
 pub const PATCH: u32 = 32;
-/// Segmentation labels of arms and hands.
-const LABEL_ARMS: u8 = 2;
-const LABEL_HANDS: u8 = 3;
 
 /// A training frame's decoded images, pixel lists and sampler (built once per frame).
 pub(crate) struct FrameCache {
     pub images: FrameImages,
-    /// Person bounding box in pixels, inclusive (`None`: empty mask).
-    pub bbox: Option<[u32; 4]>,
-    /// Pixels labelled hands / arms.
-    pub hand_pixels: Vec<(u32, u32)>,
-    pub arm_pixels: Vec<(u32, u32)>,
+    /// Where its random rays come from.
+    pub pixels: PixelPool,
     pub conditions: FrameConditions,
     pub sampler: FrameSampler,
     /// The person's pixel rays (the accelerated step is measured on them).
@@ -43,44 +41,33 @@ pub(crate) enum CacheError {
 
 impl FrameCache {
     /// Frame `i` of `dataset`, its subject being identity `slot` with `model`, posed as
-    /// its fit.
+    /// its fit; random rays stay `mask_edge` px off the mask's cut.
     pub fn new(
         dataset: &Dataset,
         i: usize,
         slot: usize,
         model: &SubjectModel,
+        mask_edge: u32,
     ) -> Result<FrameCache, CacheError> {
         let frame = &dataset.frames[i];
         let images = dataset.images(i).map_err(CacheError::Dataset)?;
         let scene = FrameScene::new(&model.skeleton, &model.canonical, &frame.params);
-        let mut bbox: Option<[u32; 4]> = None;
         let mut rays = Vec::new();
-        let (mut hand_pixels, mut arm_pixels) = (Vec::new(), Vec::new());
         for (x, y, m) in images.mask.enumerate_pixels() {
             if m.0[0] < 128 {
                 continue;
-            }
-            bbox = Some(match bbox {
-                None => [x, y, x, y],
-                Some([x0, y0, x1, y1]) => [x0.min(x), y0.min(y), x1.max(x), y1.max(y)],
-            });
-            match images.segmentation.get_pixel(x, y).0[0] {
-                LABEL_HANDS => hand_pixels.push((x, y)),
-                LABEL_ARMS => arm_pixels.push((x, y)),
-                _ => {}
             }
             let (o, d) = frame.camera.pixel_ray(x, y);
             rays.push(
                 Ray::new(o.as_vec3(), d.as_vec3(), 0.0, f32::INFINITY).map_err(CacheError::Grid)?,
             );
         }
+        let pixels = PixelPool::new(&images.mask, &images.segmentation, mask_edge);
         let conditions = frame_conditions(slot, &frame.params, &scene, &model.shells);
         let sampler = FrameSampler::new(scene, &model.shells, &rays).map_err(CacheError::Grid)?;
         Ok(FrameCache {
             images,
-            bbox,
-            hand_pixels,
-            arm_pixels,
+            pixels,
             conditions,
             sampler,
             foreground_rays: rays,
@@ -127,7 +114,8 @@ pub(crate) struct BatchSpec {
 /// Draws `spec.patches` 32x32 patches overlapping the person's box, then
 /// `spec.random_rays` pixels: `bbox_fraction` of them in the person's box, of which
 /// `parts.hands` from hand pixels and `parts.arms` from arm pixels (when the frame has
-/// any), the rest anywhere in the image.
+/// any), the rest anywhere in the image. A random ray on the mask's edge is drawn again
+/// (the patches are kept whole: LPIPS compares whole patches).
 pub(crate) fn draw_batch(
     dataset: &Dataset,
     i: usize,
@@ -144,7 +132,7 @@ pub(crate) fn draw_batch(
         0
     };
     for _ in 0..patches {
-        let [x0, y0, x1, y1] = fc.bbox.unwrap_or([0, 0, w - 1, h - 1]);
+        let [x0, y0, x1, y1] = fc.pixels.bbox.unwrap_or([0, 0, w - 1, h - 1]);
         // A patch centre in the box; the patch is clamped into the image.
         let cx = x0 + rng.below(u64::from(x1 - x0 + 1)) as u32;
         let cy = y0 + rng.below(u64::from(y1 - y0 + 1)) as u32;
@@ -156,29 +144,8 @@ pub(crate) fn draw_batch(
             }
         }
     }
-    let pick =
-        |list: &[(u32, u32)], rng: &mut SplitMix64| list[rng.below(list.len() as u64) as usize];
     for _ in 0..spec.random_rays {
-        let pixel = match fc.bbox {
-            Some([x0, y0, x1, y1]) if rng.next_f32() < spec.bbox_fraction => {
-                let u = rng.next_f32();
-                if u < spec.parts.hands && !fc.hand_pixels.is_empty() {
-                    pick(&fc.hand_pixels, rng)
-                } else if u < spec.parts.hands + spec.parts.arms && !fc.arm_pixels.is_empty() {
-                    pick(&fc.arm_pixels, rng)
-                } else {
-                    (
-                        x0 + rng.below(u64::from(x1 - x0 + 1)) as u32,
-                        y0 + rng.below(u64::from(y1 - y0 + 1)) as u32,
-                    )
-                }
-            }
-            _ => (
-                rng.below(u64::from(w)) as u32,
-                rng.below(u64::from(h)) as u32,
-            ),
-        };
-        pixels.push(pixel);
+        pixels.push(fc.pixels.draw(spec, rng));
     }
     let mut batch = Batch {
         rays: Vec::with_capacity(pixels.len()),
@@ -203,3 +170,4 @@ pub(crate) fn draw_batch(
     }
     Ok(batch)
 }
+
