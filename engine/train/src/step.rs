@@ -97,10 +97,11 @@ impl Trainer<'_> {
                 .as_ref()
                 .expect("a trained subject has a model");
             let mask_edge = self.opts.mask_edge_in(self.dataset, i);
-            let cached = FrameCache::new(self.dataset, i, slot, model, mask_edge).map_err(|e| match e {
-                CacheError::Dataset(e) => TrainError::Dataset(e),
-                CacheError::Grid(source) => grid_error(self.dataset, i, source),
-            })?;
+            let cached =
+                FrameCache::new(self.dataset, i, slot, model, mask_edge).map_err(|e| match e {
+                    CacheError::Dataset(e) => TrainError::Dataset(e),
+                    CacheError::Grid(source) => grid_error(self.dataset, i, source),
+                })?;
             entry.insert(cached);
         }
         Ok(i)

@@ -170,4 +170,3 @@ pub(crate) fn draw_batch(
     }
     Ok(batch)
 }
-

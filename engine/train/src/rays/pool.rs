@@ -93,9 +93,8 @@ impl PixelPool {
     /// One random pixel: in the person's box with odds `spec.bbox_fraction` (from the
     /// hand or arm pixels at the schedule's fractions), else anywhere in the image.
     fn draw_any(&self, spec: &BatchSpec, rng: &mut SplitMix64) -> (u32, u32) {
-        let pick = |list: &[(u32, u32)], rng: &mut SplitMix64| {
-            list[rng.below(list.len() as u64) as usize]
-        };
+        let pick =
+            |list: &[(u32, u32)], rng: &mut SplitMix64| list[rng.below(list.len() as u64) as usize];
         match self.bbox {
             Some([x0, y0, x1, y1]) if rng.next_f32() < spec.bbox_fraction => {
                 let u = rng.next_f32();
