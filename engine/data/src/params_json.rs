@@ -55,7 +55,7 @@ impl ParamsJson for FrameParams {
             N_EXPRESSION,
         )?;
         p.expression.copy_from_slice(&e[..N_EXPRESSION]);
-        check_limits(&p, path)?;
+        check_param_limits(&p, path)?;
         Ok(p)
     }
 
@@ -99,15 +99,21 @@ pub fn expression_count(v: &Value) -> Option<usize> {
     v.get("expression").and_then(Value::as_array).map(Vec::len)
 }
 
-/// Every value of `p` within [`PARAM_LIMIT`]; the error names the element.
-fn check_limits(p: &FrameParams, path: &str) -> Result<(), ShapeError> {
+/// Every value of `p` finite and within [`PARAM_LIMIT`]; the error names the element
+/// (`path.body_pose[3][1]`). Parsing checks it; a pose from elsewhere (a motion file)
+/// is checked with it.
+pub fn check_param_limits(p: &FrameParams, path: &str) -> Result<(), ShapeError> {
     let too_big = |name: String, x: f64| ShapeError {
         field: format!("{path}.{name}"),
         expected: format!("a value within +-{PARAM_LIMIT} (radians, expression units or metres)"),
         found: format!("the number {x}"),
     };
     let vec3 = |name: &str, v: DVec3| -> Result<(), ShapeError> {
-        match v.to_array().iter().position(|x| x.abs() > PARAM_LIMIT) {
+        match v
+            .to_array()
+            .iter()
+            .position(|x| x.is_nan() || x.abs() > PARAM_LIMIT)
+        {
             Some(k) => Err(too_big(format!("{name}[{k}]"), v[k])),
             None => Ok(()),
         }
@@ -125,7 +131,11 @@ fn check_limits(p: &FrameParams, path: &str) -> Result<(), ShapeError> {
     rows("left_hand_pose", &p.left_hand_pose)?;
     rows("right_hand_pose", &p.right_hand_pose)?;
     vec3("transl", p.transl)?;
-    match p.expression.iter().position(|x| x.abs() > PARAM_LIMIT) {
+    match p
+        .expression
+        .iter()
+        .position(|x| x.is_nan() || x.abs() > PARAM_LIMIT)
+    {
         Some(k) => Err(too_big(format!("expression[{k}]"), p.expression[k])),
         None => Ok(()),
     }

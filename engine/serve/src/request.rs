@@ -9,13 +9,11 @@ use super::error::RequestError;
 use super::subjects::ServedSubject;
 use talkin_data::dataset::parse_camera;
 use talkin_data::json_shape::{self, ShapeError};
-use talkin_data::params_json::ParamsJson;
+use talkin_data::params_json::{ParamsJson, check_param_limits};
 use talkin_human::body::FrameParams;
 use talkin_human::camera::{Camera, MAX_SIDE};
 
-/// Largest magnitude of any pose, expression or translation value. Anything beyond is not
-/// a pose (radians, coefficients in a few units, metres) and would only overflow f32.
-pub const PARAM_LIMIT: f64 = 1e3;
+pub use talkin_data::params_json::PARAM_LIMIT;
 
 /// Farthest a request camera's centre may be from the world origin (metres). The figure
 /// stands within a few metres of it: a camera beyond sees nothing and, far enough out,
@@ -345,47 +343,10 @@ fn resized(camera: &Camera, width: u32, height: u32) -> Result<Camera, RequestEr
 
 /// One dataset `params` object at `path`, every value within [`PARAM_LIMIT`].
 fn params(v: &Value, path: &str) -> Result<FrameParams, RequestError> {
-    let p = FrameParams::from_json(v, path)?;
-    check_params(&p, path)?;
-    Ok(p)
+    Ok(FrameParams::from_json(v, path)?)
 }
 
 /// Refuses a frame with a value beyond [`PARAM_LIMIT`] (or NaN), naming `path.<field>[i]`.
 pub(crate) fn check_params(p: &FrameParams, path: &str) -> Result<(), RequestError> {
-    let vec3 = |name: &str, x: glam::DVec3| check(&format!("{path}.{name}"), &x.to_array());
-    let rows = |name: &str, r: &[glam::DVec3]| -> Result<(), RequestError> {
-        for (i, x) in r.iter().enumerate() {
-            check(&format!("{path}.{name}[{i}]"), &x.to_array())?;
-        }
-        Ok(())
-    };
-    vec3("global_orient", p.global_orient)?;
-    rows("body_pose", &p.body_pose)?;
-    vec3("jaw_pose", p.jaw_pose)?;
-    vec3("leye_pose", p.leye_pose)?;
-    vec3("reye_pose", p.reye_pose)?;
-    rows("left_hand_pose", &p.left_hand_pose)?;
-    rows("right_hand_pose", &p.right_hand_pose)?;
-    check(&format!("{path}.expression"), &p.expression)?;
-    vec3("transl", p.transl)
-}
-
-fn check(field: &str, values: &[f64]) -> Result<(), RequestError> {
-    match values
-        .iter()
-        .position(|x| x.is_nan() || x.abs() > PARAM_LIMIT)
-    {
-        Some(i) => {
-            let field = format!("{field}[{i}]");
-            Err(RequestError::invalid(
-                field.clone(),
-                format!(
-                    "field `{field}`: {} is beyond the {PARAM_LIMIT} any pose, expression or \
-                     translation value may have",
-                    values[i]
-                ),
-            ))
-        }
-        None => Ok(()),
-    }
+    Ok(check_param_limits(p, path)?)
 }
