@@ -145,6 +145,27 @@ pub fn tile(tiles: &[RgbImage], columns: usize, gap: u32, background: [u8; 3]) -
     sheet
 }
 
+/// A contact sheet: `tiles` brought to the first one's size, in a near-square grid with
+/// 4 px dark gaps (a 1x1 image for no tiles).
+pub fn contact_grid(tiles: Vec<RgbImage>) -> RgbImage {
+    let Some(first) = tiles.first() else {
+        return RgbImage::new(1, 1);
+    };
+    let (w, h) = first.dimensions();
+    let tiles: Vec<RgbImage> = tiles
+        .into_iter()
+        .map(|t| {
+            if t.dimensions() == (w, h) {
+                t
+            } else {
+                image::imageops::resize(&t, w, h, image::imageops::FilterType::Triangle)
+            }
+        })
+        .collect();
+    let columns = (tiles.len() as f64).sqrt().ceil() as usize;
+    tile(&tiles, columns.max(1), 4, [24, 24, 24])
+}
+
 /// A colour map for error heat maps: 0 -> black, 1 -> white through red and yellow.
 pub fn heat(v: f32) -> [u8; 3] {
     let v = if v.is_finite() {

@@ -42,22 +42,7 @@ pub fn overlay_sheet(
         .iter()
         .map(|&i| overlay_tile(dataset, summary, i))
         .collect::<Result<Vec<_>, _>>()?;
-    let Some(first) = tiles.first() else {
-        return Ok(RgbImage::new(1, 1));
-    };
-    let (w, h) = first.dimensions();
-    let tiles: Vec<RgbImage> = tiles
-        .into_iter()
-        .map(|t| {
-            if t.dimensions() == (w, h) {
-                t
-            } else {
-                image::imageops::resize(&t, w, h, image::imageops::FilterType::Triangle)
-            }
-        })
-        .collect();
-    let columns = (tiles.len() as f64).sqrt().ceil() as usize;
-    Ok(draw::tile(&tiles, columns.max(1), 4, [24, 24, 24]))
+    Ok(draw::contact_grid(tiles))
 }
 
 /// One frame: the image file as it is (not composited: the fit is judged against what

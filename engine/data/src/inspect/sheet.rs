@@ -23,20 +23,7 @@ pub fn contact_sheet(
         .iter()
         .map(|&i| tile(dataset, i))
         .collect::<Result<Vec<_>, _>>()?;
-    // Tiles of different sizes are brought to the first one's size.
-    let (w, h) = (tiles[0].width(), tiles[0].height());
-    let tiles: Vec<RgbImage> = tiles
-        .into_iter()
-        .map(|t| {
-            if t.dimensions() == (w, h) {
-                t
-            } else {
-                image::imageops::resize(&t, w, h, image::imageops::FilterType::Triangle)
-            }
-        })
-        .collect();
-    let columns = (tiles.len() as f64).sqrt().ceil() as usize;
-    Ok((draw::tile(&tiles, columns.max(1), 4, [24, 24, 24]), chosen))
+    Ok((draw::contact_grid(tiles), chosen))
 }
 
 fn pick_frames(dataset: &Dataset, max_frames: usize) -> Vec<usize> {
