@@ -10,6 +10,7 @@ pub mod device;
 pub mod error;
 pub mod noisy_fits;
 pub mod novel_identity;
+mod plot_style;
 pub mod sampling;
 pub mod shared;
 pub mod speed_vs_error;

@@ -5,13 +5,14 @@ use image::RgbImage;
 use plotters::prelude::*;
 
 use super::Level;
+use crate::plot_style::{font_ready, labelled_line, legend};
 
 const W: u32 = 900;
 const H: u32 = 400;
 
 /// Errors are plotters' drawing errors, as text.
 pub fn plot_levels(levels: &[Level]) -> Result<RgbImage, String> {
-    if !crate::speed_vs_error::plot::font_ready() {
+    if !font_ready() {
         return Err("the plot's font (DejaVu Sans) could not be loaded".into());
     }
     let x_max = levels.iter().map(|l| l.noise_deg).fold(1.0, f64::max) * 1.05;
@@ -81,25 +82,9 @@ pub fn plot_levels(levels: &[Level]) -> Result<RgbImage, String> {
                     .map(|l| pick(l)[k])
                     .filter(|p| p.1.is_finite())
                     .collect();
-                chart
-                    .draw_series(LineSeries::new(pts.clone(), colour.stroke_width(2)))
-                    .map_err(e)?
-                    .label(name)
-                    .legend(move |(x, y)| {
-                        PathElement::new([(x, y), (x + 24, y)], colour.stroke_width(2))
-                    });
-                chart
-                    .draw_series(pts.iter().map(|p| Circle::new(*p, 3, colour.filled())))
-                    .map_err(e)?;
+                labelled_line(&mut chart, name, colour, &pts)?;
             }
-            chart
-                .configure_series_labels()
-                .position(SeriesLabelPosition::UpperRight)
-                .label_font(("sans-serif", 13))
-                .background_style(WHITE.mix(0.9))
-                .border_style(BLACK)
-                .draw()
-                .map_err(e)?;
+            legend(&mut chart, SeriesLabelPosition::UpperRight, 13)?;
         }
         root.present().map_err(e)?;
     }

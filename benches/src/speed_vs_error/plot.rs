@@ -3,11 +3,10 @@
 //! the untrained start at 0 s is left off), each target PSNR as a dashed level, labelled
 //! axes and a legend. Text is DejaVu Sans from the `dejavu` crate: no system fonts.
 
-use std::sync::OnceLock;
-
 use image::RgbImage;
 use plotters::prelude::*;
-use plotters::style::{FontStyle, register_font};
+
+use crate::plot_style::{font_ready, labelled_line, legend};
 
 const W: u32 = 760;
 const H: u32 = 460;
@@ -17,14 +16,6 @@ pub type Curve<'a> = (&'a str, [u8; 3], Vec<(f64, f64)>);
 
 /// The colour of the target levels.
 pub const TARGET_COLOUR: [u8; 3] = [120, 120, 120];
-
-/// Registers DejaVu Sans as plotters' "sans-serif" once; false if it could not be.
-pub(crate) fn font_ready() -> bool {
-    static READY: OnceLock<bool> = OnceLock::new();
-    *READY.get_or_init(|| {
-        register_font("sans-serif", FontStyle::Normal, dejavu::sans::regular()).is_ok()
-    })
-}
 
 /// `targets`: PSNRs drawn as dashed levels. Errors are plotters' drawing errors, as text.
 pub fn plot_psnr_vs_seconds(curves: &[Curve], targets: &[f64]) -> Result<RgbImage, String> {
@@ -110,25 +101,9 @@ pub fn plot_psnr_vs_seconds(curves: &[Curve], targets: &[f64]) -> Result<RgbImag
         for (name, [r, g, b], pts) in curves {
             let colour = RGBColor(*r, *g, *b);
             let pts = finite(pts);
-            chart
-                .draw_series(LineSeries::new(pts.clone(), colour.stroke_width(2)))
-                .map_err(e)?
-                .label(*name)
-                .legend(move |(x, y)| {
-                    PathElement::new([(x, y), (x + 24, y)], colour.stroke_width(2))
-                });
-            chart
-                .draw_series(pts.iter().map(|p| Circle::new(*p, 3, colour.filled())))
-                .map_err(e)?;
+            labelled_line(&mut chart, name, colour, &pts)?;
         }
-        chart
-            .configure_series_labels()
-            .position(SeriesLabelPosition::LowerRight)
-            .label_font(("sans-serif", 15))
-            .background_style(WHITE.mix(0.9))
-            .border_style(BLACK)
-            .draw()
-            .map_err(e)?;
+        legend(&mut chart, SeriesLabelPosition::LowerRight, 15)?;
         root.present().map_err(e)?;
     }
     RgbImage::from_raw(W, H, buffer).ok_or_else(|| "plot buffer of the wrong size".into())
