@@ -14,7 +14,7 @@ use talkin_nets::field::{
     FieldConfig, FieldInput, FrameConditions, HAND_POSE_DIM, PART_BIT_HANDS, PART_BIT_HEAD,
 };
 use talkin_nets::render::OwnedRaySamples;
-use talkin_nets::skinning::{BoneSegment, N_BODY_JOINTS};
+use talkin_nets::skinning::{N_BODY_JOINTS, ladder_prior};
 
 #[global_allocator]
 static ALLOC: mimalloc::MiMalloc = mimalloc::MiMalloc;
@@ -79,19 +79,6 @@ fn batch(rays: usize, per_ray: usize) -> Batch {
     b
 }
 
-fn prior() -> Vec<BoneSegment> {
-    (0..N_BODY_JOINTS)
-        .map(|j| {
-            let y = -1.2 + j as f32 * 0.1;
-            BoneSegment {
-                bone: j,
-                a: [-0.3, y, 0.0],
-                b: [0.3, y + 0.05, 0.0],
-            }
-        })
-        .collect()
-}
-
 fn frame() -> FrameConditions {
     let mut t = [0.0f32; 16];
     for i in 0..4 {
@@ -127,7 +114,7 @@ fn run(device: &Device, device_name: &str, preset: &str, b: &Batch, iters: usize
         step: 1 << 30,
     };
 
-    let field = cfg.init(&prior(), device).expect("field");
+    let field = cfg.init(&ladder_prior(), device).expect("field");
     let warm = field.forward(&input).expect("forward");
     let stats = warm.stats;
     let start = Instant::now();
@@ -139,7 +126,7 @@ fn run(device: &Device, device_name: &str, preset: &str, b: &Batch, iters: usize
 
     let ad = device.clone().autodiff();
     ad.seed(17);
-    let mut field = cfg.init(&prior(), &ad).expect("field");
+    let mut field = cfg.init(&ladder_prior(), &ad).expect("field");
     let mut optim = AdamConfig::new().init();
     let r = b.samples.offsets.len() - 1;
     let target = Tensor::<2>::full([r, 3], 0.5, &ad);

@@ -85,6 +85,22 @@ pub struct BoneSegment {
     pub b: [f32; 3],
 }
 
+/// A made-up prior for tests and benches, not a body: one horizontal segment per body
+/// bone, 9 cm apart upwards from 1 m below the origin, inside the unit box.
+#[doc(hidden)]
+pub fn ladder_prior() -> Vec<BoneSegment> {
+    (0..N_BODY_JOINTS)
+        .map(|b| {
+            let y = -1.0 + b as f32 * 0.09;
+            BoneSegment {
+                bone: b,
+                a: [-0.3, y, 0.0],
+                b: [0.3, y + 0.05, 0.0],
+            }
+        })
+        .collect()
+}
+
 /// A solid core of body bone `bone` in the posed (observation) frame: the posed-space
 /// prior's geometry (see the module docs).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -481,19 +497,6 @@ mod tests {
             .collect()
     }
 
-    fn prior() -> Vec<BoneSegment> {
-        (0..N_BODY_JOINTS)
-            .map(|b| {
-                let y = -0.8 + b as f32 * 0.07;
-                BoneSegment {
-                    bone: b,
-                    a: [-0.2, y, 0.0],
-                    b: [0.2, y + 0.05, 0.1],
-                }
-            })
-            .collect()
-    }
-
     #[test]
     fn ancestors_and_candidates() {
         assert_eq!(body_ancestor(22), HEAD_JOINT);
@@ -514,7 +517,7 @@ mod tests {
         let device = Device::flex();
         let vol = SkinningConfig::new()
             .with_resolution(8)
-            .init([-1.0; 3], [1.0; 3], &prior(), &device)
+            .init([-1.0; 3], [1.0; 3], &ladder_prior(), &device)
             .unwrap();
         let t = identity_transforms();
         let pts = [[0.1f32, 0.2, 0.3], [0.0, 0.0, 0.0]];
@@ -537,7 +540,7 @@ mod tests {
         let vol = SkinningConfig::new()
             .with_resolution(8)
             .with_posed_tau(Some(0.005))
-            .init([-1.0; 3], [1.0; 3], &prior(), &device)
+            .init([-1.0; 3], [1.0; 3], &ladder_prior(), &device)
             .unwrap();
         let (chest, forearm) = (9, 18);
         let mut t = identity_transforms();
@@ -587,7 +590,7 @@ mod tests {
         let bad_tau = SkinningConfig::new().with_posed_tau(Some(0.0)).init(
             [-1.0; 3],
             [1.0; 3],
-            &prior(),
+            &ladder_prior(),
             &device,
         );
         assert!(matches!(
@@ -600,7 +603,7 @@ mod tests {
         let vol = SkinningConfig::new()
             .with_resolution(4)
             .with_posed_tau(Some(0.01))
-            .init([-1.0; 3], [1.0; 3], &prior(), &device)
+            .init([-1.0; 3], [1.0; 3], &ladder_prior(), &device)
             .unwrap();
         let t = identity_transforms();
         let capsule = |bone: usize, radius: f32| BoneCapsule {
@@ -669,7 +672,7 @@ mod tests {
             .with_resolution(6)
             .with_prior_sigma(0.3)
             .with_posed_tau(posed_tau)
-            .init([-1.0; 3], [1.0; 3], &prior(), &device)
+            .init([-1.0; 3], [1.0; 3], &ladder_prior(), &device)
             .unwrap();
         if posed_tau.is_some() {
             // A non-zero volume, so both terms of the logits are exercised.

@@ -46,8 +46,9 @@ mod tests {
 
     use burn::module::{ModuleVisitor, ParamId};
 
-    use super::super::tests::{prior, tiny_fast};
+    use super::super::tests::tiny_fast;
     use super::*;
+    use crate::skinning::ladder_prior;
 
     /// A trained parameter that gets no gradient (D_nr before its start step) keeps its
     /// leaf for thousands of steps. Forking beside it must not make each backward slower:
@@ -116,7 +117,7 @@ mod tests {
             p.0
         };
         let device = Device::flex().autodiff();
-        let field = tiny_fast().init(&prior(), &device).unwrap();
+        let field = tiny_fast().init(&ladder_prior(), &device).unwrap();
         let (a, b) = (params(&field), params(&field.fork_leaves()));
         assert!(
             a.len() > 10 && a.iter().all(|p| p.2),

@@ -139,10 +139,11 @@ pub fn zero_grads(pose_dim: usize) -> PoseGrads {
 
 #[cfg(test)]
 mod tests {
-    use super::super::tests::{batch, force_body, frame, prior, tiny_fast};
+    use super::super::tests::{batch, force_body, frame, tiny_fast};
     use super::*;
     use crate::FieldInput;
     use crate::field::{PART_BIT_HANDS, PART_BIT_HEAD};
+    use crate::skinning::ladder_prior;
 
     /// Through the leaves the field gives the host path's outputs, and the skinning
     /// transforms' gradient is the chain rule's: with one candidate bone the warp is rigid,
@@ -162,7 +163,7 @@ mod tests {
             0.0, 0.0, 1.0, 0.05, //
             0.0, 0.0, 0.0, 1.0,
         ];
-        let mut field = tiny_fast().init(&prior(), &device).unwrap();
+        let mut field = tiny_fast().init(&ladder_prior(), &device).unwrap();
         // Every sample is labelled head: the face net sees them all.
         force_body(&mut field, [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 5.0]);
         let input = FieldInput {

@@ -1,5 +1,5 @@
 //! Hard routing of samples to F_face and F_hands: a sample goes to a part's net when the
-//! BVH made it a candidate of the part (host data) and F_body's segmentation labels it
+//! sampler's capsules made it a candidate of the part (host data) and F_body's segmentation labels it
 //! that part (a device tensor).
 //!
 //! Two ways to read the labels, with the same outputs and gradients:
