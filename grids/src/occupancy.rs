@@ -412,6 +412,8 @@ impl OccupancyGrid {
                 density_fn(&points)
             })
             .collect();
+        // Every chunk is checked before any cell changes: a bad chunk leaves the grid as it
+        // was.
         for (batch, density) in batches.iter().zip(&densities) {
             if density.len() != batch.len() {
                 return Err(GridError::LengthMismatch {
@@ -426,6 +428,8 @@ impl OccupancyGrid {
                     index: batch[bad],
                 });
             }
+        }
+        for (batch, density) in batches.iter().zip(&densities) {
             for (&i, &d) in batch.iter().zip(density) {
                 self.occupancy[i] = (self.occupancy[i] * opts.ema_decay).max(d);
             }
@@ -689,6 +693,16 @@ mod tests {
             g.update(0, |p| vec![f32::NAN; p.len()], &opts),
             Err(GridError::NonFiniteValue { .. })
         ));
+        // A bad chunk after good ones: the grid is left exactly as it was.
+        let small_chunks = OccUpdateOpts { chunk: 8, ..opts };
+        let before = (g.occupancy().to_vec(), g.bitfield().to_vec());
+        let last_bad = |p: &[Vec3]| {
+            p.iter()
+                .map(|q| if q.x > 0.4 { f32::NAN } else { 100.0 })
+                .collect()
+        };
+        assert!(g.update(0, last_bad, &small_chunks).is_err());
+        assert_eq!((g.occupancy().to_vec(), g.bitfield().to_vec()), before);
     }
 
     #[test]
