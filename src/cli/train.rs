@@ -6,7 +6,7 @@ use anyhow::Context;
 use clap::parser::ValueSource;
 use clap::{ArgMatches, FromArgMatches};
 pub use talkin_train::DEFAULT_LPIPS_DIR;
-use talkin_train::{StepLog, TrainOptions, Trainer, existing_run};
+use talkin_train::{Budget, DEVICE_ARG, StepLog, TrainOptions, Trainer, existing_run};
 
 use crate::progress::Progress;
 
@@ -47,15 +47,17 @@ pub struct GivenFlags {
 
 impl FromArgMatches for GivenFlags {
     fn from_arg_matches(m: &ArgMatches) -> Result<Self, clap::Error> {
-        // `--device` is where a run trains, not what it trains: a resume takes it too.
-        let own = ["data", "out", "resume", "force", "run", "subject", "device"];
+        // The command's own flags (`train`'s, and `adapt`'s `--run` and `--subject`).
+        let own = [
+            "data", "out", "resume", "force", "run", "subject", DEVICE_ARG,
+        ];
         let given = |id: &str| m.value_source(id) == Some(ValueSource::CommandLine);
         Ok(GivenFlags {
-            budget: given("steps") || given("minutes"),
+            budget: Budget::ARGS.into_iter().any(given),
             other: m
                 .ids()
                 .map(|id| id.as_str())
-                .filter(|id| !own.contains(id) && *id != "steps" && *id != "minutes")
+                .filter(|id| !own.contains(id) && !Budget::ARGS.contains(id))
                 .any(given),
         })
     }

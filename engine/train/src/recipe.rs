@@ -25,42 +25,43 @@ pub const MAX_MASK_EDGE_PX: u32 = 16;
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, Args)]
 pub struct TrainOptions {
     /// Field preset: `fast` (hash grid, small MLPs) or `paper` (8x256 MLPs).
-    #[arg(long, value_enum, default_value_t = Preset::Fast)]
+    #[arg(long, value_enum, default_value_t = Preset::Fast, help_heading = "Model and device")]
     pub preset: Preset,
     /// Where the field trains: `cpu`, or `wgpu` / `wgpu:N` (a GPU; builds with the `wgpu`
     /// feature). Not part of the recipe: a run resumes, renders and serves on any device.
-    #[arg(long, default_value_t = ComputeDevice::Cpu)]
+    #[arg(long, default_value_t = ComputeDevice::Cpu, help_heading = "Model and device")]
     // Runs recorded before the option existed trained on the CPU.
     #[serde(default)]
     pub device: ComputeDevice,
-    /// Sampler: `accelerated` (capsule BVH + occupancy grid) or `dense` (128 per ray).
-    #[arg(long, default_value_t = SamplerKind::Accelerated)]
+    /// Sampler: `accelerated` (exact capsule intervals + occupancy grid) or `dense` (128
+    /// per ray).
+    #[arg(long, default_value_t = SamplerKind::Accelerated, help_heading = "Model and device")]
     pub sampler: SamplerKind,
-    #[command(flatten)]
+    #[command(flatten, next_help_heading = "Run")]
     pub budget: Budget,
     /// Seed of the initialisation, the frame and ray choice and the sample jitter.
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, default_value_t = 0, help_heading = "Run")]
     pub seed: u64,
     /// Subjects to train on: `all` (every subject with training frames) or a
     /// comma-separated list of names.
-    #[arg(long, default_value_t = Identities::All)]
+    #[arg(long, default_value_t = Identities::All, help_heading = "Data")]
     pub identities: Identities,
     /// Random pixel rays per step (besides the LPIPS patches).
-    #[arg(long = "batch", value_name = "N", default_value_t = TrainOptions::default().batch_rays)]
+    #[arg(long = "batch", value_name = "N", default_value_t = TrainOptions::default().batch_rays, help_heading = "Rays")]
     pub batch_rays: usize,
     /// 32x32 LPIPS patches per step (the paper: 6; 0 turns the perceptual term off).
-    #[arg(long, default_value_t = TrainOptions::default().patches)]
+    #[arg(long, default_value_t = TrainOptions::default().patches, help_heading = "Rays")]
     pub patches: usize,
     /// Initial Adam learning rate (default: the preset's); decays x0.1 per 500k of the
     /// paper's iterations, onto which every run is mapped.
-    #[arg(long)]
+    #[arg(long, help_heading = "Optimizer")]
     pub lr: Option<f64>,
     /// Fraction of random rays drawn inside the person's bounding box (the paper: 80%).
-    #[arg(long, default_value_t = TrainOptions::default().bbox_fraction)]
+    #[arg(long, default_value_t = TrainOptions::default().bbox_fraction, help_heading = "Rays")]
     pub bbox_fraction: f32,
     /// Weight of the silhouette term (rendered opacity against the mask, mean squared
     /// error); 0: off, the paper's loss.
-    #[arg(long, default_value_t = TrainOptions::default().mask_weight)]
+    #[arg(long, default_value_t = TrainOptions::default().mask_weight, help_heading = "Loss")]
     // Runs recorded before the term existed read as 0.
     #[serde(default)]
     pub mask_weight: f32,
@@ -68,7 +69,7 @@ pub struct TrainOptions {
     /// on either side, where a matting tool's mask is often a pixel or two off (Neural
     /// Body leaves out 2 px). Default: 0 on a matted dataset (exact masks), and on a
     /// `by_mask` one (camera frames) 1 px per 256 px of the frame's longer side, at least 1.
-    #[arg(long = "mask-edge", value_name = "PX")]
+    #[arg(long = "mask-edge", value_name = "PX", help_heading = "Rays")]
     // Runs recorded before the option existed trained on every pixel.
     #[serde(default = "every_pixel")]
     pub mask_edge_px: Option<u32>,
@@ -76,22 +77,22 @@ pub struct TrainOptions {
     /// MLP at 0.1 of its rate): Adam moves every weight by about the rate per step
     /// whatever its gradient, and at the field's rate D_nr's start set a real capture's
     /// body back (0.1: +0.56 dB in the person box there, +0.29 dB on the demo scene).
-    #[arg(long, default_value_t = TrainOptions::default().non_rigid_lr_scale)]
+    #[arg(long, default_value_t = TrainOptions::default().non_rigid_lr_scale, help_heading = "Optimizer")]
     // Runs recorded before the option existed trained D_nr at the field's rate.
     #[serde(default = "one")]
     pub non_rigid_lr_scale: f64,
     /// Occupancy-grid update period in steps (0: never; accelerated sampler only).
-    #[arg(long, default_value_t = TrainOptions::default().occ_every)]
+    #[arg(long, default_value_t = TrainOptions::default().occ_every, help_heading = "Occupancy grid")]
     pub occ_every: u32,
     /// Occupancy-grid cells along the canonical box's longest axis.
-    #[arg(long, default_value_t = TrainOptions::default().grid_resolution)]
+    #[arg(long, default_value_t = TrainOptions::default().grid_resolution, help_heading = "Occupancy grid")]
     pub grid_resolution: u32,
     /// Directory of the converted LPIPS weights (`talkin lpips-weights`; by default the per-user cache);
     /// without them the perceptual term is 1 - SSIM, and the run says so.
-    #[arg(long = "lpips-dir", value_name = "DIR", default_value_os = DEFAULT_LPIPS_DIR.as_os_str())]
+    #[arg(long = "lpips-dir", value_name = "DIR", default_value_os = DEFAULT_LPIPS_DIR.as_os_str(), help_heading = "Loss")]
     pub perceptual: Option<PathBuf>,
     /// Checkpoint every this many seconds of training (and always at the end).
-    #[arg(long = "checkpoint-every", value_name = "SECONDS", default_value_t = TrainOptions::default().checkpoint_every_s)]
+    #[arg(long = "checkpoint-every", value_name = "SECONDS", default_value_t = TrainOptions::default().checkpoint_every_s, help_heading = "Run")]
     pub checkpoint_every_s: f64,
     /// The paper's ablation switches (all on: the full method); set by the ablation bench.
     #[arg(skip)]
@@ -100,11 +101,11 @@ pub struct TrainOptions {
     pub ablation: Ablation,
     /// Train on each subject's first S seconds of training frames only (a short clip:
     /// the novel-identity experiment's clips).
-    #[arg(long = "seconds-of-video", value_name = "S")]
+    #[arg(long = "seconds-of-video", value_name = "S", help_heading = "Data")]
     // Runs recorded before the option existed read as all of the video.
     #[serde(default)]
     pub clip_seconds: Option<f64>,
-    #[command(flatten)]
+    #[command(flatten, next_help_heading = "Pose refinement")]
     // Runs recorded before refinement existed trusted their fits.
     #[serde(default = "RefineOptions::recorded_before")]
     pub refine: RefineOptions,
@@ -117,6 +118,9 @@ fn one() -> f64 {
 fn every_pixel() -> Option<u32> {
     Some(0)
 }
+
+/// The clap id of `--device`: where a run trains, not what it trains (a resume takes it).
+pub const DEVICE_ARG: &str = "device";
 
 /// How long to train: `--steps N` or `--minutes M` on the command line.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -135,10 +139,18 @@ impl Default for Budget {
     }
 }
 
+impl Budget {
+    /// The clap ids of `--steps` and `--minutes`.
+    pub const ARGS: [&str; 2] = ["steps", "minutes"];
+}
+
 impl FromArgMatches for Budget {
     fn from_arg_matches(m: &ArgMatches) -> Result<Self, clap::Error> {
         Ok(
-            match (m.get_one::<usize>("steps"), m.get_one::<f64>("minutes")) {
+            match (
+                m.get_one::<usize>(Budget::ARGS[0]),
+                m.get_one::<f64>(Budget::ARGS[1]),
+            ) {
                 (_, Some(&minutes)) => Budget::Seconds(minutes * 60.0),
                 (Some(&steps), None) => Budget::Steps(steps),
                 (None, None) => Budget::default(),
@@ -155,15 +167,15 @@ impl FromArgMatches for Budget {
 impl Args for Budget {
     fn augment_args(cmd: clap::Command) -> clap::Command {
         cmd.arg(
-            Arg::new("steps")
+            Arg::new(Budget::ARGS[0])
                 .long("steps")
                 .value_name("N")
                 .value_parser(clap::value_parser!(usize))
-                .conflicts_with("minutes")
+                .conflicts_with(Budget::ARGS[1])
                 .help("Optimizer steps (default 1000 unless --minutes is given)"),
         )
         .arg(
-            Arg::new("minutes")
+            Arg::new(Budget::ARGS[1])
                 .long("minutes")
                 .value_name("M")
                 .value_parser(clap::value_parser!(f64))
@@ -306,7 +318,9 @@ impl TrainOptions {
             Matting::Matted => 0,
             Matting::ByMask => {
                 let camera = &dataset.frames[i].camera;
-                (camera.width.max(camera.height) as f32 / 256.0).round().max(1.0) as u32
+                (camera.width.max(camera.height) as f32 / 256.0)
+                    .round()
+                    .max(1.0) as u32
             }
         })
     }
@@ -384,6 +398,20 @@ mod tests {
 
     fn parse(args: &[&str]) -> Result<TrainOptions, clap::Error> {
         Cli::try_parse_from(std::iter::once("talkin").chain(args.iter().copied())).map(|c| c.recipe)
+    }
+
+    #[test]
+    fn the_named_clap_ids_are_the_options() {
+        use clap::CommandFactory;
+        let cmd = Cli::command();
+        let long_of = |id: &str| {
+            cmd.get_arguments()
+                .find(|a| a.get_id() == id)
+                .and_then(|a| a.get_long())
+        };
+        assert_eq!(long_of(DEVICE_ARG), Some("device"));
+        assert_eq!(long_of(Budget::ARGS[0]), Some("steps"));
+        assert_eq!(long_of(Budget::ARGS[1]), Some("minutes"));
     }
 
     #[test]
