@@ -1,5 +1,6 @@
 //! The `talkin` command line: argument parsing, progress and exit codes. The work lives in
-//! the engine crate.
+//! the workspace's crates (`grids`, `nets` and `engine/*`), re-exported by the `talkin`
+//! library.
 
 mod cli;
 mod progress;

@@ -1,6 +1,7 @@
-//! grids: acceleration structures for ray marching a human. Owns the capsule BVH over the
-//! posed skeleton (observation space), the occupancy grid over canonical space, and the
-//! dense and accelerated samplers with packed output.
+//! grids: acceleration structures for ray marching a human. Owns the posed skeleton's
+//! capsules (observation space) and the BVH over them (obvhs: margin fitting and the
+//! exact reference), the occupancy grid over canonical space, and the dense and
+//! accelerated samplers with packed output.
 //!
 //! Knows nothing of neural networks, burn, datasets or the body model: capsules, rays and
 //! the posed-to-canonical map come in as plain data and callbacks.
@@ -22,7 +23,7 @@
 //! # One frame
 //! 1. Once per subject: [`fit_part_margins`] on the training masks' foreground rays gives
 //!    [`PartMargins`] (how far clothes and hair stick out, per part).
-//! 2. Per frame: [`CapsuleBvh::build`] over `margins.inflate(&posed_capsules)`.
+//! 2. Per frame: the posed capsules, grown by the margins (`margins.inflate`).
 //! 3. Per batch of rays: [`sample_dense`] (the baseline) or the accelerated sampler,
 //!    picked by [`SamplerKind`]: [`AcceleratedSampler`] (exact capsule intervals up to the
 //!    first core, culled per bin by the canonical [`OccupancyGrid`] through

@@ -20,8 +20,8 @@ pub struct BenchArgs {
 
 #[derive(clap::Subcommand, Debug)]
 pub enum BenchCommand {
-    /// Dense (128 stratified samples in the posed box) against accelerated (capsule BVH +
-    /// canonical occupancy grid) sampling over every frame: samples per foreground ray,
+    /// Dense (128 stratified samples in the posed box) against accelerated (exact capsule
+    /// intervals + canonical occupancy grid) sampling over every frame: samples per foreground ray,
     /// rays per second, and surface points the accelerated samples miss.
     Sampling(SamplingArgs),
     /// Time to quality: for target PSNRs on test_same, the training seconds and steps the

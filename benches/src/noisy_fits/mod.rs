@@ -1,5 +1,5 @@
 //! `talkin bench noisy-fits`: what pose refinement recovers from noisy fits. For each
-//! noise level, the training fits get known, seeded noise ([`noise`]; held-out frames
+//! noise level, the training fits get known, seeded noise (`noise`; held-out frames
 //! keep their clean fits); the same recipe then trains with and without
 //! `--refine-poses` for the same budget, and each run is scored on test_same (clean
 //! poses), next to the training fits' error against the truth before and after

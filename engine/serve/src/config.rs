@@ -90,7 +90,7 @@ pub struct ConfigError {
 }
 
 /// `secs` seconds as a [`Duration`] for the option `field`: finite, within
-/// `0..=`[`MAX_TIMEOUT`], and above zero unless `zero_ok`. Use it on every number a
+/// `0..=MAX_TIMEOUT`, and above zero unless `zero_ok`. Use it on every number a
 /// user types: `Duration::from_secs_f64` panics on what it refuses.
 pub fn checked_seconds(
     field: &'static str,

@@ -3,7 +3,7 @@
 //! writes. See the README for the schema.
 //!
 //! [`Dataset::load`] validates the whole JSON and every image header up front, so a
-//! training run never dies on frame 900; pixels are decoded lazily ([`Dataset::image`]).
+//! training run never dies on frame 900; pixels are decoded lazily ([`Dataset::images`]).
 
 mod derive_labels;
 mod error;

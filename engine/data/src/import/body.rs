@@ -71,7 +71,7 @@ pub fn complete_from_body(body: &[DVec3; N_BODY_JOINTS]) -> [DVec3; N_JOINTS] {
 pub const FIT_BETAS: usize = 10;
 
 /// 55 rest joints from the 22 given body joints and an SMPL-X model: the betas (the first
-/// [`FIT_BETAS`]) and a translation whose model joints best fit the given ones in least
+/// `FIT_BETAS`) and a translation whose model joints best fit the given ones in least
 /// squares; the body joints are kept as given, the others placed as the fitted model
 /// places them relative to their body joint. Returns the joints, the betas and the RMS
 /// fit residual in metres.

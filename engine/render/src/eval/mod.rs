@@ -3,7 +3,7 @@
 //!
 //! What is scored is the 8-bit render exactly as written to PNG, so re-scoring a written
 //! PNG gives the same numbers. Crops come from the ground-truth pose projected through the
-//! frame's camera ([`crops`]); a crop that misses the image is skipped and reported,
+//! frame's camera ([`frame_crops`]); a crop that misses the image is skipped and reported,
 //! never faked, and without LPIPS weights every LPIPS value is `null` with a note.
 
 pub mod lpips;

@@ -44,7 +44,7 @@ impl FrameScene {
 pub const SPLIT_LENGTH: f32 = 0.08;
 
 /// The sampler's capsules of a posed skeleton: the limb capsules with every long one cut
-/// into equal pieces of at most [`SPLIT_LENGTH`] (same part, bone and radius), in a fixed
+/// into equal pieces of at most `SPLIT_LENGTH` (same part, bone and radius), in a fixed
 /// order, so per-capsule shells fitted on one frame apply to every frame and to the
 /// canonical pose.
 pub fn shell_capsules(skeleton: &Skeleton, posed: &PosedSkeleton) -> Vec<Capsule> {
