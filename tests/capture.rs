@@ -365,8 +365,8 @@ fn capture_is_seeded_and_each_flaw_acts_alone() {
 /// `talkin train` into `run`, with the recipe of the speed-vs-error runs (no LPIPS patch,
 /// 512 rays a step): on this scene 600 steps reach 25.6 dB in the person box where the
 /// default recipe reaches 16.3.
-fn train(data: &Path, run: &Path, steps: &str) {
-    let o = talkin(&[
+fn train(data: &Path, run: &Path, steps: &str, extra: &[String]) {
+    let mut args = vec![
         "train",
         "--data",
         p(data),
@@ -378,7 +378,9 @@ fn train(data: &Path, run: &Path, steps: &str) {
         "0",
         "--batch",
         "512",
-    ]);
+    ];
+    args.extend(extra.iter().map(String::as_str));
+    let o = talkin(&args);
     assert!(o.status.success(), "{}: {}", run.display(), stderr(&o));
 }
 
@@ -534,9 +536,10 @@ fn import_layout(camera: &Clip, layout: &str, name: &str, out: &Path) -> Dataset
 /// there (the best a render can do). `cargo test --release --test capture -- --ignored --nocapture
 /// camera_frames`; TALKIN_CAPTURE_STEPS sets the budget, TALKIN_CAPTURE_LAYOUTS the
 /// layouts (smplerx, humannerf, peoplesnapshot), TALKIN_CAPTURE_SCALE the camera's pixels
-/// per scene pixel (4; 1 puts the phone's flaws at the scene's own pixels) and
+/// per scene pixel (4; 1 puts the phone's flaws at the scene's own pixels),
 /// TALKIN_CAPTURE_FLAWS the flaws (of `FLAWS`, `,` between them; `;` between fixtures,
-/// each trained in every layout; empty for none), to measure what each flaw costs.
+/// each trained in every layout; empty for none), to measure what each flaw costs, and
+/// TALKIN_CAPTURE_MASK_EDGE the camera runs' `--mask-edge`.
 #[test]
 #[ignore = "trains five times (a few minutes in release)"]
 fn camera_frames_train_within_1_db_of_the_clean_scene() {
@@ -583,14 +586,18 @@ fn camera_frames_train_within_1_db_of_the_clean_scene() {
         truth: f64,
         secs: f64,
     }
-    let timed = |data: &Path, run: &str, steps: &str| {
+    let camera_args: Vec<String> = match std::env::var("TALKIN_CAPTURE_MASK_EDGE") {
+        Ok(px) => vec!["--mask-edge".into(), px],
+        Err(_) => Vec::new(),
+    };
+    let timed = |data: &Path, run: &str, steps: &str, extra: &[String]| {
         let started = std::time::Instant::now();
-        train(data, &root.join(run), steps);
+        train(data, &root.join(run), steps, extra);
         started.elapsed().as_secs_f64()
     };
-    let secs = timed(&data, "run_untrained", "1");
+    let secs = timed(&data, "run_untrained", "1", &[]);
     let untrained = score(&root.join("run_untrained"), &data);
-    let secs_clean = timed(&data, "run_clean", &steps);
+    let secs_clean = timed(&data, "run_clean", &steps, &[]);
     let reference = score(&root.join("run_clean"), &data);
     let exact = |name: &str, psnr: f64, secs: f64| Row {
         name: name.to_string(),
@@ -627,7 +634,7 @@ fn camera_frames_train_within_1_db_of_the_clean_scene() {
                 "{layout}: the same frames are held out"
             );
             let run = root.join(format!("run_{layout}_{k}"));
-            let secs = timed(&out, &format!("run_{layout}_{k}"), &steps);
+            let secs = timed(&out, &format!("run_{layout}_{k}"), &steps, &camera_args);
             let own = score(&run, &out);
             let truth = truth_of(&out, &got, &clean, capture.gain);
             rows.push(Row {

@@ -68,7 +68,8 @@ pub struct TrainOptions {
     /// Leave the mask's edge out of the random rays: pixels within PX of the mask's cut,
     /// on either side, where a matting tool's mask is often a pixel or two off (Neural
     /// Body leaves out 2 px). Default: 0 on a matted dataset (exact masks), and on a
-    /// `by_mask` one (camera frames) 1 px per 256 px of the frame's longer side, at least 1.
+    /// `by_mask` one (camera frames) 1 px per whole 256 px of the frame's longer side
+    /// (none below 256 px, where a pixel is a limb's edge).
     #[arg(long = "mask-edge", value_name = "PX", help_heading = "Rays")]
     // Runs recorded before the option existed trained on every pixel.
     #[serde(default = "every_pixel")]
@@ -318,9 +319,7 @@ impl TrainOptions {
             Matting::Matted => 0,
             Matting::ByMask => {
                 let camera = &dataset.frames[i].camera;
-                (camera.width.max(camera.height) as f32 / 256.0)
-                    .round()
-                    .max(1.0) as u32
+                camera.width.max(camera.height) / 256
             }
         })
     }
