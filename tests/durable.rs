@@ -13,12 +13,12 @@ use std::time::{Duration, Instant};
 
 use burn::module::{Module, ModuleMapper, Param};
 use burn::prelude::*;
+use talkin::avatar::checkpoint::{
+    self, CHECKPOINT_DIR, Checkpoint, LATEST_FILE, MANIFEST_FILE, MODEL_FILE,
+};
 use talkin::data::dataset::Dataset;
 use talkin::grids::SamplerKind;
 use talkin::render::avatar::Avatar;
-use talkin::train::checkpoint::{
-    self, CHECKPOINT_DIR, Checkpoint, LATEST_FILE, MANIFEST_FILE, MODEL_FILE,
-};
 use talkin::train::{Budget, LOG_FILE, TrainOptions, Trainer, schedule, train};
 
 fn talkin(args: &[&OsStr]) -> Output {

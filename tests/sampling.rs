@@ -5,15 +5,15 @@
 mod common;
 
 use glam::Vec3;
+use talkin::avatar::scene::{
+    CanonicalGrid, CapsuleShells, FrameSampler, FrameScene, canonical_surface_points,
+    fit_subject_margins, foreground_rays, shell_capsules,
+};
 use talkin::benches::sampling::bench_sampling;
 use talkin::data::dataset::{Dataset, Split};
 use talkin::grids::{MarginFitOpts, OccupancyGrid, PackedSamples, Part, SamplerKind};
 use talkin::human::body::canonical_params;
 use talkin::synth::{SynthConfig, generate};
-use talkin::train::scene::{
-    CanonicalGrid, CapsuleShells, FrameSampler, FrameScene, canonical_surface_points,
-    fit_subject_margins, foreground_rays, shell_capsules,
-};
 
 /// The capsule shells the training masks and depth fit for subject 0.
 fn first_subject_shells(dataset: &Dataset) -> CapsuleShells {

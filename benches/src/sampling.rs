@@ -5,6 +5,10 @@ use std::collections::BTreeMap;
 use std::time::Instant;
 
 use serde::Serialize;
+use talkin_avatar::scene::{
+    CanonicalGrid, CapsuleShells, FrameSampler, FrameScene, SubjectMargins,
+    canonical_surface_points, fit_subject_margins, foreground_rays, grid_error,
+};
 use talkin_grids::{
     MarginFitOpts, OccupancyGrid, PackedSamples, Part, Ray, SamplerKind, sample_in_capsules,
     sample_in_front_of_cores,
@@ -12,10 +16,6 @@ use talkin_grids::{
 
 use talkin_data::dataset::{Dataset, DatasetError, Split};
 use talkin_human::body::canonical_params;
-use talkin_train::scene::{
-    CanonicalGrid, CapsuleShells, FrameSampler, FrameScene, SubjectMargins,
-    canonical_surface_points, fit_subject_margins, foreground_rays, grid_error,
-};
 
 /// Canonical grid cells along its longest axis.
 pub const GRID_RESOLUTION: u32 = 128;

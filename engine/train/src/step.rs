@@ -276,7 +276,7 @@ impl Trainer<'_> {
     }
 
     /// The model of the subject dataset frame `frame` shows.
-    fn model_of(&self, frame: usize) -> &crate::subject::SubjectModel {
+    fn model_of(&self, frame: usize) -> &talkin_avatar::subject::SubjectModel {
         let slot = self.slot_of[self.dataset.frames[frame].subject]
             .expect("training frames belong to trained subjects");
         self.subjects[slot]

@@ -12,19 +12,23 @@ use burn::optim::ModuleOptimizer;
 use burn::prelude::*;
 use burn::tensor::Bytes;
 use serde::{Deserialize, Serialize};
+use talkin_avatar::checkpoint::{
+    Checkpoint, CheckpointContents, CheckpointError, dataset_sha256, path_json,
+};
+use talkin_avatar::refined::RefinerState;
+use talkin_avatar::subject::{SubjectModel, SubjectSlot, bone_prior};
 use talkin_data::dataset::Dataset;
 use talkin_grids::OccUpdateOpts;
 use talkin_nets::loss::{Backbone, PerceptualLoss};
 use talkin_nets::{ComputeDevice, FieldConfig, TalkinField};
 
 use crate::adam::FusedAdam;
-use crate::checkpoint::{Checkpoint, CheckpointContents, CheckpointError, path_json};
 use crate::error::TrainError;
 use crate::log::{LOG_FILE, StepLog, TrainLog};
 use crate::preset::Preset;
 use crate::rays::FrameCache;
 use crate::recipe::TrainOptions;
-use crate::refine::{PoseRefiner, RefineMode, RefinerState};
+use crate::refine::{PoseRefiner, RefineMode};
 use crate::rng::SplitMix64;
 use crate::schedule;
 mod budget;
@@ -32,10 +36,9 @@ mod budget;
 pub use budget::ScheduleAnchor;
 
 use crate::setup::{
-    clear_run, clip_of, dataset_sha256, fit_field_box, fit_subjects, options_serde,
-    training_frames, unknown_subject, write_recipe,
+    clear_run, clip_of, fit_field_box, fit_subjects, options_serde, training_frames,
+    unknown_subject, write_recipe,
 };
-use crate::subject::{SubjectModel, SubjectSlot, bone_prior};
 
 /// What a run did.
 #[derive(Clone, Debug)]
@@ -144,7 +147,7 @@ impl<'a> Trainer<'a> {
             // drawing must not interleave with another trainer's (tests, benches in
             // threads), or the same seed gives different weights.
             let cpu = Device::flex().autodiff();
-            let _guard = crate::checkpoint::DEVICE_RNG
+            let _guard = talkin_avatar::checkpoint::DEVICE_RNG
                 .lock()
                 .unwrap_or_else(|e| e.into_inner());
             cpu.seed(opts.seed);
@@ -196,7 +199,7 @@ impl<'a> Trainer<'a> {
         let checkpoint = Checkpoint::load(base)?;
         let device = open_device(opts.device)?;
         {
-            let _guard = crate::checkpoint::DEVICE_RNG
+            let _guard = talkin_avatar::checkpoint::DEVICE_RNG
                 .lock()
                 .unwrap_or_else(|e| e.into_inner());
             device.seed(opts.seed);
@@ -258,7 +261,7 @@ impl<'a> Trainer<'a> {
     ) -> Result<Self, TrainError> {
         let checkpoint = Checkpoint::load(run)?;
         let mut notes = checkpoint.notes.clone();
-        let state_file = checkpoint.dir.join(crate::checkpoint::STATE_FILE);
+        let state_file = checkpoint.dir.join(talkin_avatar::checkpoint::STATE_FILE);
         let state: TrainState =
             serde_json::from_value(checkpoint.state.clone()).map_err(|e| TrainError::Resume {
                 file: state_file.clone(),
@@ -502,10 +505,10 @@ impl Trainer<'_> {
     }
 
     /// The refined training fits as renders read them (`None`: the run trusts its fits).
-    pub fn refined_fits(&self) -> Option<crate::refine::RefinedFits> {
+    pub fn refined_fits(&self) -> Option<talkin_avatar::refined::RefinedFits> {
         self.refiner
             .as_ref()
-            .map(|r| crate::refine::RefinedFits::new(&r.state, &self.dataset_sha256))
+            .map(|r| talkin_avatar::refined::RefinedFits::new(&r.state, &self.dataset_sha256))
     }
 
     /// The field's configuration.
@@ -546,7 +549,7 @@ impl Trainer<'_> {
             return Ok(dir.clone());
         }
         let optimizer = self.optim.into_bytes().map_err(|e| TrainError::Resume {
-            file: self.out.join(crate::checkpoint::OPTIMIZER_FILE),
+            file: self.out.join(talkin_avatar::checkpoint::OPTIMIZER_FILE),
             problem: e.to_string(),
         })?;
         let state = TrainState {
@@ -564,12 +567,13 @@ impl Trainer<'_> {
         };
         let state = serde_json::to_value(&state).map_err(|e| {
             CheckpointError::format(
-                &crate::checkpoint::checkpoint_root(&self.out).join(crate::checkpoint::STATE_FILE),
+                &talkin_avatar::checkpoint::checkpoint_root(&self.out)
+                    .join(talkin_avatar::checkpoint::STATE_FILE),
                 "state",
                 e,
             )
         })?;
-        let dir = crate::checkpoint::save(
+        let dir = talkin_avatar::checkpoint::save(
             &self.out,
             &CheckpointContents {
                 step: self.step,

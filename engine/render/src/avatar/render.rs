@@ -6,14 +6,14 @@ use std::time::Instant;
 use burn::prelude::*;
 use image::{GrayImage, RgbImage};
 use rayon::prelude::*;
+use talkin_avatar::field_inputs::{frame_conditions, packed_layout};
+use talkin_avatar::scene::{FrameSampler, FrameScene};
 use talkin_grids::{Ray, SamplerKind};
-use talkin_nets::FieldInput;
-use talkin_train::field_inputs::{frame_conditions, packed_layout};
-
-use super::{Avatar, AvatarError};
 use talkin_human::body::FrameParams;
 use talkin_human::camera::Camera;
-use talkin_train::scene::{FrameSampler, FrameScene};
+use talkin_nets::FieldInput;
+
+use super::{Avatar, AvatarError};
 
 /// Rays per field evaluation when rendering.
 pub const RENDER_CHUNK_RAYS: usize = 8192;

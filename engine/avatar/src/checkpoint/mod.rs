@@ -33,6 +33,7 @@ use burn::prelude::*;
 use burn::store::ModuleRecord;
 use burn::tensor::Bytes;
 use talkin_data::atomic::{sync_dir, write_atomic, write_synced};
+use talkin_data::dataset::{Dataset, INDEX_FILE};
 use talkin_nets::{FieldConfig, TalkinField};
 
 pub use grid_file::{grid_from_bytes, grid_to_bytes};
@@ -94,7 +95,9 @@ impl CheckpointError {
         }
     }
 
-    pub(crate) fn format(file: &Path, field: &str, problem: impl ToString) -> CheckpointError {
+    /// A malformed `field` of `file` (the trainer's state, too: its schema is the
+    /// trainer's).
+    pub fn format(file: &Path, field: &str, problem: impl ToString) -> CheckpointError {
         CheckpointError::Format {
             file: file.to_path_buf(),
             field: field.to_string(),
@@ -140,6 +143,15 @@ pub static DEVICE_RNG: std::sync::Mutex<()> = std::sync::Mutex::new(());
 /// The checkpoint directory of a run.
 pub fn checkpoint_root(run: &Path) -> PathBuf {
     run.join(CHECKPOINT_DIR)
+}
+
+/// The dataset's fingerprint: the SHA-256 of its `dataset.json` (every frame's files,
+/// split, camera and parameters), recorded in each checkpoint and checked on resume.
+pub fn dataset_sha256(dataset: &Dataset) -> Result<String, CheckpointError> {
+    let file = dataset.root.join(INDEX_FILE);
+    std::fs::read(&file)
+        .map(|bytes| sha256_hex(&bytes))
+        .map_err(|source| CheckpointError::Io { file, source })
 }
 
 /// The directory name of the checkpoint after `step` steps.
