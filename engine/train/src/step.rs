@@ -142,6 +142,7 @@ impl Trainer<'_> {
                 self.opts.sampler,
                 &batch.rays,
                 &model.grid,
+                &model.dilated,
                 Some(jitter_seed),
             )
             .map_err(|source| grid_error(self.dataset, frame, source))
