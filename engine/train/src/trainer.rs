@@ -15,6 +15,7 @@ use serde::{Deserialize, Serialize};
 use talkin_avatar::checkpoint::{
     Checkpoint, CheckpointContents, CheckpointError, dataset_sha256, path_json,
 };
+use talkin_avatar::device_rng::DeviceRng;
 use talkin_avatar::refined::RefinerState;
 use talkin_avatar::subject::{SubjectModel, SubjectSlot, bone_prior};
 use talkin_data::dataset::Dataset;
@@ -144,18 +145,16 @@ impl<'a> Trainer<'a> {
         let field = {
             // The initial weights are drawn on the CPU whatever the device, so one seed
             // gives one field on every device. The CPU's RNG is process-wide: seeding and
-            // drawing must not interleave with another trainer's (tests, benches in
-            // threads), or the same seed gives different weights.
+            // drawing take one turn at it, or another trainer's draws (tests, benches in
+            // threads) would interleave and the same seed give different weights.
             let cpu = Device::flex().autodiff();
-            let _guard = talkin_avatar::checkpoint::DEVICE_RNG
-                .lock()
-                .unwrap_or_else(|e| e.into_inner());
-            cpu.seed(opts.seed);
+            let mut rng = DeviceRng::take_turn();
+            rng.seed(&cpu, opts.seed);
             let field = config
                 .init(&bone_prior(skeletons), &cpu)
                 .map_err(|source| TrainError::Field { source })?;
             // burn draws a layer's weights lazily, on first use: draw them all now, on
-            // the CPU and under the lock, or a forked field would draw them on its device.
+            // the CPU and during the turn, or a forked field would draw them on its device.
             materialize(&field);
             if device == cpu {
                 field
@@ -198,17 +197,13 @@ impl<'a> Trainer<'a> {
         }
         let checkpoint = Checkpoint::load(base)?;
         let device = open_device(opts.device)?;
-        {
-            let _guard = talkin_avatar::checkpoint::DEVICE_RNG
-                .lock()
-                .unwrap_or_else(|e| e.into_inner());
-            device.seed(opts.seed);
-        }
-        // Not under the guard above: `Checkpoint::field` takes DEVICE_RNG itself, and a
-        // std Mutex is not re-entrant (holding it here deadlocked every adaptation). The
-        // field's initial draw is overwritten by the checkpoint's record, so another
-        // thread drawing in between changes nothing.
-        let mut field = checkpoint.field(&device)?;
+        // The field's initial draw is overwritten by the checkpoint's record; the seed is
+        // for what the adaptation draws after it.
+        let mut field = {
+            let mut rng = DeviceRng::take_turn();
+            rng.seed(&device, opts.seed);
+            checkpoint.field(&device, &mut rng)?
+        };
         let mut config = checkpoint.config.clone();
         let mut subjects = checkpoint.subjects.clone();
         let name = dataset.subjects[s].name.clone();
@@ -303,7 +298,7 @@ impl<'a> Trainer<'a> {
             });
         }
         let device = open_device(on)?;
-        let field = checkpoint.field(&device)?;
+        let field = checkpoint.field(&device, &mut DeviceRng::take_turn())?;
         let optim_bytes = checkpoint
             .optimizer_bytes()
             .ok_or_else(|| TrainError::Resume {

@@ -40,6 +40,7 @@ pub use grid_file::{grid_from_bytes, grid_to_bytes};
 pub use manifest::{MANIFEST_FILE, Manifest, sha256_hex};
 pub use subjects_file::SubjectsFile;
 
+use crate::device_rng::DeviceRng;
 use crate::subject::{SubjectSlot, bone_prior};
 
 /// The checkpoint directory inside a run directory.
@@ -134,11 +135,6 @@ pub struct CheckpointContents<'a> {
     /// A previous checkpoint directory to keep (the fallback); every other is removed.
     pub keep: Option<&'a Path>,
 }
-
-/// Held by whoever seeds the device or draws a field's initial weights: burn's device
-/// RNG is process-wide, and a draw interleaved with another thread's (tests, benches)
-/// would make the same seed give different weights.
-pub static DEVICE_RNG: std::sync::Mutex<()> = std::sync::Mutex::new(());
 
 /// The checkpoint directory of a run.
 pub fn checkpoint_root(run: &Path) -> PathBuf {
@@ -428,19 +424,23 @@ impl Checkpoint {
     }
 
     /// Builds the field on `device` (add `.autodiff()` to train it further) with the
-    /// checkpoint's weights.
-    pub fn field(&self, device: &Device) -> Result<TalkinField, CheckpointError> {
+    /// checkpoint's weights. Building it draws initial weights (then overwritten) from
+    /// burn's RNG, so it takes the caller's turn at it.
+    pub fn field(
+        &self,
+        device: &Device,
+        _turn: &mut DeviceRng,
+    ) -> Result<TalkinField, CheckpointError> {
         let model_file = self.dir.join(MODEL_FILE);
         let skeletons: Vec<_> = self
             .subjects
             .iter()
             .filter_map(|s| s.model.as_ref().map(|m| &m.skeleton))
             .collect();
-        let field = {
-            let _guard = DEVICE_RNG.lock().unwrap_or_else(|e| e.into_inner());
-            self.config.init(&bone_prior(skeletons), device)
-        }
-        .map_err(|e| CheckpointError::format(&self.dir.join(CONFIG_FILE), "FieldConfig", e))?;
+        let field = self
+            .config
+            .init(&bone_prior(skeletons), device)
+            .map_err(|e| CheckpointError::format(&self.dir.join(CONFIG_FILE), "FieldConfig", e))?;
         let record = ModuleRecord::from_bytes(Bytes::from_bytes_vec(self.model_bytes.clone()))
             .map_err(|e| CheckpointError::format(&model_file, "record", e))?;
         let field = field
