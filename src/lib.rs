@@ -1,4 +1,5 @@
 //! talkin: the facade over the workspace crates, one per stage of the pipeline.
+pub use talkin_avatar as avatar;
 pub use talkin_benches as benches;
 pub use talkin_data as data;
 pub use talkin_grids as grids;

@@ -44,6 +44,7 @@ fn a_device_that_cannot_be_opened_is_a_named_error_and_a_nonzero_exit() {
 mod wgpu {
     use burn::module::{Module, ModuleVisitor, Param};
     use burn::prelude::*;
+    use talkin::benches::shared::avatar_of;
     use talkin::grids::SamplerKind;
     use talkin::nets::{ComputeDevice, TalkinField};
     use talkin::render::avatar::Avatar;
@@ -129,7 +130,7 @@ mod wgpu {
         let f = &dataset.frames[dataset.frames.len() - 1];
         let truth = image::open(dataset.root.join(&f.image)).unwrap().to_rgb8();
         let render = |t: &Trainer| {
-            Avatar::from_trainer(t)
+            avatar_of(t)
                 .render(0, &f.params, &f.camera, None)
                 .unwrap()
                 .to_image()

@@ -4,11 +4,11 @@
 
 mod common;
 
+use talkin::avatar::checkpoint::Checkpoint;
 use talkin::benches::novel_identity::{NovelIdentityError, NovelIdentityOptions, novel_identity};
 use talkin::data::dataset::Split;
 use talkin::grids::SamplerKind;
 use talkin::train::Budget;
-use talkin::train::checkpoint::Checkpoint;
 
 fn opts(clips_s: Vec<f64>) -> NovelIdentityOptions {
     NovelIdentityOptions {

@@ -10,9 +10,9 @@ mod common;
 
 use std::path::Path;
 
+use talkin::avatar::checkpoint::{self, CHECKPOINT_DIR};
 use talkin::grids::SamplerKind;
 use talkin::render::avatar::Avatar;
-use talkin::train::checkpoint::{self, CHECKPOINT_DIR};
 use talkin::train::{LOG_FILE, TrainOptions, Trainer, train};
 
 fn small_opts(sampler: SamplerKind, steps: usize) -> TrainOptions {

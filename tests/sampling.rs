@@ -5,15 +5,15 @@
 mod common;
 
 use glam::Vec3;
+use talkin::avatar::scene::{
+    CanonicalGrid, CapsuleShells, DilatedGrids, FrameSampler, FrameScene, canonical_surface_points,
+    fit_subject_margins, foreground_rays, shell_capsules,
+};
 use talkin::benches::sampling::bench_sampling;
 use talkin::data::dataset::{Dataset, Split};
 use talkin::grids::{MarginFitOpts, OccupancyGrid, PackedSamples, Part, SamplerKind};
 use talkin::human::body::canonical_params;
 use talkin::synth::{SynthConfig, generate};
-use talkin::train::scene::{
-    CanonicalGrid, CapsuleShells, FrameSampler, FrameScene, canonical_surface_points,
-    fit_subject_margins, foreground_rays, shell_capsules,
-};
 
 /// The capsule shells the training masks and depth fit for subject 0.
 fn first_subject_shells(dataset: &Dataset) -> CapsuleShells {
@@ -143,6 +143,7 @@ fn unjittered_samples_sit_at_regular_bins() {
     let (labelled, _) = foreground_rays(&frame.camera, &dataset.images(i).unwrap()).unwrap();
     let rays: Vec<_> = labelled.iter().map(|l| l.ray).collect();
     let sampler = FrameSampler::new(scene, &shells, &rays).unwrap();
+    let dilated = DilatedGrids::default();
     // The largest width difference between adjacent bins of a ray, relative to the step.
     let spread = |s: &PackedSamples| {
         let mut worst = 0.0f32;
@@ -158,12 +159,16 @@ fn unjittered_samples_sit_at_regular_bins() {
         worst / sampler.step
     };
     for kind in [SamplerKind::Accelerated, SamplerKind::Dense] {
-        let regular = sampler.sample(kind, &rays, &grid, None).unwrap();
-        let jittered = sampler.sample(kind, &rays, &grid, Some(7)).unwrap();
+        let regular = sampler.sample(kind, &rays, &grid, &dilated, None).unwrap();
+        let jittered = sampler
+            .sample(kind, &rays, &grid, &dilated, Some(7))
+            .unwrap();
         assert!(regular.num_samples() > 1000, "{kind:?}");
         assert!(spread(&regular) < 1e-3, "{kind:?}: {}", spread(&regular));
         assert!(spread(&jittered) > 0.3, "{kind:?}: {}", spread(&jittered));
-        let again = sampler.sample(kind, &rays, &grid, Some(7)).unwrap();
+        let again = sampler
+            .sample(kind, &rays, &grid, &dilated, Some(7))
+            .unwrap();
         assert_eq!(again.t_start, jittered.t_start, "{kind:?}");
     }
 }

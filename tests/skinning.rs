@@ -9,6 +9,9 @@ mod common;
 
 use burn::prelude::*;
 use glam::Vec3;
+use talkin::avatar::field_inputs::frame_conditions;
+use talkin::avatar::scene::{CapsuleShells, FrameScene, fit_subject_margins, foreground_rays};
+use talkin::avatar::subject::bone_prior;
 use talkin::data::dataset::{Dataset, Split};
 use talkin::grids::MarginFitOpts;
 use talkin::grids::intersect::signed_distance;
@@ -16,9 +19,6 @@ use talkin::human::body::canonical_params;
 use talkin::human::body::skeleton::body_ancestor;
 use talkin::nets::skinning::SkinningConfig;
 use talkin::synth::{body::figure, look, proportions};
-use talkin::train::field_inputs::frame_conditions;
-use talkin::train::scene::{CapsuleShells, FrameScene, fit_subject_margins, foreground_rays};
-use talkin::train::subject::bone_prior;
 
 /// Per joint group (torso and legs, upper arms, forearms, hands, head): pixels and the
 /// mean distance (metres) from the mapped to the true canonical point.

@@ -7,11 +7,11 @@ mod common;
 use std::path::Path;
 use std::process::Command;
 
+use talkin::avatar::checkpoint::{self, CHECKPOINT_DIR, LATEST_FILE};
 use talkin::data::atomic::write_atomic;
 use talkin::data::dataset::Dataset;
 use talkin::grids::SamplerKind;
 use talkin::render::avatar::Avatar;
-use talkin::train::checkpoint::{self, CHECKPOINT_DIR, LATEST_FILE};
 use talkin::train::{LOG_FILE, StepLog, TrainOptions, train};
 
 const STEPS: usize = 15;

@@ -12,10 +12,9 @@ use std::path::{Path, PathBuf};
 
 use serde::Serialize;
 
-use crate::shared::{Scores, thin, train_to_end, write_report};
+use crate::shared::{Scores, avatar_of, thin, train_to_end, write_report};
 use crate::speed_vs_error::spread_frames;
 use talkin_data::dataset::{Dataset, Split};
-use talkin_render::avatar::Avatar;
 use talkin_render::eval::{EvalOptions, evaluate};
 use talkin_train::{Ablation, Budget, Identities, TrainOptions};
 
@@ -127,7 +126,7 @@ fn variant_rows(
                 ..base.clone()
             },
         )?;
-        let avatar = Avatar::from_trainer(&trainer);
+        let avatar = avatar_of(&trainer);
         for split in SPLITS {
             let frames = spread_frames(dataset, split, opts.eval_frames);
             if frames.is_empty() {
@@ -195,7 +194,7 @@ fn single_identity_rows(
             },
         )?;
         steps += trainer.steps_taken();
-        let avatar = Avatar::from_trainer(&trainer);
+        let avatar = avatar_of(&trainer);
         for (k, split) in SPLITS.into_iter().enumerate() {
             let frames = own(split);
             if !frames.is_empty() {

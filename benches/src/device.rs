@@ -16,10 +16,10 @@ use serde::Serialize;
 use talkin_data::dataset::{Dataset, Frame, Split};
 use talkin_human::camera::Camera;
 use talkin_nets::{ComputeDevice, Device};
-use talkin_render::avatar::Avatar;
 use talkin_train::{Budget, Preset, TrainOptions, Trainer};
 
 use crate::error::BenchError;
+use crate::shared::avatar_of;
 
 /// The render size the report names (InstantAvatar's 540x540).
 pub const RENDER_SIDE: u32 = 540;
@@ -159,7 +159,7 @@ fn measure(
     let samples = median(steps.iter().map(|s| s.1).collect());
     let sampling = median(steps.iter().map(|s| s.2 / s.0.max(1e-12)).collect());
 
-    let avatar = Avatar::from_trainer(&trainer);
+    let avatar = avatar_of(&trainer);
     let mut render_samples = 0;
     let mut renders = Vec::with_capacity(opts.renders);
     for k in 0..=opts.renders {

@@ -13,9 +13,8 @@ use std::path::{Path, PathBuf};
 
 use serde::Serialize;
 
-use crate::shared::{Scores, finish, thin, train_to_end, write_report};
+use crate::shared::{Scores, avatar_of, finish, thin, train_to_end, write_report};
 use talkin_data::dataset::{Dataset, Split};
-use talkin_render::avatar::Avatar;
 use talkin_render::eval::{EvalOptions, evaluate};
 use talkin_train::{Budget, Identities, TrainOptions, Trainer};
 
@@ -160,7 +159,7 @@ pub fn novel_identity(
                 "{doing} `{name}` from {clip} s of video ({clip_frames} training frames)"
             ));
             let trainer = finish(trainer)?;
-            let avatar = Avatar::from_trainer(&trainer);
+            let avatar = avatar_of(&trainer);
             for (split, frames) in &eval_sets {
                 let report = evaluate(&avatar, dataset, frames, &eval_opts)?;
                 rows.push(NovelIdentityRow {

@@ -5,6 +5,10 @@ use std::collections::BTreeMap;
 use std::time::Instant;
 
 use serde::Serialize;
+use talkin_avatar::scene::{
+    CanonicalGrid, CapsuleShells, DilatedGrids, FrameSampler, FrameScene, SubjectMargins,
+    canonical_surface_points, fit_subject_margins, foreground_rays, grid_error,
+};
 use talkin_grids::{
     MarginFitOpts, OccupancyGrid, PackedSamples, Part, Ray, SamplerKind, sample_in_capsules,
     sample_in_front_of_cores,
@@ -12,10 +16,6 @@ use talkin_grids::{
 
 use talkin_data::dataset::{Dataset, DatasetError, Split};
 use talkin_human::body::canonical_params;
-use talkin_train::scene::{
-    CanonicalGrid, CapsuleShells, FrameSampler, FrameScene, SubjectMargins,
-    canonical_surface_points, fit_subject_margins, foreground_rays, grid_error,
-};
 
 /// Canonical grid cells along its longest axis.
 pub const GRID_RESOLUTION: u32 = 128;
@@ -89,6 +89,8 @@ pub fn bench_sampling(
     progress: &mut dyn FnMut(usize, usize),
 ) -> Result<SamplingReport, DatasetError> {
     let (margins, grids) = subject_grids(dataset, trained)?;
+    // Each subject's dilated grid is made once and shared by its frames, as in training.
+    let dilated: Vec<DilatedGrids> = grids.iter().map(|_| DilatedGrids::default()).collect();
     let mut tally = Tally::new();
     for i in 0..dataset.frames.len() {
         let frame = &dataset.frames[i];
@@ -97,6 +99,7 @@ pub fn bench_sampling(
             i,
             &margins[frame.subject].shells,
             &grids[frame.subject],
+            &dilated[frame.subject],
             &mut tally,
         )?;
         progress(i + 1, dataset.frames.len());
@@ -176,6 +179,7 @@ fn measure_frame(
     i: usize,
     shells: &CapsuleShells,
     grid: &OccupancyGrid,
+    dilated: &DilatedGrids,
     tally: &mut Tally,
 ) -> Result<(), DatasetError> {
     let frame = &dataset.frames[i];
@@ -193,16 +197,16 @@ fn measure_frame(
     // built outside the timing.
     let (sampler, build_s) = median_time(|| {
         let sampler = FrameSampler::new(scene.clone(), shells, &rays)?;
-        sampler.prepare(grid)?;
+        sampler.prepare(grid, dilated)?;
         Ok::<_, talkin_grids::GridError>(sampler)
     });
     let sampler = sampler.map_err(grid_err)?;
     tally.steps.push(sampler.step);
     let (dense, dense_s) =
-        median_time(|| sampler.sample(SamplerKind::Dense, &rays, grid, Some(seed)));
+        median_time(|| sampler.sample(SamplerKind::Dense, &rays, grid, dilated, Some(seed)));
     let dense = dense.map_err(grid_err)?;
     let (acc, acc_s) =
-        median_time(|| sampler.sample(SamplerKind::Accelerated, &rays, grid, Some(seed)));
+        median_time(|| sampler.sample(SamplerKind::Accelerated, &rays, grid, dilated, Some(seed)));
     let acc = acc.map_err(grid_err)?;
     let (bvh, core_bvh) = sampler.bvhs().map_err(grid_err)?;
     let (intervals, intervals_s) = median_time(|| bvh.intervals(&rays));

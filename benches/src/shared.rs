@@ -1,6 +1,7 @@
 //! What the training benchmarks (speed-vs-error, ablations, novel identity) share:
-//! training a run to the end of its budget, the scores a table row reports, evenly spaced
-//! evaluation frames, and writing a report's JSON and Markdown.
+//! training a run to the end of its budget, the avatar of a run in progress, the scores a
+//! table row reports, evenly spaced evaluation frames, and writing a report's JSON and
+//! Markdown.
 
 use std::path::Path;
 
@@ -8,8 +9,23 @@ use serde::Serialize;
 
 use crate::error::BenchError;
 use talkin_data::dataset::Dataset;
+use talkin_render::avatar::Avatar;
 use talkin_render::eval::EvalReport;
 use talkin_train::{TrainOptions, Trainer};
+
+/// The field of a run in progress as it is now, ready to render (the benchmarks'
+/// evaluations during a run): the avatar a checkpoint of it would load.
+pub fn avatar_of(trainer: &Trainer) -> Avatar {
+    Avatar {
+        field: trainer.inference_field(),
+        config: trainer.config().clone(),
+        background: trainer.background(),
+        subjects: trainer.subjects().to_vec(),
+        sampler: trainer.options().sampler,
+        field_step: trainer.field_step(),
+        refined: trainer.refined_fits(),
+    }
+}
 
 /// Trains `opts` to the end of its budget and saves the final checkpoint.
 pub fn train_to_end<'a>(

@@ -372,7 +372,7 @@ fn trained_grids(
     run: &std::path::Path,
     dataset: &Dataset,
 ) -> anyhow::Result<Vec<talkin_grids::OccupancyGrid>> {
-    let checkpoint = talkin_train::checkpoint::Checkpoint::load(run)?;
+    let checkpoint = talkin_avatar::checkpoint::Checkpoint::load(run)?;
     dataset
         .subjects
         .iter()

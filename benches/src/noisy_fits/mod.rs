@@ -15,10 +15,9 @@ use serde::Serialize;
 pub use noise::{joint_position_error, joint_rotation_error, noisy};
 
 use crate::error::BenchError;
-use crate::shared::{Scores, train_to_end, write_report};
+use crate::shared::{Scores, avatar_of, train_to_end, write_report};
 use crate::speed_vs_error::spread_frames;
 use talkin_data::dataset::{Dataset, Split};
-use talkin_render::avatar::Avatar;
 use talkin_render::eval::{EvalOptions, evaluate};
 use talkin_train::refine::RefineMode;
 use talkin_train::{Budget, TrainOptions};
@@ -125,7 +124,7 @@ pub fn noisy_fits(
                 "{deg} degrees: scoring {label} refinement on {} test_same frames",
                 eval_frames.len()
             ));
-            let avatar = Avatar::from_trainer(&trainer);
+            let avatar = avatar_of(&trainer);
             let report = evaluate(&avatar, &noisy_set, &eval_frames, &eval_opts)?;
             scores.push(Scores::of(&report));
             let refined: Vec<_> = train_frames

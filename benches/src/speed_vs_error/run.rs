@@ -8,12 +8,12 @@ use std::time::Instant;
 use serde::Serialize;
 use talkin_data::dataset::Dataset;
 use talkin_grids::SamplerKind;
-use talkin_render::avatar::Avatar;
 use talkin_render::eval::{EvalOptions, evaluate};
 use talkin_train::{Budget, StepLog, TrainOptions, Trainer};
 
 use super::targets::CurvePoint;
 use crate::error::BenchError;
+use crate::shared::avatar_of;
 
 /// The smallest gap between evaluations (training seconds) when no period is given.
 pub const MIN_EVAL_GAP_S: f64 = 5.0;
@@ -234,7 +234,7 @@ pub(crate) fn train_and_score(
         let start = Instant::now();
         // The run's own sampler renders it (the avatar keeps the trainer's).
         let report = evaluate(
-            &Avatar::from_trainer(&trainer),
+            &avatar_of(&trainer),
             ctx.dataset,
             ctx.eval_frames,
             &ctx.eval,

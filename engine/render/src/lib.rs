@@ -3,7 +3,7 @@
 //! SSIM and LPIPS* on the full frame, the face and the hands.
 //!
 //! Must not know about training steps, the server or the experiments; it reads
-//! checkpoints through `train`'s checkpoint module and never writes one.
+//! checkpoints through `talkin-avatar`'s checkpoint module and never writes one.
 
 pub mod avatar;
 pub mod crops;

@@ -2,13 +2,12 @@
 
 use std::path::PathBuf;
 
+use talkin_avatar::checkpoint::CheckpointError;
+use talkin_avatar::subject::SubjectModelError;
 use talkin_data::dataset::DatasetError;
 use talkin_grids::GridError;
 use talkin_nets::NetsError;
 use talkin_nets::loss::LossError;
-
-use crate::checkpoint::CheckpointError;
-use crate::subject::SubjectModelError;
 
 #[derive(Debug, thiserror::Error)]
 pub enum TrainError {

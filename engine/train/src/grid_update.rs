@@ -2,12 +2,12 @@
 
 use burn::prelude::*;
 use glam::Vec3;
+use talkin_avatar::subject::SubjectSlot;
 use talkin_grids::OccUpdateOpts;
 use talkin_nets::TalkinField;
 use talkin_nets::field::{N_SEG_CLASSES, SEG_HANDS, SEG_HEAD, argmax_rows};
 
 use crate::error::TrainError;
-use crate::subject::SubjectSlot;
 
 /// nerfacc updates its grid every this many iterations, decaying occupancy by
 /// `ema_decay` each time; the decay here is applied per this many *virtual* steps.

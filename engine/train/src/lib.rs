@@ -1,19 +1,17 @@
 //! train: one training step and the run around it. The modules read in the order a step
-//! runs: a frame's [`scene`] (the posed capsules and the canonical map that `grids`
-//! samples with), its [`rays`], the [`field_inputs`] and the [`loss`] (whose two halves'
-//! gradients `grad_sum` adds), the [`adam`] optimizer, the [`grid_update`]; [`step`]
-//! strings them together and [`trainer`] runs steps until the budget is spent, writing
-//! the [`log`] and [`checkpoint`]s. A run is told its [`recipe`], whose [`preset`] names
-//! the architecture and optimiser settings; with [`refine`] it also learns per-frame
-//! corrections of the training fits.
+//! runs: a frame's [`rays`] (its scene, conditions and samplers come from `talkin-avatar`),
+//! the [`loss`] (whose two halves' gradients `grad_sum` adds), the [`adam`] optimizer,
+//! the [`grid_update`]; [`step`] strings them together and [`trainer`] runs steps until
+//! the budget is spent, writing the [`log`] and the avatar's checkpoints. A run is told
+//! its [`recipe`], whose [`preset`] names the architecture and optimiser settings; with
+//! [`refine`] it also learns per-frame corrections of the training fits.
 //!
 //! Must not know about rendering whole frames, evaluation, the server or the
-//! experiments: they read what it writes (checkpoints) or drive a [`Trainer`].
+//! experiments: they read what it writes (checkpoints, through `talkin-avatar`) or drive
+//! a [`Trainer`].
 
 pub mod adam;
-pub mod checkpoint;
 pub mod error;
-pub mod field_inputs;
 mod grad_sum;
 pub mod grid_update;
 pub mod log;
@@ -23,11 +21,9 @@ pub mod rays;
 pub mod recipe;
 pub mod refine;
 pub mod rng;
-pub mod scene;
 pub mod schedule;
 pub mod setup;
 pub mod step;
-pub mod subject;
 pub mod trainer;
 
 pub use error::TrainError;

@@ -12,12 +12,12 @@
 
 use burn::optim::GradientsParams;
 use burn::prelude::*;
+use talkin_avatar::field_inputs::packed_layout;
 use talkin_grids::{PackedSamples, Ray};
 use talkin_nets::field::leaves::zero_grads;
 use talkin_nets::loss::{PerceptualLoss, mse, seg_cross_entropy};
 use talkin_nets::{FieldInput, FrameConditions, NetsError, PoseGrads, PoseLeaves, TalkinField};
 
-use crate::field_inputs::packed_layout;
 use crate::grad_sum::sum_grads;
 
 /// Weight of the segmentation cross-entropy.
@@ -214,9 +214,9 @@ mod tests {
     use talkin_nets::skinning::SkinningConfig;
 
     use super::*;
-    use crate::field_inputs::frame_conditions;
-    use crate::scene::{CapsuleShells, FrameScene, capsule_bounds};
-    use crate::subject::bone_prior;
+    use talkin_avatar::field_inputs::frame_conditions;
+    use talkin_avatar::scene::{CapsuleShells, FrameScene, capsule_bounds};
+    use talkin_avatar::subject::bone_prior;
     use talkin_human::body::canonical_params;
     use talkin_synth::body::default_rest_joints;
 

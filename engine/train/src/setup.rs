@@ -1,19 +1,19 @@
 //! What a new run is built from: its training frames (all, or a clip of each subject),
-//! each trained subject's model, the field's canonical box, the recipe file, the
-//! dataset's fingerprint, and a run directory cleared of any run it held.
+//! each trained subject's model, the field's canonical box, the recipe file, and a run
+//! directory cleared of any run it held.
 
 use std::path::{Path, PathBuf};
 
 use glam::Vec3;
 use serde_json::{Value, json};
-use talkin_data::dataset::{Dataset, INDEX_FILE, Split};
+use talkin_avatar::checkpoint::{CHECKPOINT_DIR, path_json};
+use talkin_avatar::subject::{SubjectModel, SubjectSlot};
+use talkin_data::dataset::{Dataset, Split};
 use talkin_nets::FieldConfig;
 
-use crate::checkpoint::{CHECKPOINT_DIR, path_json, sha256_hex};
 use crate::error::TrainError;
 use crate::log::LOG_FILE;
 use crate::recipe::TrainOptions;
-use crate::subject::{SubjectModel, SubjectSlot};
 use crate::{loss, rays, schedule};
 
 /// The recipe (options and the derived schedule) inside the run directory.
@@ -40,15 +40,6 @@ pub(crate) fn clear_run(out: &Path) -> Result<(), TrainError> {
             source,
         }),
     }
-}
-
-/// The dataset's fingerprint: the SHA-256 of its `dataset.json` (every frame's files,
-/// split, camera and parameters), recorded in each checkpoint and checked on resume.
-pub fn dataset_sha256(dataset: &Dataset) -> Result<String, TrainError> {
-    let file = dataset.root.join(INDEX_FILE);
-    std::fs::read(&file)
-        .map(|bytes| sha256_hex(&bytes))
-        .map_err(|source| TrainError::Io { file, source })
 }
 
 /// The options as recorded in `state.json` and `recipe.json`: serde's form, but with

@@ -144,6 +144,7 @@ impl Trainer<'_> {
                 self.opts.sampler,
                 &batch.rays,
                 &model.grid,
+                &model.dilated,
                 Some(jitter_seed),
             )
             .map_err(|source| grid_error(self.dataset, frame, source))
@@ -278,7 +279,7 @@ impl Trainer<'_> {
     }
 
     /// The model of the subject dataset frame `frame` shows.
-    fn model_of(&self, frame: usize) -> &crate::subject::SubjectModel {
+    fn model_of(&self, frame: usize) -> &talkin_avatar::subject::SubjectModel {
         let slot = self.slot_of[self.dataset.frames[frame].subject]
             .expect("training frames belong to trained subjects");
         self.subjects[slot]

@@ -12,19 +12,24 @@ use burn::optim::ModuleOptimizer;
 use burn::prelude::*;
 use burn::tensor::Bytes;
 use serde::{Deserialize, Serialize};
+use talkin_avatar::checkpoint::{
+    Checkpoint, CheckpointContents, CheckpointError, dataset_sha256, path_json,
+};
+use talkin_avatar::device_rng::DeviceRng;
+use talkin_avatar::refined::RefinerState;
+use talkin_avatar::subject::{SubjectModel, SubjectSlot, bone_prior};
 use talkin_data::dataset::Dataset;
 use talkin_grids::OccUpdateOpts;
 use talkin_nets::loss::{Backbone, PerceptualLoss};
 use talkin_nets::{ComputeDevice, FieldConfig, TalkinField};
 
 use crate::adam::FusedAdam;
-use crate::checkpoint::{Checkpoint, CheckpointContents, CheckpointError, path_json};
 use crate::error::TrainError;
 use crate::log::{LOG_FILE, StepLog, TrainLog};
 use crate::preset::Preset;
 use crate::rays::FrameCache;
 use crate::recipe::TrainOptions;
-use crate::refine::{PoseRefiner, RefineMode, RefinerState};
+use crate::refine::{PoseRefiner, RefineMode};
 use crate::rng::SplitMix64;
 use crate::schedule;
 mod budget;
@@ -32,10 +37,9 @@ mod budget;
 pub use budget::ScheduleAnchor;
 
 use crate::setup::{
-    clear_run, clip_of, dataset_sha256, fit_field_box, fit_subjects, options_serde,
-    training_frames, unknown_subject, write_recipe,
+    clear_run, clip_of, fit_field_box, fit_subjects, options_serde, training_frames,
+    unknown_subject, write_recipe,
 };
-use crate::subject::{SubjectModel, SubjectSlot, bone_prior};
 
 /// What a run did.
 #[derive(Clone, Debug)]
@@ -141,18 +145,16 @@ impl<'a> Trainer<'a> {
         let field = {
             // The initial weights are drawn on the CPU whatever the device, so one seed
             // gives one field on every device. The CPU's RNG is process-wide: seeding and
-            // drawing must not interleave with another trainer's (tests, benches in
-            // threads), or the same seed gives different weights.
+            // drawing take one turn at it, or another trainer's draws (tests, benches in
+            // threads) would interleave and the same seed give different weights.
             let cpu = Device::flex().autodiff();
-            let _guard = crate::checkpoint::DEVICE_RNG
-                .lock()
-                .unwrap_or_else(|e| e.into_inner());
-            cpu.seed(opts.seed);
+            let mut rng = DeviceRng::take_turn();
+            rng.seed(&cpu, opts.seed);
             let field = config
                 .init(&bone_prior(skeletons), &cpu)
                 .map_err(|source| TrainError::Field { source })?;
             // burn draws a layer's weights lazily, on first use: draw them all now, on
-            // the CPU and under the lock, or a forked field would draw them on its device.
+            // the CPU and during the turn, or a forked field would draw them on its device.
             materialize(&field);
             if device == cpu {
                 field
@@ -195,17 +197,13 @@ impl<'a> Trainer<'a> {
         }
         let checkpoint = Checkpoint::load(base)?;
         let device = open_device(opts.device)?;
-        {
-            let _guard = crate::checkpoint::DEVICE_RNG
-                .lock()
-                .unwrap_or_else(|e| e.into_inner());
-            device.seed(opts.seed);
-        }
-        // Not under the guard above: `Checkpoint::field` takes DEVICE_RNG itself, and a
-        // std Mutex is not re-entrant (holding it here deadlocked every adaptation). The
-        // field's initial draw is overwritten by the checkpoint's record, so another
-        // thread drawing in between changes nothing.
-        let mut field = checkpoint.field(&device)?;
+        // The field's initial draw is overwritten by the checkpoint's record; the seed is
+        // for what the adaptation draws after it.
+        let mut field = {
+            let mut rng = DeviceRng::take_turn();
+            rng.seed(&device, opts.seed);
+            checkpoint.field(&device, &mut rng)?
+        };
         let mut config = checkpoint.config.clone();
         let mut subjects = checkpoint.subjects.clone();
         let name = dataset.subjects[s].name.clone();
@@ -258,7 +256,7 @@ impl<'a> Trainer<'a> {
     ) -> Result<Self, TrainError> {
         let checkpoint = Checkpoint::load(run)?;
         let mut notes = checkpoint.notes.clone();
-        let state_file = checkpoint.dir.join(crate::checkpoint::STATE_FILE);
+        let state_file = checkpoint.dir.join(talkin_avatar::checkpoint::STATE_FILE);
         let state: TrainState =
             serde_json::from_value(checkpoint.state.clone()).map_err(|e| TrainError::Resume {
                 file: state_file.clone(),
@@ -300,7 +298,7 @@ impl<'a> Trainer<'a> {
             });
         }
         let device = open_device(on)?;
-        let field = checkpoint.field(&device)?;
+        let field = checkpoint.field(&device, &mut DeviceRng::take_turn())?;
         let optim_bytes = checkpoint
             .optimizer_bytes()
             .ok_or_else(|| TrainError::Resume {
@@ -502,10 +500,10 @@ impl Trainer<'_> {
     }
 
     /// The refined training fits as renders read them (`None`: the run trusts its fits).
-    pub fn refined_fits(&self) -> Option<crate::refine::RefinedFits> {
+    pub fn refined_fits(&self) -> Option<talkin_avatar::refined::RefinedFits> {
         self.refiner
             .as_ref()
-            .map(|r| crate::refine::RefinedFits::new(&r.state, &self.dataset_sha256))
+            .map(|r| talkin_avatar::refined::RefinedFits::new(&r.state, &self.dataset_sha256))
     }
 
     /// The field's configuration.
@@ -546,7 +544,7 @@ impl Trainer<'_> {
             return Ok(dir.clone());
         }
         let optimizer = self.optim.into_bytes().map_err(|e| TrainError::Resume {
-            file: self.out.join(crate::checkpoint::OPTIMIZER_FILE),
+            file: self.out.join(talkin_avatar::checkpoint::OPTIMIZER_FILE),
             problem: e.to_string(),
         })?;
         let state = TrainState {
@@ -564,12 +562,13 @@ impl Trainer<'_> {
         };
         let state = serde_json::to_value(&state).map_err(|e| {
             CheckpointError::format(
-                &crate::checkpoint::checkpoint_root(&self.out).join(crate::checkpoint::STATE_FILE),
+                &talkin_avatar::checkpoint::checkpoint_root(&self.out)
+                    .join(talkin_avatar::checkpoint::STATE_FILE),
                 "state",
                 e,
             )
         })?;
-        let dir = crate::checkpoint::save(
+        let dir = talkin_avatar::checkpoint::save(
             &self.out,
             &CheckpointContents {
                 step: self.step,

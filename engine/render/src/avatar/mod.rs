@@ -1,23 +1,21 @@
 //! A trained avatar ready to render: the field on an inference device plus each subject's
 //! skeleton, shells and occupancy grid. Loaded once from a run's checkpoint (render,
-//! eval, the server) or wrapped around a field still in training (the speed-vs-error
-//! benchmark's evaluations).
+//! eval, the server) or wrapped around a field still in training (the benchmarks'
+//! evaluations, `talkin_benches::shared::avatar_of`).
 
 mod render;
 
 use std::path::{Path, PathBuf};
 
 use burn::prelude::*;
+use talkin_avatar::checkpoint::{Checkpoint, CheckpointError, STATE_FILE};
+use talkin_avatar::device_rng::DeviceRng;
+use talkin_avatar::refined::RefinedFits;
+use talkin_avatar::subject::{SubjectModel, SubjectSlot};
 use talkin_grids::SamplerKind;
 use talkin_nets::{FieldConfig, TalkinField};
 
 pub use render::{MAX_RENDER_PIXELS, RENDER_CHUNK_RAYS, RENDER_CHUNK_SAMPLES, RenderedFrame};
-
-use talkin_train::Trainer;
-use talkin_train::checkpoint::{Checkpoint, CheckpointError};
-use talkin_train::refine::RefinedFits;
-use talkin_train::subject::SubjectModel;
-use talkin_train::subject::SubjectSlot;
 
 /// Why an avatar could not be loaded or could not render.
 #[derive(Debug, thiserror::Error)]
@@ -56,20 +54,6 @@ pub struct Avatar {
 }
 
 impl Avatar {
-    /// The field of a run in progress as it is now, ready to render (the benchmarks'
-    /// evaluations during a run).
-    pub fn from_trainer(trainer: &Trainer) -> Avatar {
-        Avatar {
-            field: trainer.inference_field(),
-            config: trainer.config().clone(),
-            background: trainer.background(),
-            subjects: trainer.subjects().to_vec(),
-            sampler: trainer.options().sampler,
-            field_step: trainer.field_step(),
-            refined: trainer.refined_fits(),
-        }
-    }
-
     /// Loads the newest checkpoint of `run` onto the CPU (Flex) device.
     pub fn load(run: &Path) -> Result<Avatar, AvatarError> {
         Avatar::load_on(run, &Device::flex())
@@ -79,8 +63,8 @@ impl Avatar {
     /// host arrays, whichever device trained them).
     pub fn load_on(run: &Path, device: &Device) -> Result<Avatar, AvatarError> {
         let checkpoint = Checkpoint::load(run)?;
-        let field = checkpoint.field(device)?;
-        let state_file = checkpoint.dir.join(talkin_train::checkpoint::STATE_FILE);
+        let field = checkpoint.field(device, &mut DeviceRng::take_turn())?;
+        let state_file = checkpoint.dir.join(STATE_FILE);
         let bad = |field: &'static str, problem: &str| AvatarError::State {
             file: state_file.clone(),
             field,

@@ -6,14 +6,14 @@ use std::time::Instant;
 use burn::prelude::*;
 use image::{GrayImage, RgbImage};
 use rayon::prelude::*;
+use talkin_avatar::field_inputs::{frame_conditions, packed_layout};
+use talkin_avatar::scene::{DilatedGrids, FrameSampler, FrameScene};
 use talkin_grids::{Ray, SamplerKind};
-use talkin_nets::FieldInput;
-use talkin_train::field_inputs::{frame_conditions, packed_layout};
-
-use super::{Avatar, AvatarError};
 use talkin_human::body::FrameParams;
 use talkin_human::camera::Camera;
-use talkin_train::scene::{FrameSampler, FrameScene};
+use talkin_nets::FieldInput;
+
+use super::{Avatar, AvatarError};
 
 /// Rays per field evaluation when rendering.
 pub const RENDER_CHUNK_RAYS: usize = 8192;
@@ -52,6 +52,7 @@ struct ChunkContext<'a> {
     frame_sampler: &'a FrameSampler,
     kind: SamplerKind,
     grid: &'a talkin_grids::OccupancyGrid,
+    dilated: &'a DilatedGrids,
     conditions: &'a talkin_nets::FrameConditions,
     /// Field samples per evaluation at most (a single ray may exceed it).
     max_samples: usize,
@@ -168,6 +169,7 @@ impl Avatar {
                     frame_sampler: &frame_sampler,
                     kind,
                     grid: &model.grid,
+                    dilated: &model.dilated,
                     conditions: &conditions,
                     max_samples: max_chunk_samples,
                 };
@@ -205,10 +207,11 @@ impl Avatar {
             frame_sampler,
             kind,
             grid,
+            dilated,
             conditions,
             max_samples,
         } = *ctx;
-        let samples = frame_sampler.sample(kind, chunk, grid, None)?;
+        let samples = frame_sampler.sample(kind, chunk, grid, dilated, None)?;
         if samples.num_samples() > max_samples && chunk.len() > 1 {
             let (first, second) = chunk.split_at(chunk.len() / 2);
             let mut out = self.render_chunk(ctx, first)?;

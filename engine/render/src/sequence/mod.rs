@@ -91,7 +91,7 @@ pub fn shots_from_frames(
     // Training frames of a refining run are posed as refined (held-out frames have no
     // correction: they use their fits as given).
     let fingerprint = match &avatar.refined {
-        Some(_) => talkin_train::setup::dataset_sha256(dataset).ok(),
+        Some(_) => talkin_avatar::checkpoint::dataset_sha256(dataset).ok(),
         None => None,
     };
     let params_of = |i: usize| {

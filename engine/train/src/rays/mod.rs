@@ -8,11 +8,11 @@ mod pool;
 
 pub(crate) use pool::PixelPool;
 
-use crate::field_inputs::frame_conditions;
 use crate::rng::SplitMix64;
-use crate::scene::{FrameSampler, FrameScene};
 use crate::schedule::PartFractions;
-use crate::subject::SubjectModel;
+use talkin_avatar::field_inputs::frame_conditions;
+use talkin_avatar::scene::{FrameSampler, FrameScene};
+use talkin_avatar::subject::SubjectModel;
 use talkin_data::dataset::{Dataset, DatasetError, FrameImages, N_LABELS};
 use talkin_human::body::FrameParams;
 

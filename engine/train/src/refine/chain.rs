@@ -4,12 +4,13 @@
 //! central differences in f64 (69 coordinates, two 22-joint chains each: microseconds,
 //! and exact to ~1e-9 relative, far below the gradient's own noise).
 
+use talkin_avatar::refined::layout::{
+    BODY, DIM, EXPRESSION, HANDS, JAW, ORIENT, TRANSL, corrected,
+};
+use talkin_human::body::skeleton::N_BODY_JOINTS;
 use talkin_human::body::{FrameParams, PosedSkeleton, Skeleton, canonical_from_posed};
 use talkin_nets::PoseGrads;
 use talkin_nets::field::leaves::TRANSFORM_ROWS;
-
-use super::layout::{BODY, DIM, EXPRESSION, HANDS, JAW, ORIENT, TRANSL, corrected};
-use talkin_human::body::skeleton::N_BODY_JOINTS;
 
 /// Step of the central differences (radians or metres).
 const H: f64 = 1e-6;

@@ -4,12 +4,11 @@
 
 use std::path::{Path, PathBuf};
 
+use talkin_avatar::checkpoint::{Checkpoint, STATE_FILE, dataset_sha256, path_json};
+use talkin_avatar::refined::RefinedFits;
 use talkin_data::dataset::{Dataset, write_atomic};
 
-use super::RefinedFits;
-use crate::checkpoint::{Checkpoint, STATE_FILE, path_json};
 use crate::error::TrainError;
-use crate::setup::dataset_sha256;
 
 /// What an export wrote.
 #[derive(Clone, Debug)]

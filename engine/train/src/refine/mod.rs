@@ -18,38 +18,21 @@
 
 pub mod chain;
 mod export;
-mod fits;
-pub mod layout;
 mod options;
 #[cfg(test)]
 mod tests;
 
-use serde::{Deserialize, Serialize};
+use talkin_avatar::refined::{RefinerState, layout};
 use talkin_data::dataset::Dataset;
 use talkin_human::body::FrameParams;
 
 pub use export::{ExportSummary, export_poses};
-pub use fits::RefinedFits;
 pub use options::{RefineMode, RefineOptions};
 
 /// Adam's moment decays and epsilon for the corrections.
 const BETA_1: f64 = 0.9;
 const BETA_2: f64 = 0.999;
 const EPSILON: f64 = 1e-8;
-
-/// The corrections of a run's training frames and their optimizer state: what a
-/// checkpoint records (`state.json`'s `pose_refinement`).
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct RefinerState {
-    /// Dataset frame of each slot (the run's training frames, in order).
-    pub frames: Vec<usize>,
-    /// Per slot: the correction ([`layout::DIM`] numbers).
-    pub delta: Vec<Vec<f32>>,
-    /// Per slot: Adam's first and second moments and its step count.
-    pub m: Vec<Vec<f32>>,
-    pub v: Vec<Vec<f32>>,
-    pub t: Vec<u32>,
-}
 
 /// A run's pose refinement.
 #[derive(Clone, Debug)]

@@ -5,14 +5,14 @@
 use std::path::PathBuf;
 
 use glam::DVec3;
+use talkin_avatar::refined::layout::{self, BODY, DIM, HANDS};
+use talkin_avatar::scene::{CapsuleShells, FrameScene};
 use talkin_data::dataset::{Dataset, Frame, Split, Subject};
 use talkin_human::body::{FrameParams, Skeleton, canonical_params, joint};
 use talkin_human::camera::Camera;
 use talkin_synth::body::default_rest_joints;
 
-use super::layout::{self, BODY, DIM, HANDS};
 use super::{PoseRefiner, RefineMode, RefineOptions};
-use crate::scene::{CapsuleShells, FrameScene};
 
 fn camera() -> Camera {
     Camera::look_at(

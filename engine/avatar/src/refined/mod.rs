@@ -1,14 +1,31 @@
 //! A run's refined training fits as everything after training reads them: renders and
-//! evaluations of training frames, and `talkin export-poses`.
+//! evaluations of training frames, and `talkin export-poses`. Training learns them (the
+//! trainer's pose refinement); a checkpoint records them in `state.json`.
+
+pub mod layout;
 
 use std::collections::HashMap;
 
+use serde::{Deserialize, Serialize};
 use serde_json::Value;
 use talkin_data::dataset::Dataset;
 use talkin_human::body::FrameParams;
 
-use super::RefinerState;
-use super::layout::{self, DIM};
+use layout::DIM;
+
+/// The corrections of a run's training frames and their optimizer state: what a
+/// checkpoint records (`state.json`'s `pose_refinement`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct RefinerState {
+    /// Dataset frame of each slot (the run's training frames, in order).
+    pub frames: Vec<usize>,
+    /// Per slot: the correction ([`layout::DIM`] numbers).
+    pub delta: Vec<Vec<f32>>,
+    /// Per slot: Adam's first and second moments and its step count.
+    pub m: Vec<Vec<f32>>,
+    pub v: Vec<Vec<f32>>,
+    pub t: Vec<u32>,
+}
 
 /// The corrections a checkpoint recorded, keyed by dataset frame, with the fingerprint of
 /// the dataset they belong to.

@@ -6,7 +6,9 @@
 use talkin_grids::{GridError, MarginFitOpts, OccupancyGrid};
 use talkin_nets::skinning::BoneSegment;
 
-use crate::scene::{CanonicalGrid, CapsuleShells, canonical_surface_points, fit_subject_margins};
+use crate::scene::{
+    CanonicalGrid, CapsuleShells, DilatedGrids, canonical_surface_points, fit_subject_margins,
+};
 use talkin_data::dataset::{Dataset, DatasetError};
 use talkin_human::body::skeleton::body_ancestor;
 use talkin_human::body::{PosedSkeleton, Skeleton, canonical_params, limb_capsules};
@@ -22,6 +24,9 @@ pub struct SubjectModel {
     pub shells: CapsuleShells,
     /// Canonical occupancy (initially the union of the training hand and jaw poses).
     pub grid: OccupancyGrid,
+    /// `grid` dilated for the accelerated sampler's cull, shared by the subject's frames
+    /// (kept per grid: occupancy updates change the grid).
+    pub dilated: DilatedGrids,
 }
 
 /// One subject slot of a run: every dataset subject has an identity code; only subjects
@@ -90,6 +95,7 @@ impl SubjectModel {
             canonical,
             shells,
             grid,
+            dilated: DilatedGrids::default(),
         }
     }
 }

@@ -33,12 +33,14 @@ use burn::prelude::*;
 use burn::store::ModuleRecord;
 use burn::tensor::Bytes;
 use talkin_data::atomic::{sync_dir, write_atomic, write_synced};
+use talkin_data::dataset::{Dataset, INDEX_FILE};
 use talkin_nets::{FieldConfig, TalkinField};
 
 pub use grid_file::{grid_from_bytes, grid_to_bytes};
 pub use manifest::{MANIFEST_FILE, Manifest, sha256_hex};
 pub use subjects_file::SubjectsFile;
 
+use crate::device_rng::DeviceRng;
 use crate::subject::{SubjectSlot, bone_prior};
 
 /// The checkpoint directory inside a run directory.
@@ -94,7 +96,9 @@ impl CheckpointError {
         }
     }
 
-    pub(crate) fn format(file: &Path, field: &str, problem: impl ToString) -> CheckpointError {
+    /// A malformed `field` of `file` (the trainer's state, too: its schema is the
+    /// trainer's).
+    pub fn format(file: &Path, field: &str, problem: impl ToString) -> CheckpointError {
         CheckpointError::Format {
             file: file.to_path_buf(),
             field: field.to_string(),
@@ -132,14 +136,18 @@ pub struct CheckpointContents<'a> {
     pub keep: Option<&'a Path>,
 }
 
-/// Held by whoever seeds the device or draws a field's initial weights: burn's device
-/// RNG is process-wide, and a draw interleaved with another thread's (tests, benches)
-/// would make the same seed give different weights.
-pub static DEVICE_RNG: std::sync::Mutex<()> = std::sync::Mutex::new(());
-
 /// The checkpoint directory of a run.
 pub fn checkpoint_root(run: &Path) -> PathBuf {
     run.join(CHECKPOINT_DIR)
+}
+
+/// The dataset's fingerprint: the SHA-256 of its `dataset.json` (every frame's files,
+/// split, camera and parameters), recorded in each checkpoint and checked on resume.
+pub fn dataset_sha256(dataset: &Dataset) -> Result<String, CheckpointError> {
+    let file = dataset.root.join(INDEX_FILE);
+    std::fs::read(&file)
+        .map(|bytes| sha256_hex(&bytes))
+        .map_err(|source| CheckpointError::Io { file, source })
 }
 
 /// The directory name of the checkpoint after `step` steps.
@@ -416,19 +424,23 @@ impl Checkpoint {
     }
 
     /// Builds the field on `device` (add `.autodiff()` to train it further) with the
-    /// checkpoint's weights.
-    pub fn field(&self, device: &Device) -> Result<TalkinField, CheckpointError> {
+    /// checkpoint's weights. Building it draws initial weights (then overwritten) from
+    /// burn's RNG, so it takes the caller's turn at it.
+    pub fn field(
+        &self,
+        device: &Device,
+        _turn: &mut DeviceRng,
+    ) -> Result<TalkinField, CheckpointError> {
         let model_file = self.dir.join(MODEL_FILE);
         let skeletons: Vec<_> = self
             .subjects
             .iter()
             .filter_map(|s| s.model.as_ref().map(|m| &m.skeleton))
             .collect();
-        let field = {
-            let _guard = DEVICE_RNG.lock().unwrap_or_else(|e| e.into_inner());
-            self.config.init(&bone_prior(skeletons), device)
-        }
-        .map_err(|e| CheckpointError::format(&self.dir.join(CONFIG_FILE), "FieldConfig", e))?;
+        let field = self
+            .config
+            .init(&bone_prior(skeletons), device)
+            .map_err(|e| CheckpointError::format(&self.dir.join(CONFIG_FILE), "FieldConfig", e))?;
         let record = ModuleRecord::from_bytes(Bytes::from_bytes_vec(self.model_bytes.clone()))
             .map_err(|e| CheckpointError::format(&model_file, "record", e))?;
         let field = field

@@ -108,8 +108,13 @@ impl FrameSampler {
 
     /// The accelerated sampler culling with `grid` (the subject's canonical occupancy
     /// grid), made on first use and again only when the grid's bits change (occupancy
-    /// updates); the dilated grid is shared by the subject's frames.
-    pub fn prepare(&self, grid: &OccupancyGrid) -> Result<Arc<AcceleratedSampler>, GridError> {
+    /// updates); the dilated grid comes from `dilated`, the subject's, shared by its
+    /// frames.
+    pub fn prepare(
+        &self,
+        grid: &OccupancyGrid,
+        dilated: &DilatedGrids,
+    ) -> Result<Arc<AcceleratedSampler>, GridError> {
         let key = grid.fingerprint();
         let mut cached = self.accelerated.lock().unwrap_or_else(|e| e.into_inner());
         if let Some((k, sampler)) = cached.as_ref()
@@ -119,7 +124,7 @@ impl FrameSampler {
         }
         let reach = AcceleratedSampler::cull_reach(self.step) + CULL_POSE_SLACK_M;
         let cull = CanonicalCull {
-            grid: dilated_occupancy(grid, reach)?,
+            grid: dilated.get(grid, reach)?,
             canonical_from_posed: self.canonical_from_posed.clone(),
         };
         let sampler = Arc::new(AcceleratedSampler::new(
@@ -135,12 +140,13 @@ impl FrameSampler {
     /// Samples `rays` with `kind`, stratified with jitter seeded by `jitter` (training), or
     /// at the regular bins' places for `None` (rendering: a jittered render is noisier,
     /// -0.12 dB on the demo's test_same). The accelerated sampler culls with `grid`, the
-    /// subject's canonical occupancy grid.
+    /// subject's canonical occupancy grid, dilated through `dilated` (the subject's).
     pub fn sample(
         &self,
         kind: SamplerKind,
         rays: &[Ray],
         grid: &OccupancyGrid,
+        dilated: &DilatedGrids,
         jitter: Option<u64>,
     ) -> Result<PackedSamples, GridError> {
         match kind {
@@ -155,7 +161,7 @@ impl FrameSampler {
                 },
             ),
             SamplerKind::Accelerated => self
-                .prepare(grid)?
+                .prepare(grid, dilated)?
                 .sample(rays, &self.accelerated_opts(jitter)),
         }
     }
@@ -201,29 +207,63 @@ fn joints_box(posed: &PosedSkeleton) -> (Affine3A, Vec3, Vec3) {
     (dense_from_world, lo - margin, hi + margin)
 }
 
-/// The canonical grid dilated by at least `reach` (in whole cells), shared by every frame
-/// of a subject:
-/// dilating is per grid, not per frame, so the last few results are kept by fingerprint.
-fn dilated_occupancy(grid: &OccupancyGrid, reach: f32) -> Result<Arc<DilatedOccupancy>, GridError> {
-    static CACHE: Mutex<Vec<Arc<DilatedOccupancy>>> = Mutex::new(Vec::new());
-    let key = grid.fingerprint();
-    // A little more than asked, so frames whose steps differ slightly share one; the
-    // dilation is whole cells, so the cache is matched on the cell count: what a frame
-    // gets depends only on the grid and its own step, never on what was cached before
-    // (matching any larger reach made training depend on the order frames were seen).
-    let ask = reach * 1.25;
-    let cells = (ask / grid.cell_size().min_element()).ceil();
-    let mut cache = CACHE.lock().unwrap_or_else(|e| e.into_inner());
-    if let Some(d) = cache.iter().find(|d| {
-        d.source_fingerprint() == key
-            && (d.reach() / grid.cell_size().min_element()).round() == cells
-    }) {
-        return Ok(d.clone());
+/// A subject's canonical grid dilated for the accelerated sampler's cull, shared by every
+/// frame of the subject: dilating is per grid, not per frame, so the last few results
+/// are kept by the grid's fingerprint. Owned beside the grid it dilates (a
+/// [`SubjectModel`](crate::subject::SubjectModel)'s, or a test's); a clone starts with
+/// the same results and keeps its own from then on.
+#[derive(Default)]
+pub struct DilatedGrids {
+    recent: Mutex<Vec<Arc<DilatedOccupancy>>>,
+}
+
+/// Dilated grids a [`DilatedGrids`] keeps (the oldest goes first).
+const DILATED_GRIDS_KEPT: usize = 8;
+
+impl DilatedGrids {
+    /// `grid` dilated by at least `reach` (in whole cells).
+    pub fn get(
+        &self,
+        grid: &OccupancyGrid,
+        reach: f32,
+    ) -> Result<Arc<DilatedOccupancy>, GridError> {
+        let key = grid.fingerprint();
+        // A little more than asked, so frames whose steps differ slightly share one; the
+        // dilation is whole cells, so the cache is matched on the cell count: what a frame
+        // gets depends only on the grid and its own step, never on what was cached before
+        // (matching any larger reach made training depend on the order frames were seen).
+        let ask = reach * 1.25;
+        let cells = (ask / grid.cell_size().min_element()).ceil();
+        let mut recent = self.recent.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(d) = recent.iter().find(|d| {
+            d.source_fingerprint() == key
+                && (d.reach() / grid.cell_size().min_element()).round() == cells
+        }) {
+            return Ok(d.clone());
+        }
+        let d = Arc::new(DilatedOccupancy::new(grid, ask)?);
+        if recent.len() >= DILATED_GRIDS_KEPT {
+            recent.remove(0);
+        }
+        recent.push(d.clone());
+        Ok(d)
     }
-    let d = Arc::new(DilatedOccupancy::new(grid, ask)?);
-    if cache.len() >= 8 {
-        cache.remove(0);
+}
+
+impl Clone for DilatedGrids {
+    fn clone(&self) -> DilatedGrids {
+        let recent = self.recent.lock().unwrap_or_else(|e| e.into_inner());
+        DilatedGrids {
+            recent: Mutex::new(recent.clone()),
+        }
     }
-    cache.push(d.clone());
-    Ok(d)
+}
+
+impl std::fmt::Debug for DilatedGrids {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let recent = self.recent.lock().unwrap_or_else(|e| e.into_inner());
+        f.debug_struct("DilatedGrids")
+            .field("kept", &recent.len())
+            .finish()
+    }
 }
