@@ -106,7 +106,7 @@ impl Mlp {
 }
 
 impl Mlp {
-    /// The fused op ([`crate::mlp_fused`]) where it applies: no skips, every layer with a
+    /// The fused op (`kernels::mlp`) where it applies: no skips, every layer with a
     /// bias, a non-empty batch on the CPU backend. The shared row's product and the first
     /// bias become one `[1, width]` bias, composed here so their gradients flow as usual.
     fn fused(&self, x: &Tensor<2>, row: Option<&Tensor<2>>) -> Option<Tensor<2>> {
@@ -129,7 +129,7 @@ impl Mlp {
             params.push(w);
             params.push(b);
         }
-        crate::mlp_fused::forward(x, &params)
+        crate::kernels::mlp::forward(x, &params)
     }
 }
 

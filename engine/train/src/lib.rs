@@ -1,7 +1,7 @@
 //! train: one training step and the run around it. The modules read in the order a step
 //! runs: a frame's [`rays`] (its scene, conditions and samplers come from `talkin-avatar`),
-//! the [`loss`] (whose two halves' gradients `grad_sum` adds), the [`adam`] optimizer,
-//! the [`grid_update`]; [`step`] strings them together and [`trainer`] runs steps until
+//! the [`loss`] (whose two halves' gradients nets' fused `grad_sum` adds), Adam (nets'
+//! fused kernel), the [`grid_update`]; [`step`] strings them together and [`trainer`] runs steps until
 //! the budget is spent, writing the [`log`] and the avatar's checkpoints. A run is told
 //! its [`recipe`], whose [`preset`] names the architecture and optimiser settings; with
 //! [`refine`] it also learns per-frame corrections of the training fits.
@@ -10,9 +10,7 @@
 //! experiments: they read what it writes (checkpoints, through `talkin-avatar`) or drive
 //! a [`Trainer`].
 
-pub mod adam;
 pub mod error;
-mod grad_sum;
 pub mod grid_update;
 pub mod log;
 pub mod loss;

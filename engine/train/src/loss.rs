@@ -18,7 +18,7 @@ use talkin_nets::field::leaves::zero_grads;
 use talkin_nets::loss::{PerceptualLoss, mse, seg_cross_entropy};
 use talkin_nets::{FieldInput, FrameConditions, NetsError, PoseGrads, PoseLeaves, TalkinField};
 
-use crate::grad_sum::sum_grads;
+use talkin_nets::kernels::grad_sum::sum_grads;
 
 /// Weight of the segmentation cross-entropy.
 pub const SEG_WEIGHT: f32 = 0.05;

@@ -23,7 +23,6 @@ use talkin_grids::OccUpdateOpts;
 use talkin_nets::loss::{Backbone, PerceptualLoss};
 use talkin_nets::{ComputeDevice, FieldConfig, TalkinField};
 
-use crate::adam::FusedAdam;
 use crate::error::TrainError;
 use crate::log::{LOG_FILE, StepLog, TrainLog};
 use crate::preset::Preset;
@@ -32,6 +31,7 @@ use crate::recipe::TrainOptions;
 use crate::refine::{PoseRefiner, RefineMode};
 use crate::rng::SplitMix64;
 use crate::schedule;
+use talkin_nets::kernels::adam::FusedAdam;
 mod budget;
 
 pub use budget::ScheduleAnchor;

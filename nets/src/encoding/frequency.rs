@@ -92,7 +92,7 @@ impl FrequencyEncoding {
             return x;
         }
         let weights = self.band_weights(step);
-        if let Some(fused) = super::frequency_fused::encode(&x, &weights) {
+        if let Some(fused) = crate::kernels::frequency::encode(&x, &weights) {
             return fused;
         }
         self.composed(x, &weights)
@@ -185,7 +185,7 @@ mod tests {
             let x = Tensor::<2>::from_data(TensorData::new(values.clone(), [n, d]), &device)
                 .require_grad();
             let y = if fused {
-                super::super::frequency_fused::encode(&x, &weights).expect("Flex takes it")
+                crate::kernels::frequency::encode(&x, &weights).expect("Flex takes it")
             } else {
                 enc.composed(x.clone(), &weights)
             };
@@ -211,7 +211,7 @@ mod tests {
         let plain =
             Tensor::<2>::from_data(TensorData::new(values.clone(), [n, d]), &Device::flex());
         let y_plain = crate::util::host(
-            &super::super::frequency_fused::encode(&plain, &weights).expect("Flex takes it"),
+            &crate::kernels::frequency::encode(&plain, &weights).expect("Flex takes it"),
         );
         assert_eq!(y_plain, y_f);
     }

@@ -9,8 +9,8 @@ use burn::prelude::*;
 use burn::tensor::Distribution;
 
 use super::hash_corners::corners_on_device;
-use super::hash_fused::{self, Corners};
 use super::hash_primes::{IDENTITY_PRIME, PRIMES};
+use crate::kernels::hash::{self as hash_fused, Corners};
 use crate::util::{floats, host, ints};
 
 /// Table row of integer vertex `c` of identity `id` on `level` of a grid with these

@@ -1,13 +1,10 @@
 //! Input encodings: sinusoidal positional encoding (with HumanNeRF's Hann window) and the
 //! multiresolution hash grid, behind one [`Encoding`] that presets choose by config.
-//! Each runs as one fused op on the Flex CPU backend (`*_fused`, with its own backward)
-//! and as composed tensor ops elsewhere (wgpu); tests hold the two equal.
+//! Each runs as one fused op on the Flex CPU backend (`crate::kernels`, with its own
+//! backward) and as composed tensor ops elsewhere (wgpu); tests hold the two equal.
 
-pub(crate) mod flex_data;
 pub mod frequency;
-mod frequency_fused;
 mod hash_corners;
-mod hash_fused;
 pub mod hash_grid;
 mod hash_primes;
 

@@ -26,11 +26,7 @@ fn all_zero(values: &[f32]) -> bool {
 }
 
 /// `a + b` for every parameter of `module`, reusing `a`'s buffers.
-pub(crate) fn sum_grads<M: Module>(
-    module: &M,
-    a: GradientsParams,
-    b: GradientsParams,
-) -> GradientsParams {
+pub fn sum_grads<M: Module>(module: &M, a: GradientsParams, b: GradientsParams) -> GradientsParams {
     let mut visitor = SumInto { sum: a, other: b };
     module.visit(&mut visitor);
     visitor.sum

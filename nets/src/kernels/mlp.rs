@@ -21,7 +21,7 @@ use burn::backend::{Autodiff, Flex};
 use burn::prelude::*;
 use rayon::prelude::*;
 
-use crate::encoding::flex_data::{f32_data, flex_tensor};
+use super::flex_data::{f32_data, flex_tensor};
 
 /// Rows per parallel task: a chunk's activations (512 x 64 floats a layer) stay in L2.
 const CHUNK: usize = 512;
