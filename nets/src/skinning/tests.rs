@@ -1,0 +1,284 @@
+//! D_r's tests: candidates, the priors, the warp and its gradients.
+
+use super::*;
+use crate::util::host;
+
+fn identity_transforms() -> Vec<[f32; 16]> {
+    (0..N_BODY_JOINTS)
+        .map(|b| {
+            let s = b as f32 * 0.01;
+            [
+                1.0,
+                0.0,
+                0.0,
+                s,
+                0.0,
+                1.0,
+                0.0,
+                -s,
+                0.0,
+                0.0,
+                1.0,
+                0.5 * s,
+                0.0,
+                0.0,
+                0.0,
+                1.0,
+            ]
+        })
+        .collect()
+}
+
+#[test]
+fn ancestors_and_candidates() {
+    assert_eq!(body_ancestor(22), HEAD_JOINT);
+    assert_eq!(body_ancestor(24), HEAD_JOINT);
+    assert_eq!(body_ancestor(25), LEFT_WRIST);
+    assert_eq!(body_ancestor(39), LEFT_WRIST);
+    assert_eq!(body_ancestor(40), RIGHT_WRIST);
+    assert_eq!(body_ancestor(54), RIGHT_WRIST);
+    assert_eq!(body_candidates(0), (1 << 22) - 1);
+    assert_eq!(
+        body_candidates((1 << 30) | (1 << 23) | 1),
+        (1 << 20) | (1 << 15) | 1
+    );
+}
+
+#[test]
+fn single_candidate_is_rigid_and_all_bones_is_fallback() {
+    let device = Device::flex();
+    let vol = SkinningConfig::new()
+        .with_resolution(8)
+        .init([-1.0; 3], [1.0; 3], &ladder_prior(), &device)
+        .unwrap();
+    let t = identity_transforms();
+    let pts = [[0.1f32, 0.2, 0.3], [0.0, 0.0, 0.0]];
+    let warp = vol
+        .inverse_lbs(&pts, &[1 << 5, 0], &t, &[], &device)
+        .unwrap();
+    assert_eq!(warp.n_pairs, 1 + 22);
+    let x = host(&warp.x_canonical);
+    assert!(
+        (x[0] - 0.15).abs() < 1e-6 && (x[1] - 0.15).abs() < 1e-6 && (x[2] - 0.325).abs() < 1e-6
+    );
+}
+
+/// A forearm held against the chest: a sample inside the forearm's core, 2.5 cm from the
+/// chest's, goes where the forearm's transform sends it; one inside the chest's core
+/// goes with the chest. Both bones are candidates of both samples.
+#[test]
+fn posed_prior_lets_the_core_holding_a_sample_win() {
+    let device = Device::flex();
+    let vol = SkinningConfig::new()
+        .with_resolution(8)
+        .with_posed_tau(Some(0.005))
+        .init([-1.0; 3], [1.0; 3], &ladder_prior(), &device)
+        .unwrap();
+    let (chest, forearm) = (9, 18);
+    let mut t = identity_transforms();
+    // The forearm's transform moves points 0.4 m along x, the chest's not at all.
+    t[forearm][3] = 0.4;
+    t[chest][3] = 0.0;
+    let capsules = [
+        BoneCapsule {
+            bone: chest,
+            a: [0.0, -0.2, 0.0],
+            b: [0.0, 0.2, 0.0],
+            radius: 0.12,
+        },
+        BoneCapsule {
+            bone: forearm,
+            a: [-0.2, 0.0, 0.16],
+            b: [0.2, 0.0, 0.16],
+            radius: 0.035,
+        },
+    ];
+    let mask = (1u64 << chest) | (1 << forearm);
+    // 2.5 cm outside the chest's core and 2 cm inside the forearm's; then the other
+    // way round.
+    let pts = [[0.0f32, 0.0, 0.145], [0.0, 0.0, 0.10]];
+    let warp = vol
+        .inverse_lbs(&pts, &[mask, mask], &t, &capsules, &device)
+        .unwrap();
+    let x = host(&warp.x_canonical);
+    let moved = |k: usize, b: usize| -> [f32; 3] {
+        std::array::from_fn(|i| pts[k][i] + t[b][4 * i + 3])
+    };
+    for (k, bone) in [(0, forearm), (1, chest)] {
+        let want = moved(k, bone);
+        for i in 0..3 {
+            assert!(
+                (x[3 * k + i] - want[i]).abs() < 2e-3,
+                "sample {k}: {:?} against {want:?}",
+                &x[3 * k..3 * k + 3]
+            );
+        }
+    }
+}
+
+#[test]
+fn posed_prior_checks_its_input() {
+    let device = Device::flex();
+    let bad_tau = SkinningConfig::new().with_posed_tau(Some(0.0)).init(
+        [-1.0; 3],
+        [1.0; 3],
+        &ladder_prior(),
+        &device,
+    );
+    assert!(matches!(
+        bad_tau,
+        Err(NetsError::Config {
+            field: "skinning.posed_tau",
+            ..
+        })
+    ));
+    let vol = SkinningConfig::new()
+        .with_resolution(4)
+        .with_posed_tau(Some(0.01))
+        .init([-1.0; 3], [1.0; 3], &ladder_prior(), &device)
+        .unwrap();
+    let t = identity_transforms();
+    let capsule = |bone: usize, radius: f32| BoneCapsule {
+        bone,
+        a: [0.0; 3],
+        b: [0.1, 0.0, 0.0],
+        radius,
+    };
+    let run = |c: BoneCapsule| vol.inverse_lbs(&[[0.0; 3]], &[1], &t, &[c], &device);
+    assert!(matches!(
+        run(capsule(22, 0.1)),
+        Err(NetsError::Index {
+            what: "bone capsule",
+            ..
+        })
+    ));
+    assert!(matches!(
+        run(capsule(2, f32::NAN)),
+        Err(NetsError::NonFinite {
+            what: "bone_capsules"
+        })
+    ));
+    assert!(run(capsule(2, 0.1)).is_ok());
+}
+
+/// A config written before the posed prior existed reads as the canonical prior alone.
+#[test]
+fn configs_without_posed_tau_read_as_off() {
+    let old: SkinningConfig =
+        serde_json::from_str(r#"{"resolution": 32, "prior_sigma": 0.1}"#).unwrap();
+    assert_eq!(old.posed_tau, None);
+}
+
+/// d(sum x_canonical * c)/d(logits) against central differences of an f64 reference,
+/// with the canonical prior and with the posed-space prior (its logits a constant
+/// offset per pair).
+#[test]
+fn gradient_wrt_volume_matches_central_differences() {
+    gradient_check(None, &[]);
+    let capsules = [
+        BoneCapsule {
+            bone: 3,
+            a: [0.0, -0.4, 0.2],
+            b: [0.2, -0.2, 0.2],
+            radius: 0.1,
+        },
+        BoneCapsule {
+            bone: 6,
+            a: [0.1, -0.3, 0.1],
+            b: [0.1, -0.3, 0.1],
+            radius: 0.05,
+        },
+        BoneCapsule {
+            bone: 22 - 1,
+            a: [0.5, 0.5, 0.0],
+            b: [0.8, 0.7, -0.2],
+            radius: 0.0,
+        },
+    ];
+    gradient_check(Some(0.05), &capsules);
+}
+
+fn gradient_check(posed_tau: Option<f64>, capsules: &[BoneCapsule]) {
+    let device = Device::flex().autodiff();
+    let mut vol = SkinningConfig::new()
+        .with_resolution(6)
+        .with_prior_sigma(0.3)
+        .with_posed_tau(posed_tau)
+        .init([-1.0; 3], [1.0; 3], &ladder_prior(), &device)
+        .unwrap();
+    if posed_tau.is_some() {
+        // A non-zero volume, so both terms of the logits are exercised.
+        let n = vol.logits.val().dims()[0];
+        let v: Vec<f32> = (0..n)
+            .map(|i| ((i * 37 % 101) as f32 / 50.0) - 1.0)
+            .collect();
+        vol.logits = Param::from_tensor(floats(v, [n], &device));
+    }
+    let t = identity_transforms();
+    let pts = [[0.13f32, -0.31, 0.22], [-0.4, 0.05, 0.61], [0.7, 0.7, -0.2]];
+    let masks = [
+        (1 << 3) | (1 << 6) | (1 << 9),
+        (1 << 12) | (1 << 22) | (1 << 41),
+        1 << 0,
+    ];
+    let coeff = [0.7f64, -1.1, 0.4, 0.3, 0.9, -0.5, 1.3, 0.2, -0.8];
+    let warp = vol
+        .inverse_lbs(&pts, &masks, &t, capsules, &device)
+        .unwrap();
+    let c = floats(coeff.iter().map(|&v| v as f32).collect(), [3, 3], &device);
+    let grads = (warp.x_canonical * c).sum().backward();
+    let g = host(&vol.logits.grad(&grads).unwrap());
+    let logits: Vec<f64> = host(&vol.logits.val()).iter().map(|&v| v as f64).collect();
+    let pairs = vol.pairs(&pts, &masks, &t, capsules);
+    assert_eq!(
+        pairs.posed.iter().any(|&l| l != 0.0),
+        posed_tau.is_some(),
+        "the posed logits are on exactly when asked for"
+    );
+    let loss = |logits: &[f64]| -> f64 {
+        let mut out = 0.0;
+        for s in 0..pts.len() {
+            let idx: Vec<usize> = (0..pairs.sample.len())
+                .filter(|&i| pairs.sample[i] == s as i32)
+                .collect();
+            let l: Vec<f64> = idx
+                .iter()
+                .map(|&i| {
+                    (0..8)
+                        .map(|k| {
+                            pairs.weights[i * 8 + k] as f64
+                                * logits[pairs.rows[i * 8 + k] as usize]
+                        })
+                        .sum::<f64>()
+                        + pairs.posed[i] as f64
+                })
+                .collect();
+            let mx = l.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
+            let z: f64 = l.iter().map(|v| (v - mx).exp()).sum();
+            for (j, &i) in idx.iter().enumerate() {
+                let w = (l[j] - mx).exp() / z;
+                for a in 0..3 {
+                    out += coeff[s * 3 + a] * w * pairs.x[i * 3 + a] as f64;
+                }
+            }
+        }
+        out
+    };
+    let h = 1e-4;
+    let mut nonzero = 0;
+    for &row in &pairs.rows {
+        let row = row as usize;
+        let mut l = logits.clone();
+        l[row] += h;
+        let up = loss(&l);
+        l[row] -= 2.0 * h;
+        let fd = (up - loss(&l)) / (2.0 * h);
+        assert!(
+            (fd - g[row] as f64).abs() < 1e-4 * (1.0 + fd.abs()),
+            "row {row}: fd {fd} ad {}",
+            g[row]
+        );
+        nonzero += (fd.abs() > 1e-6) as usize;
+    }
+    assert!(nonzero > 8);
+}
