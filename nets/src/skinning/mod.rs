@@ -78,7 +78,6 @@ pub fn body_candidates(mask: u64) -> u32 {
     }
 }
 
-
 /// Configuration of [`BlendWeightVolume`].
 #[derive(Config, Debug)]
 pub struct SkinningConfig {

@@ -101,9 +101,8 @@ fn posed_prior_lets_the_core_holding_a_sample_win() {
         .inverse_lbs(&pts, &[mask, mask], &t, &capsules, &device)
         .unwrap();
     let x = host(&warp.x_canonical);
-    let moved = |k: usize, b: usize| -> [f32; 3] {
-        std::array::from_fn(|i| pts[k][i] + t[b][4 * i + 3])
-    };
+    let moved =
+        |k: usize, b: usize| -> [f32; 3] { std::array::from_fn(|i| pts[k][i] + t[b][4 * i + 3]) };
     for (k, bone) in [(0, forearm), (1, chest)] {
         let want = moved(k, bone);
         for i in 0..3 {
@@ -246,8 +245,7 @@ fn gradient_check(posed_tau: Option<f64>, capsules: &[BoneCapsule]) {
                 .map(|&i| {
                     (0..8)
                         .map(|k| {
-                            pairs.weights[i * 8 + k] as f64
-                                * logits[pairs.rows[i * 8 + k] as usize]
+                            pairs.weights[i * 8 + k] as f64 * logits[pairs.rows[i * 8 + k] as usize]
                         })
                         .sum::<f64>()
                         + pairs.posed[i] as f64

@@ -1,0 +1,281 @@
+//! Building a trainer: a fresh run, or one adapted from another run to a novel subject.
+
+use std::collections::HashMap;
+use std::path::Path;
+
+use burn::optim::ModuleOptimizer;
+use burn::prelude::*;
+use talkin_avatar::checkpoint::{Checkpoint, dataset_sha256};
+use talkin_avatar::device_rng::DeviceRng;
+use talkin_avatar::subject::{SubjectModel, SubjectSlot, bone_prior};
+use talkin_data::dataset::Dataset;
+use talkin_grids::OccUpdateOpts;
+use talkin_nets::loss::{Backbone, PerceptualLoss};
+use talkin_nets::{ComputeDevice, FieldConfig, TalkinField};
+
+use crate::error::TrainError;
+use crate::log::{LOG_FILE, TrainLog};
+use crate::preset::Preset;
+use crate::recipe::TrainOptions;
+use crate::refine::{PoseRefiner, RefineMode};
+use crate::rng::SplitMix64;
+use talkin_nets::kernels::adam::FusedAdam;
+
+use crate::setup::{
+    clear_run, clip_of, fit_field_box, fit_subjects, training_frames, unknown_subject, write_recipe,
+};
+
+use super::{Trainer, is_imported};
+
+impl<'a> Trainer<'a> {
+    /// A fresh run of `opts` on `dataset`, writing into `out` (created).
+    pub fn new(dataset: &'a Dataset, out: &Path, opts: &TrainOptions) -> Result<Self, TrainError> {
+        opts.check()?;
+        let frames = training_frames(dataset, opts.identities.names(), opts.clip_seconds)?;
+        let n_subjects = dataset.subjects.len();
+        let mut config = opts.preset.field_config(n_subjects);
+        config.use_d_hands = opts.ablation.use_d_hands;
+        config.hand_background = opts.ablation.hand_background;
+        config.face_uses_jaw = opts.ablation.face_uses_jaw;
+        let subjects = fit_subjects(dataset, &frames, opts.grid_resolution)?;
+        fit_field_box(&mut config, &subjects);
+        let device = open_device(opts.device)?;
+        let skeletons = subjects
+            .iter()
+            .filter_map(|s| s.model.as_ref().map(|m| &m.skeleton));
+        let field = {
+            // The initial weights are drawn on the CPU whatever the device, so one seed
+            // gives one field on every device. The CPU's RNG is process-wide: seeding and
+            // drawing take one turn at it, or another trainer's draws (tests, benches in
+            // threads) would interleave and the same seed give different weights.
+            let cpu = Device::flex().autodiff();
+            let mut rng = DeviceRng::take_turn();
+            rng.seed(&cpu, opts.seed);
+            let field = config
+                .init(&bone_prior(skeletons), &cpu)
+                .map_err(|source| TrainError::Field { source })?;
+            // burn draws a layer's weights lazily, on first use: draw them all now, on
+            // the CPU and during the turn, or a forked field would draw them on its device.
+            materialize(&field);
+            if device == cpu {
+                field
+            } else {
+                field.fork(&device)
+            }
+        };
+        let slot_of = (0..n_subjects).map(Some).collect();
+        Trainer::start(dataset, out, opts, config, field, subjects, frames, slot_of)
+    }
+
+    /// Adapts the run in `base` to the subject `subject` of `dataset` (a novel identity:
+    /// a new identity code initialised to the mean of the others), training every
+    /// parameter on that subject's first `opts.clip_seconds` of training frames with `opts`
+    /// (the paper: lr 1e-5, a few iterations). Writes a new run into `out`.
+    pub fn adapt(
+        dataset: &'a Dataset,
+        base: &Path,
+        subject: &str,
+        out: &Path,
+        opts: &TrainOptions,
+    ) -> Result<Self, TrainError> {
+        opts.check()?;
+        if same_dir(base, out) {
+            return Err(TrainError::BadOption {
+                flag: "--out",
+                problem: format!(
+                    "{} is the run being adapted; give the adapted run its own directory",
+                    out.display()
+                ),
+            });
+        }
+        let index_file = dataset.root.join(talkin_data::dataset::INDEX_FILE);
+        let s = dataset
+            .subject_index(subject)
+            .ok_or_else(|| unknown_subject(dataset, "--subject", subject))?;
+        let frames = clip_of(dataset, s, opts.clip_seconds);
+        if frames.is_empty() {
+            return Err(TrainError::NoTrainFrames { file: index_file });
+        }
+        let checkpoint = Checkpoint::load(base)?;
+        let device = open_device(opts.device)?;
+        // The field's initial draw is overwritten by the checkpoint's record; the seed is
+        // for what the adaptation draws after it.
+        let mut field = {
+            let mut rng = DeviceRng::take_turn();
+            rng.seed(&device, opts.seed);
+            checkpoint.field(&device, &mut rng)?
+        };
+        let mut config = checkpoint.config.clone();
+        let mut subjects = checkpoint.subjects.clone();
+        let name = dataset.subjects[s].name.clone();
+        let model = SubjectModel::fit(dataset, s, &frames, opts.grid_resolution)?;
+        // A subject the base run holds a code for but never trained reuses that code;
+        // anyone else gets a new one.
+        let slot = match subjects.iter().position(|x| x.name == name) {
+            Some(i) if subjects[i].model.is_some() => {
+                return Err(TrainError::BadOption {
+                    flag: "--subject",
+                    problem: format!(
+                        "`{name}` was already trained in {}; continue it with `train --resume`",
+                        base.display()
+                    ),
+                });
+            }
+            Some(i) => {
+                subjects[i].model = Some(model);
+                i
+            }
+            None => {
+                let (grown, i) = field.add_identity();
+                field = grown;
+                subjects.push(SubjectSlot {
+                    name,
+                    model: Some(model),
+                });
+                i
+            }
+        };
+        config.n_identities = field.n_identities();
+        let mut slot_of = vec![None; dataset.subjects.len()];
+        slot_of[s] = Some(slot);
+        Trainer::start(dataset, out, opts, config, field, subjects, frames, slot_of)
+    }
+
+    /// A new run directory: creates it (clearing any run it held), writes the recipe and
+    /// a fresh log.
+    #[allow(clippy::too_many_arguments)]
+    pub(super) fn start(
+        dataset: &'a Dataset,
+        out: &Path,
+        opts: &TrainOptions,
+        config: FieldConfig,
+        field: TalkinField,
+        subjects: Vec<SubjectSlot>,
+        frames: Vec<usize>,
+        slot_of: Vec<Option<usize>>,
+    ) -> Result<Self, TrainError> {
+        std::fs::create_dir_all(out).map_err(|source| TrainError::Io {
+            file: out.to_path_buf(),
+            source,
+        })?;
+        clear_run(out)?;
+        // The mask defines the person: a frame declared matted that shows its
+        // surroundings is composited by its mask when decoded; say so before training.
+        let contradicting = dataset.contradicting_frames(&frames)?;
+        if !contradicting.is_empty() {
+            tracing::warn!(
+                "{}: {} of {} training frames are not over the declared background outside \
+                 their masks: they are composited by their masks (declare `\"matting\": \
+                 \"by_mask\"` in dataset.json to say so; `talkin inspect` lists them)",
+                dataset
+                    .root
+                    .join(talkin_data::dataset::INDEX_FILE)
+                    .display(),
+                contradicting.len(),
+                frames.len()
+            );
+        }
+        // `auto` is decided once, here, and recorded as what it decided.
+        let mut opts = opts.clone();
+        opts.refine.refine_poses = if opts.refine.is_on(is_imported(dataset)) {
+            RefineMode::On
+        } else {
+            RefineMode::Off
+        };
+        write_recipe(out, &opts, &config, None)?;
+        let log = TrainLog::open(&out.join(LOG_FILE), None)?;
+        Trainer::assemble(
+            dataset, out, opts, config, field, subjects, frames, slot_of, log,
+        )
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    pub(super) fn assemble(
+        dataset: &'a Dataset,
+        out: &Path,
+        opts: TrainOptions,
+        config: FieldConfig,
+        field: TalkinField,
+        subjects: Vec<SubjectSlot>,
+        frames: Vec<usize>,
+        slot_of: Vec<Option<usize>>,
+        log: TrainLog,
+    ) -> Result<Self, TrainError> {
+        let device = field.identity.val().device();
+        let perceptual = match opts.perceptual_dir() {
+            Some(dir) => Some(
+                PerceptualLoss::from_dir(dir, Backbone::Alex, &device)
+                    .map_err(|source| TrainError::Perceptual { source })?,
+            ),
+            _ => None,
+        };
+        // No full-grid warm-up: every update evaluates the occupied cells and a random
+        // quarter. Evaluating all ~10^6 cells of a 128-cell grid with three nets took
+        // ~6 s per subject on 2 cores (measured on the demo scene), 75x a step.
+        let occ_opts = OccUpdateOpts {
+            n: opts.occ_every,
+            seed: opts.seed,
+            warmup_steps: 0,
+            ..OccUpdateOpts::default()
+        };
+        let optim = optimizer(opts.preset);
+        let dataset_sha256 = dataset_sha256(dataset)?;
+        let refiner = (opts.refine.refine_poses == RefineMode::On)
+            .then(|| PoseRefiner::new(dataset, &frames, opts.refine.clone()));
+        Ok(Trainer {
+            refiner,
+            dataset,
+            out: out.to_path_buf(),
+            rng: SplitMix64::new(opts.seed ^ 0x7A1C_11E5_EED5_0001),
+            opts,
+            config,
+            field: Some(field),
+            optim,
+            subjects,
+            frames,
+            cache: HashMap::new(),
+            perceptual,
+            step: 0,
+            elapsed: 0.0,
+            since_checkpoint: 0.0,
+            log,
+            occ_opts,
+            grid_occupied: 1.0,
+            slot_of,
+            dataset_sha256,
+            anchor: None,
+            last_checkpoint: None,
+            notes: Vec::new(),
+        })
+    }
+}
+
+/// Whether `a` and `b` name the same existing directory.
+fn same_dir(a: &Path, b: &Path) -> bool {
+    match (a.canonicalize(), b.canonicalize()) {
+        (Ok(a), Ok(b)) => a == b,
+        _ => false,
+    }
+}
+
+/// Adam with the preset's settings, fused into one pass per parameter ([`FusedAdam`]).
+pub(super) fn optimizer(preset: Preset) -> ModuleOptimizer {
+    let a = preset.adam();
+    ModuleOptimizer::from(FusedAdam::new(a.beta_1, a.beta_2, a.epsilon))
+}
+
+/// `on`, opened for training (with autodiff).
+pub(super) fn open_device(on: ComputeDevice) -> Result<Device, TrainError> {
+    Ok(on.open()?.autodiff())
+}
+
+/// Draws every lazily initialised parameter of `field` now.
+fn materialize(field: &TalkinField) {
+    struct Touch;
+    impl burn::module::ModuleVisitor for Touch {
+        fn visit_float<const D: usize>(&mut self, param: &burn::module::Param<Tensor<D>>) {
+            let _ = param.val();
+        }
+    }
+    field.visit(&mut Touch);
+}

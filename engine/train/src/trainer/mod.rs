@@ -1,0 +1,264 @@
+//! The run around the step: a trainer is built fresh ([`Trainer::new`]), adapted from
+//! another run to a novel subject ([`Trainer::adapt`]) or resumed exactly from its newest
+//! checkpoint ([`Trainer::resume`]), optionally to a new budget ([`Trainer::set_budget`]);
+//! [`Trainer::run`] steps it ([`crate::step`]) until its budget is spent or it is told to
+//! stop ([`Trainer::run_until`]), checkpointing every few minutes and at the end.
+//!
+//! This file holds the trainer's state, its accessors and the run loop; `construct`
+//! builds one (fresh or adapted), `resume` continues a run from a checkpoint, `save`
+//! writes checkpoints and `budget` maps a run onto the schedule.
+
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+
+use burn::optim::ModuleOptimizer;
+use burn::prelude::*;
+use serde::{Deserialize, Serialize};
+use talkin_avatar::checkpoint::path_json;
+use talkin_avatar::refined::RefinerState;
+use talkin_avatar::subject::SubjectSlot;
+use talkin_data::dataset::Dataset;
+use talkin_grids::OccUpdateOpts;
+use talkin_nets::loss::PerceptualLoss;
+use talkin_nets::{FieldConfig, TalkinField};
+
+use crate::error::TrainError;
+use crate::log::{LOG_FILE, StepLog, TrainLog};
+use crate::rays::FrameCache;
+use crate::recipe::TrainOptions;
+use crate::refine::PoseRefiner;
+use crate::rng::SplitMix64;
+use crate::schedule;
+mod budget;
+mod construct;
+mod resume;
+mod save;
+
+pub use budget::ScheduleAnchor;
+
+use crate::setup::options_serde;
+
+/// What a run did.
+#[derive(Clone, Debug)]
+pub struct TrainReport {
+    pub logs: Vec<StepLog>,
+    /// The checkpoint written at the end (or at the interruption).
+    pub checkpoint: PathBuf,
+    /// Steps of the run in all (earlier calls included): the checkpoint's step.
+    pub steps: usize,
+    /// Whether the run stopped early because [`Trainer::run_until`]'s flag was set.
+    pub interrupted: bool,
+    /// What loading the checkpoint it resumed from had to say (a fallback from a damaged
+    /// checkpoint, a checkpoint without a manifest or dataset fingerprint).
+    pub notes: Vec<String>,
+    pub log_file: PathBuf,
+    /// Training seconds of this call.
+    pub seconds: f64,
+    /// `Some` when the perceptual term is SSIM rather than LPIPS: why.
+    pub perceptual_note: Option<String>,
+}
+
+/// What `state.json` holds: enough to continue exactly.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+struct TrainState {
+    step: usize,
+    /// The step the field saw last (virtual; see [`schedule`]).
+    field_step: usize,
+    elapsed_seconds: f64,
+    rng_state: u64,
+    #[serde(with = "options_serde")]
+    options: TrainOptions,
+    /// The dataset directory, as given (for messages).
+    #[serde(with = "path_json::serde_path")]
+    data: PathBuf,
+    /// SHA-256 of the dataset's `dataset.json`; with `frames`, the dataset's fingerprint
+    /// (absent in runs from before it was recorded).
+    #[serde(default)]
+    dataset_sha256: Option<String>,
+    /// Dataset frames trained on.
+    frames: Vec<usize>,
+    /// Per dataset subject: its identity code and subject slot.
+    slot_of: Vec<Option<usize>>,
+    /// Where the schedule was last re-anchored to a new budget (absent: never).
+    #[serde(default)]
+    schedule_anchor: Option<ScheduleAnchor>,
+    /// The training frames' pose corrections and their optimizer (absent: the run
+    /// trusts its fits).
+    #[serde(default)]
+    pose_refinement: Option<RefinerState>,
+}
+
+/// A run in progress.
+pub struct Trainer<'a> {
+    pub(crate) dataset: &'a Dataset,
+    pub(crate) out: PathBuf,
+    pub(crate) opts: TrainOptions,
+    pub(crate) config: FieldConfig,
+    /// Always `Some` between steps; the optimizer step takes it out so that no other
+    /// handle shares the parameters' buffers and Adam updates them in place.
+    pub(crate) field: Option<TalkinField>,
+    pub(crate) optim: ModuleOptimizer,
+    pub(crate) subjects: Vec<SubjectSlot>,
+    pub(crate) frames: Vec<usize>,
+    pub(crate) rng: SplitMix64,
+    pub(crate) cache: HashMap<usize, FrameCache>,
+    pub(crate) perceptual: Option<PerceptualLoss>,
+    pub(crate) step: usize,
+    pub(crate) elapsed: f64,
+    pub(crate) since_checkpoint: f64,
+    pub(crate) log: TrainLog,
+    pub(crate) occ_opts: OccUpdateOpts,
+    /// Occupied fraction of the grid last updated, for the log.
+    pub(crate) grid_occupied: f64,
+    /// Per dataset subject: its identity code and subject slot.
+    pub(crate) slot_of: Vec<Option<usize>>,
+    /// SHA-256 of the dataset's `dataset.json`, recorded in every checkpoint.
+    pub(crate) dataset_sha256: String,
+    pub(crate) anchor: Option<ScheduleAnchor>,
+    /// The checkpoint written or resumed from last (kept as the fallback by the next
+    /// save) and its step.
+    pub(crate) last_checkpoint: Option<(usize, PathBuf)>,
+    pub(crate) notes: Vec<String>,
+    /// The training fits' corrections (`None`: the fits are trusted).
+    pub(crate) refiner: Option<PoseRefiner>,
+}
+
+impl<'a> Trainer<'a> {}
+
+impl Trainer<'_> {
+    /// What loading the checkpoint this run resumed from had to say.
+    pub fn notes(&self) -> &[String] {
+        &self.notes
+    }
+
+    /// The dataset frames this run draws its rays from (for `adapt`, the clip's).
+    pub fn training_frames(&self) -> &[usize] {
+        &self.frames
+    }
+
+    /// Steps taken.
+    pub fn steps_taken(&self) -> usize {
+        self.step
+    }
+
+    /// Training seconds so far (evaluation pauses excluded).
+    pub fn elapsed_seconds(&self) -> f64 {
+        self.elapsed
+    }
+
+    pub fn options(&self) -> &TrainOptions {
+        &self.opts
+    }
+
+    /// `Some` when the perceptual term is SSIM rather than LPIPS: why.
+    pub fn perceptual_note(&self) -> Option<String> {
+        self.perceptual.as_ref().and_then(|p| p.fallback_reason())
+    }
+
+    /// The field as it is now, without its gradients (for evaluations during a run).
+    pub fn inference_field(&self) -> TalkinField {
+        self.field().valid()
+    }
+
+    /// The training fits' corrections (`None`: the run trusts its fits).
+    pub fn refiner(&self) -> Option<&PoseRefiner> {
+        self.refiner.as_ref()
+    }
+
+    /// The refined training fits as renders read them (`None`: the run trusts its fits).
+    pub fn refined_fits(&self) -> Option<talkin_avatar::refined::RefinedFits> {
+        self.refiner
+            .as_ref()
+            .map(|r| talkin_avatar::refined::RefinedFits::new(&r.state, &self.dataset_sha256))
+    }
+
+    /// The field's configuration.
+    pub fn config(&self) -> &FieldConfig {
+        &self.config
+    }
+
+    /// Every identity slot of the field, with the models of the trained subjects.
+    pub fn subjects(&self) -> &[SubjectSlot] {
+        &self.subjects
+    }
+
+    /// The colour the dataset's images are composited on.
+    pub fn background(&self) -> [f32; 3] {
+        self.dataset.background
+    }
+
+    /// The step the field sees now (virtual; see [`schedule`]).
+    pub fn field_step(&self) -> usize {
+        schedule::virtual_step(self.schedule_progress())
+    }
+
+    pub(crate) fn field(&self) -> &TalkinField {
+        self.field
+            .as_ref()
+            .expect("the field is back after every step")
+    }
+
+    /// Identity slot of dataset subject `s` (`None`: not trained in this run).
+    pub fn slot_of(&self, s: usize) -> Option<usize> {
+        self.slot_of.get(s).copied().flatten()
+    }
+
+    /// Trains until the budget is spent, checkpointing on the way and at the end.
+    pub fn run(self, progress: &mut dyn FnMut(&StepLog)) -> Result<TrainReport, TrainError> {
+        self.run_until(&AtomicBool::new(false), progress)
+    }
+
+    /// [`Trainer::run`], but `stop` is polled between steps: once it is set, the step in
+    /// progress finishes, a checkpoint is written (the log flushed with it) and the report
+    /// says `interrupted` (a signal handler sets it: Ctrl-C or SIGTERM).
+    pub fn run_until(
+        mut self,
+        stop: &AtomicBool,
+        progress: &mut dyn FnMut(&StepLog),
+    ) -> Result<TrainReport, TrainError> {
+        let start = self.elapsed;
+        let mut logs = Vec::new();
+        let mut interrupted = false;
+        while !self.done() {
+            if stop.load(Ordering::SeqCst) {
+                interrupted = true;
+                break;
+            }
+            let entry = self.step()?;
+            progress(&entry);
+            logs.push(entry);
+            self.maybe_save()?;
+        }
+        let checkpoint = self.save()?;
+        Ok(TrainReport {
+            logs,
+            checkpoint,
+            steps: self.step,
+            interrupted,
+            notes: self.notes.clone(),
+            log_file: self.out.join(LOG_FILE),
+            seconds: self.elapsed - start,
+            perceptual_note: self.perceptual_note(),
+        })
+    }
+}
+
+/// Trains a fresh run of `opts` on `dataset` into `out` (see [`Trainer`]).
+pub fn train(
+    dataset: &Dataset,
+    out: &Path,
+    opts: &TrainOptions,
+    progress: &mut dyn FnMut(&StepLog),
+) -> Result<TrainReport, TrainError> {
+    Trainer::new(dataset, out, opts)?.run(progress)
+}
+
+/// Whether `dataset` came from `talkin import` (its report sits beside `dataset.json`):
+/// its fits are an estimator's, worth refining.
+pub fn is_imported(dataset: &Dataset) -> bool {
+    dataset
+        .root
+        .join(talkin_data::import::IMPORT_REPORT)
+        .is_file()
+}
