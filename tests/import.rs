@@ -506,9 +506,9 @@ fn humannerf_zju_distortion_is_removed_from_images_and_masks() {
 /// Training on an imported dataset does as well as training on the dataset it came from:
 /// the synthetic scene written in HumanNeRF's prepared layout (SMPL poses: no fingers,
 /// jaw or eyes; no depth, no segmentation) and imported, against the scene itself, with
-/// the same frames, budget and seed, scored on test_same. Run with
-/// `cargo test --release --test import -- --ignored --nocapture` (TALKIN_IMPORT_STEPS sets
-/// the budget; docs/results.md has the figure).
+/// the same frames, budget, seed and recipe (the demo's `--patches 0 --batch 512`), scored
+/// on test_same. Run with `cargo test --release --test import -- --ignored --nocapture`
+/// (TALKIN_IMPORT_STEPS sets the budget; docs/results.md has the figure).
 #[test]
 #[ignore = "trains twice (minutes in release)"]
 fn training_on_an_imported_dataset_matches_its_source() {
@@ -580,6 +580,10 @@ fn training_on_an_imported_dataset_matches_its_source() {
             p(&run),
             "--steps",
             &steps,
+            "--patches",
+            "0",
+            "--batch",
+            "512",
         ]);
         assert!(o.status.success(), "{}", stderr(&o));
         let json = root.join(format!("eval_{name}.json"));
@@ -598,6 +602,14 @@ fn training_on_an_imported_dataset_matches_its_source() {
         let report: serde_json::Value =
             serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
         psnr.push(report["psnr"].as_f64().unwrap());
+        println!(
+            "{name}: PSNR {:.2}, SSIM {:.4}, face {:.2}, hands {:.2}, person {:.2} dB",
+            report["psnr"].as_f64().unwrap(),
+            report["ssim"].as_f64().unwrap(),
+            report["psnr_face"].as_f64().unwrap_or(f64::NAN),
+            report["psnr_hands"].as_f64().unwrap_or(f64::NAN),
+            report["psnr_person"].as_f64().unwrap_or(f64::NAN),
+        );
     }
     println!(
         "test_same PSNR after {steps} steps: source {:.2} dB, imported {:.2} dB, difference {:.2} dB",
