@@ -12,7 +12,9 @@ use std::path::Path;
 use std::sync::OnceLock;
 
 use common::capture::{Capture, FLAWS, dilate};
-use common::cli::{import_args, import_ok, p, stderr, talkin};
+use common::cli::{
+    import_args, import_ok, p, stderr, synth_training_scene, talkin, train_and_test_same,
+};
 use common::layouts::{
     Clip, FramePixels, smplerx_args, write_humannerf_prepared, write_humannerf_wild,
     write_peoplesnapshot, write_smplerx,
@@ -555,26 +557,8 @@ fn camera_frames_train_within_1_db_of_the_clean_scene() {
     let flaw_sets = env_sets("TALKIN_CAPTURE_FLAWS", &FLAWS);
     let root = common::temp_dir("capture_train");
     let data = root.join("clean");
-    let o = talkin(&[
-        "synth",
-        "--out",
-        p(&data),
-        "--identities",
-        "1",
-        "--frames",
-        "20",
-        "--size",
-        "96",
-        "--seed",
-        "1",
-    ]);
-    assert!(o.status.success(), "{}", stderr(&o));
-    let ds = Dataset::load(&data).unwrap();
-    let frames: Vec<&Frame> = ds
-        .frames
-        .iter()
-        .filter(|f| matches!(f.split.name(), "train" | "test_same"))
-        .collect();
+    let ds = synth_training_scene(&data);
+    let frames = train_and_test_same(&ds);
     let clean = Clip::from_files(&ds, frames);
 
     /// A run's scores: on its own targets, the best any render scores there (the

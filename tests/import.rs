@@ -10,7 +10,9 @@ mod common;
 use std::path::Path;
 use std::sync::OnceLock;
 
-use common::cli::{import_args, import_ok, p, stderr, talkin};
+use common::cli::{
+    import_args, import_ok, p, stderr, synth_training_scene, talkin, train_and_test_same,
+};
 use common::layouts::{
     Clip, SmplerxFixture, f32_array, f64_array, root_in_camera, smplerx_args,
     write_humannerf_prepared, write_humannerf_wild, write_model, write_peoplesnapshot,
@@ -518,26 +520,8 @@ fn training_on_an_imported_dataset_matches_its_source() {
         .unwrap_or(600);
     let root = common::temp_dir("import_train");
     let data = root.join("source");
-    let o = talkin(&[
-        "synth",
-        "--out",
-        p(&data),
-        "--identities",
-        "1",
-        "--frames",
-        "20",
-        "--size",
-        "96",
-        "--seed",
-        "1",
-    ]);
-    assert!(o.status.success(), "{}", stderr(&o));
-    let ds = Dataset::load(&data).unwrap();
-    let frames: Vec<&Frame> = ds
-        .frames
-        .iter()
-        .filter(|f| matches!(f.split.name(), "train" | "test_same"))
-        .collect();
+    let ds = synth_training_scene(&data);
+    let frames = train_and_test_same(&ds);
     let hn = write_humannerf_prepared(
         &Clip::from_files(&ds, frames.clone()),
         "import_train_hn",

@@ -10,11 +10,9 @@ use std::time::Instant;
 
 use burn::optim::{AdamConfig, GradientsParams};
 use burn::prelude::*;
-use talkin_nets::field::{
-    FieldConfig, FieldInput, FrameConditions, HAND_POSE_DIM, PART_BIT_HANDS, PART_BIT_HEAD,
-};
+use talkin_nets::field::{FieldConfig, FieldInput, FrameConditions, PART_BIT_HANDS, PART_BIT_HEAD};
 use talkin_nets::render::OwnedRaySamples;
-use talkin_nets::skinning::{N_BODY_JOINTS, ladder_prior};
+use talkin_nets::skinning::ladder_prior;
 
 #[global_allocator]
 static ALLOC: mimalloc::MiMalloc = mimalloc::MiMalloc;
@@ -79,22 +77,6 @@ fn batch(rays: usize, per_ray: usize) -> Batch {
     b
 }
 
-fn frame() -> FrameConditions {
-    let mut t = [0.0f32; 16];
-    for i in 0..4 {
-        t[i * 5] = 1.0;
-    }
-    FrameConditions {
-        identity: 0,
-        canonical_from_posed: vec![t; N_BODY_JOINTS],
-        body_pose: vec![0.05; 63],
-        expression: [0.1; 10],
-        jaw: [0.2, 0.0, 0.0],
-        hand_pose: vec![0.0; HAND_POSE_DIM],
-        bone_capsules: vec![],
-    }
-}
-
 fn run(device: &Device, device_name: &str, preset: &str, b: &Batch, iters: usize) {
     let n = b.points.len();
     let cfg = match preset {
@@ -104,7 +86,7 @@ fn run(device: &Device, device_name: &str, preset: &str, b: &Batch, iters: usize
     };
     // Same initialisation (hence the same routing) in every run.
     device.seed(17);
-    let f = frame();
+    let f = FrameConditions::still();
     // Past D_nr's start, so every module runs.
     let input = FieldInput {
         points: &b.points,

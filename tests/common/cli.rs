@@ -3,7 +3,7 @@
 use std::path::Path;
 use std::process::{Command, Output};
 
-use talkin::data::dataset::Dataset;
+use talkin::data::dataset::{Dataset, Frame};
 
 /// Runs `talkin` with `args` and waits for it.
 pub fn talkin(args: &[&str]) -> Output {
@@ -47,4 +47,32 @@ pub fn import_ok(args: &[&str]) -> Dataset {
     let dir = args[args.iter().position(|a| *a == "--out").unwrap() + 1];
     assert!(Path::new(dir).join("import.json").is_file());
     Dataset::load(dir).unwrap()
+}
+
+/// The scene the end-to-end training tests compare against, written by `talkin synth
+/// --identities 1 --frames 20 --size 96 --seed 1` into `dir` and loaded.
+pub fn synth_training_scene(dir: &Path) -> Dataset {
+    let o = talkin(&[
+        "synth",
+        "--out",
+        p(dir),
+        "--identities",
+        "1",
+        "--frames",
+        "20",
+        "--size",
+        "96",
+        "--seed",
+        "1",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    Dataset::load(dir).unwrap()
+}
+
+/// `ds`'s train and test_same frames, in order (what a fitter's layout holds).
+pub fn train_and_test_same(ds: &Dataset) -> Vec<&Frame> {
+    ds.frames
+        .iter()
+        .filter(|f| matches!(f.split.name(), "train" | "test_same"))
+        .collect()
 }

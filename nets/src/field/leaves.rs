@@ -139,9 +139,10 @@ pub fn zero_grads(pose_dim: usize) -> PoseGrads {
 
 #[cfg(test)]
 mod tests {
-    use super::super::tests::{batch, force_body, frame, tiny_fast};
+    use super::super::tests::{batch, force_body, tiny_fast};
     use super::*;
     use crate::FieldInput;
+    use crate::field::FrameConditions;
     use crate::field::{PART_BIT_HANDS, PART_BIT_HEAD};
     use crate::skinning::ladder_prior;
 
@@ -155,7 +156,7 @@ mod tests {
         let n = pts.len();
         let bones = vec![1u64 << 15; n];
         let parts: Vec<u8> = vec![PART_BIT_HEAD | PART_BIT_HANDS; n];
-        let mut frame = frame();
+        let mut frame = FrameConditions::still();
         // A turned and shifted head transform.
         frame.canonical_from_posed[15] = [
             0.8, -0.6, 0.0, 0.1, //

@@ -140,6 +140,27 @@ pub struct FrameConditions {
     pub bone_capsules: Vec<BoneCapsule>,
 }
 
+impl FrameConditions {
+    /// A made-up frame for tests and benches: subject 0, every bone at rest (identity
+    /// transforms), a slight body pose, expression and jaw, flat hands, no cores.
+    #[doc(hidden)]
+    pub fn still() -> FrameConditions {
+        let mut t = [0.0f32; 16];
+        for i in 0..4 {
+            t[i * 5] = 1.0;
+        }
+        FrameConditions {
+            identity: 0,
+            canonical_from_posed: vec![t; N_BODY_JOINTS],
+            body_pose: vec![0.05; 63],
+            expression: [0.1; EXPRESSION_DIM],
+            jaw: [0.2, 0.0, 0.0],
+            hand_pose: vec![0.0; HAND_POSE_DIM],
+            bone_capsules: vec![],
+        }
+    }
+}
+
 /// One packed batch of samples of one frame.
 #[derive(Clone, Copy, Debug)]
 pub struct FieldInput<'a> {

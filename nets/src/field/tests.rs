@@ -8,22 +8,6 @@ use crate::skinning::ladder_prior;
 use crate::util::host;
 use burn::optim::{AdamConfig, GradientsParams};
 
-pub(crate) fn frame() -> FrameConditions {
-    let mut t = [0.0f32; 16];
-    for i in 0..4 {
-        t[i * 5] = 1.0;
-    }
-    FrameConditions {
-        identity: 0,
-        canonical_from_posed: vec![t; N_BODY_JOINTS],
-        body_pose: vec![0.05; 63],
-        expression: [0.1; EXPRESSION_DIM],
-        jaw: [0.2, 0.0, 0.0],
-        hand_pose: vec![0.0; HAND_POSE_DIM],
-        bone_capsules: vec![],
-    }
-}
-
 /// `rays` rays of `per_ray` samples marching through the box along z.
 pub(crate) fn batch(rays: usize, per_ray: usize) -> (Vec<[f32; 3]>, OwnedRaySamples) {
     let mut pts = Vec::new();
@@ -160,7 +144,7 @@ fn non_candidates_never_reach_face_or_hands() {
     let (pts, _) = batch(6, 8);
     let n = pts.len();
     let bones = vec![1u64 << 15; n];
-    let frame = frame();
+    let frame = FrameConditions::still();
     let mut field = tiny_fast().init(&ladder_prior(), &device).unwrap();
     poison(field.face.as_mut().unwrap());
     poison(field.hands.as_mut().unwrap());
@@ -230,7 +214,7 @@ fn routing_on_the_device_matches_routing_on_the_host() {
     let (pts, samples) = batch(8, 12);
     let n = pts.len();
     let (bones, parts) = mixed_masks(n);
-    let f = frame();
+    let f = FrameConditions::still();
     let input = FieldInput {
         points: &pts,
         bone_masks: &bones,
@@ -314,7 +298,7 @@ fn hands_without_background_replace_body_outputs() {
     let device = Device::flex();
     let (pts, samples) = batch(4, 6);
     let n = pts.len();
-    let (bones, frame) = (vec![0u64; n], frame());
+    let (bones, frame) = (vec![0u64; n], FrameConditions::still());
     let mut field = tiny_fast()
         .with_hand_background(false)
         .init(&ladder_prior(), &device)
@@ -369,7 +353,7 @@ fn absent_modules_are_not_built_or_run() {
     force_body(&mut bare, [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 5.0]);
     let (pts, _) = batch(2, 4);
     let n = pts.len();
-    let (bones, parts, frame) = (vec![0u64; n], vec![0xffu8; n], frame());
+    let (bones, parts, frame) = (vec![0u64; n], vec![0xffu8; n], FrameConditions::still());
     let input = FieldInput {
         points: &pts,
         bone_masks: &bones,
@@ -392,7 +376,7 @@ fn absent_modules_are_not_built_or_run() {
 fn empty_batch_renders_empty_rays() {
     let device = Device::flex().autodiff();
     let field = tiny_fast().init(&ladder_prior(), &device).unwrap();
-    let frame = frame();
+    let frame = FrameConditions::still();
     let input = FieldInput {
         points: &[],
         bone_masks: &[],
@@ -418,7 +402,7 @@ fn non_rigid_switches_on_at_its_step() {
     let field = tiny_fast().init(&ladder_prior(), &device).unwrap();
     let (pts, _) = batch(2, 4);
     let n = pts.len();
-    let (bones, parts, frame) = (vec![1u64 << 3; n], vec![0u8; n], frame());
+    let (bones, parts, frame) = (vec![1u64 << 3; n], vec![0u8; n], FrameConditions::still());
     let mut input = FieldInput {
         points: &pts,
         bone_masks: &bones,
@@ -436,7 +420,7 @@ fn rejects_bad_conditions() {
     let device = Device::flex();
     let field = tiny_fast().init(&ladder_prior(), &device).unwrap();
     let (pts, _) = batch(1, 2);
-    let mut f = frame();
+    let mut f = FrameConditions::still();
     f.identity = 2;
     let input = FieldInput {
         points: &pts,
@@ -454,7 +438,7 @@ fn rejects_bad_conditions() {
     ));
     let f = FrameConditions {
         body_pose: vec![0.0; 3],
-        ..frame()
+        ..FrameConditions::still()
     };
     let input = FieldInput { frame: &f, ..input };
     assert!(matches!(
@@ -493,7 +477,7 @@ fn train_step(
 ) -> (TalkinField, f32) {
     let n = pts.len();
     let (bones, parts) = mixed_masks(n);
-    let f = frame();
+    let f = FrameConditions::still();
     let input = FieldInput {
         points: pts,
         bone_masks: &bones,
