@@ -114,6 +114,12 @@ impl ComputeDevice {
     }
 }
 
+/// Whether `device` (with or without autodiff) is the CPU backend, Flex: where work is
+/// synchronous, the fused CPU kernels apply, and one batch is split over two threads.
+pub fn is_cpu(device: &Device) -> bool {
+    *device == Device::flex()
+}
+
 #[cfg(feature = "wgpu")]
 fn adapter_name(device: &Device) -> Option<String> {
     device.identity().map(|i| i.name)
@@ -200,6 +206,7 @@ mod tests {
     fn the_cpu_opens_and_is_flex() {
         let device = ComputeDevice::Cpu.open().unwrap();
         assert_eq!(device, Device::flex());
+        assert!(is_cpu(&device) && is_cpu(&device.autodiff()));
     }
 
     #[cfg(not(feature = "wgpu"))]

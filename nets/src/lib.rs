@@ -34,11 +34,12 @@ pub mod kernels;
 pub mod loss;
 pub mod mlp;
 pub mod render;
+mod rows;
 pub mod skinning;
 mod util;
 
 pub use burn::prelude::Device;
-pub use device::{ComputeDevice, DeviceError};
+pub use device::{ComputeDevice, DeviceError, is_cpu};
 pub use error::NetsError;
 pub use field::{
     FieldConfig, FieldInput, FieldOutput, FrameConditions, PoseGrads, PoseLeaves, TalkinField,

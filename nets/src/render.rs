@@ -13,11 +13,10 @@
 //! even when `sigma * delta` would overflow. `alpha = -expm1(-tau)`, using a cubic Taylor
 //! branch for small `tau` where `1 - exp(-tau)` loses all digits.
 
-use burn::prelude::*;
-use burn::tensor::IndexingUpdateOp;
-
 use crate::error::{NetsError, check_len};
+use crate::rows::add_rows;
 use crate::util::{floats, ints};
+use burn::prelude::*;
 
 /// Per-sample optical depth cap (see the module docs).
 pub const MAX_OPTICAL_DEPTH: f32 = 50.0;
@@ -135,12 +134,7 @@ impl RenderWeights {
         let direct = tau.clone().neg().exp().neg().add_scalar(1.0);
         let alpha = direct.mask_where(tau.clone().lower_elem(SMALL_TAU), taylor); // [n]
         let ray = ints(samples.ray_indices(), &device);
-        let total = Tensor::<1>::zeros([r], &device).select_assign(
-            0,
-            ray.clone(),
-            tau,
-            IndexingUpdateOp::Add,
-        );
+        let total = add_rows(Tensor::<1>::zeros([r], &device), ray.clone(), tau);
         Ok(Self {
             weights: transmittance * alpha,
             transmittance_end: total.neg().exp(),
@@ -160,11 +154,10 @@ impl RenderWeights {
         let zeros = Tensor::<2>::zeros([self.n_rays, c], &device);
         match &self.ray_of_sample {
             None => zeros,
-            Some(ray) => zeros.select_assign(
-                0,
+            Some(ray) => add_rows(
+                zeros,
                 ray.clone(),
                 values * self.weights.clone().unsqueeze_dim(1),
-                IndexingUpdateOp::Add,
             ),
         }
     }
@@ -174,11 +167,10 @@ impl RenderWeights {
         let device = self.weights.device();
         match &self.ray_of_sample {
             None => Tensor::zeros([self.n_rays], &device),
-            Some(ray) => Tensor::<1>::zeros([self.n_rays], &device).select_assign(
-                0,
+            Some(ray) => add_rows(
+                Tensor::<1>::zeros([self.n_rays], &device),
                 ray.clone(),
                 self.weights.clone(),
-                IndexingUpdateOp::Add,
             ),
         }
     }

@@ -11,6 +11,7 @@ use burn::tensor::Distribution;
 use super::hash_corners::corners_on_device;
 use super::hash_primes::{IDENTITY_PRIME, PRIMES};
 use crate::kernels::hash::{self as hash_fused, Corners};
+use crate::rows::gather_rows;
 use crate::util::{floats, host, ints};
 
 /// Table row of integer vertex `c` of identity `id` on `level` of a grid with these
@@ -311,8 +312,7 @@ impl HashGrid {
             * axis(1).reshape([n, l, 1, 2, 1])
             * axis(2).reshape([n, l, 2, 1, 1]); // [n, L, z, y, x]
         let weights = weights.reshape([n, l, 8, 1]);
-        let features = table
-            .select(0, rows) // [n L 8, F]
+        let features = gather_rows(table, rows) // [n L 8, F]
             .reshape([n, l, 8, f]);
         (features * weights).sum_dim(2).reshape([n, l * f]) // [n, L F]
     }

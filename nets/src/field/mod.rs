@@ -7,13 +7,13 @@
 
 use burn::module::Param;
 use burn::prelude::*;
-use burn::tensor::IndexingUpdateOp;
 use burn::tensor::activation::sigmoid;
 
 use crate::encoding::{Encoding, FrequencyEncoding};
 use crate::error::{NetsError, check_len};
 use crate::mlp::Mlp;
 use crate::render::{OwnedRaySamples, RaySamples, RenderedRays, render_in_front, render_packed};
+use crate::rows::{add_rows, gather_rows};
 use crate::skinning::{BlendWeightVolume, BoneCapsule, N_BODY_JOINTS, RigidWarp};
 use crate::util::{floats, ints, softplus};
 
@@ -280,12 +280,7 @@ fn replace_rows<const D: usize>(base: Tensor<D>, idx: &[usize], values: Tensor<D
     keep_shape[0] = n;
     let keep = floats(keep, keep_shape, &device);
     let idx = ints(idx.iter().map(|&i| i as i32).collect(), &device);
-    let scattered = Tensor::<D>::zeros(base.shape(), &device).select_assign(
-        0,
-        idx,
-        values,
-        IndexingUpdateOp::Add,
-    );
+    let scattered = add_rows(Tensor::<D>::zeros(base.shape(), &device), idx, values);
     base * keep + scattered
 }
 
@@ -448,10 +443,10 @@ impl TalkinField {
             x = x.clone() + nr.forward(self.to_unit(x), pose, step); // [n, 3]
             stats.non_rigid_rows = n;
         }
-        let identity = self
-            .identity
-            .val()
-            .select(0, ints(vec![frame.identity as i32], &device)); // [1, id]
+        let identity = gather_rows(
+            self.identity.val(),
+            ints(vec![frame.identity as i32], &device),
+        ); // [1, id]
         let raw = self.body.forward(
             self.to_unit(x.clone()),
             frame.identity,
@@ -467,7 +462,7 @@ impl TalkinField {
             let head = route.rows(PART_BIT_HEAD, SEG_HEAD);
             if !head.rows.is_empty() {
                 let h = head.rows.len();
-                let xh = x.clone().select(0, head.indices(&device)); // [h, 3]
+                let xh = gather_rows(x.clone(), head.indices(&device)); // [h, 3]
                 let e = match leaves {
                     Some(l) if self.settings.face_uses_jaw => {
                         Tensor::cat(vec![l.expression.clone(), l.jaw.clone()], 1)
@@ -499,7 +494,7 @@ impl TalkinField {
             let idx = route.rows(PART_BIT_HANDS, SEG_HANDS);
             if !idx.rows.is_empty() {
                 let h = idx.rows.len();
-                let mut xh = x.clone().select(0, idx.indices(&device));
+                let mut xh = gather_rows(x.clone(), idx.indices(&device));
                 if let Some(dh) = &self.hand_deform {
                     let pose = match leaves {
                         Some(l) => l.hand_pose.clone(),

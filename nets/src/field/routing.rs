@@ -12,6 +12,7 @@
 use burn::prelude::*;
 
 use super::{argmax_rows, replace_rows};
+use crate::rows::gather_rows;
 use crate::util::{host, ints};
 
 /// Where the routing labels are read.
@@ -104,7 +105,7 @@ impl Routed {
             None => values,
             Some(keep) => {
                 let device = base.device();
-                let old = base.clone().select(0, self.indices(&device));
+                let old = gather_rows(base.clone(), self.indices(&device));
                 old.mask_where(broadcast(keep, &values), values)
             }
         };

@@ -32,6 +32,7 @@ use burn::prelude::*;
 use burn::tensor::IndexingUpdateOp;
 
 use crate::error::{NetsError, check_len};
+use crate::rows::{gather_rows, on_cpu};
 use crate::util::{floats, ints};
 
 mod prior;
@@ -324,7 +325,7 @@ impl BlendWeightVolume {
             Some(rows) => {
                 // [m, 3, 4] transforms times [m, 1, 4] homogeneous points, summed.
                 let bones = ints(p.bone.iter().map(|&b| b as i32).collect::<Vec<_>>(), device);
-                let mats = rows.clone().select(0, bones).reshape([m, 3, 4]);
+                let mats = gather_rows(rows.clone(), bones).reshape([m, 3, 4]);
                 let xh: Vec<f32> = p
                     .sample
                     .iter()
@@ -338,45 +339,94 @@ impl BlendWeightVolume {
             }
         };
         let corner_w = floats(p.weights, [m, 8], device);
-        let logits = (self
-            .logits
-            .val()
-            .select(0, ints(p.rows, device))
-            .reshape([m, 8])
+        let logits = (gather_rows(self.logits.val(), ints(p.rows, device)).reshape([m, 8])
             * corner_w)
             .sum_dim(1)
             .reshape([m])
             + floats(p.posed, [m], device); // [m]
-        // Softmax over each sample's candidates; the per-sample max is a constant shift,
-        // taken on the device (no readback mid-forward on a GPU).
-        let sample = ints(p.sample, device);
-        let max = Tensor::<1>::full([n], f32::NEG_INFINITY, device).select_assign(
-            0,
-            sample.clone(),
-            logits.clone().detach(),
-            IndexingUpdateOp::Max,
-        ); // [n]
-        let shift = max.select(0, sample.clone()); // [m]
-        let e = (logits - shift).exp(); // [m], max 1 per sample
-        let denom = Tensor::<1>::zeros([n], device).select_assign(
-            0,
-            sample.clone(),
-            e.clone(),
-            IndexingUpdateOp::Add,
-        );
-        let w = e / denom.select(0, sample.clone()); // [m]
-
-        let x_canonical = Tensor::<2>::zeros([n, 3], device).select_assign(
-            0,
-            sample,
-            xb * w.unsqueeze_dim(1),
-            IndexingUpdateOp::Add,
-        );
+        let x_canonical = if on_cpu(device) {
+            blend_scattered(p.sample, n, logits, xb)
+        } else {
+            blend_padded(&p.sample, n, logits, xb)
+        };
         Ok(RigidWarp {
             x_canonical,
             n_pairs: m,
         })
     }
+}
+
+/// The softmax blend `x_canonical = sum_b w_b x_b` over each sample's candidates, as sums
+/// of the pairs into their samples' rows (`select_assign`): parallel on the CPU, one GPU
+/// thread for the batch (the GPU takes [`blend_padded`]).
+///
+/// # Shapes
+/// - `sample`: `[m]` each pair's sample, ascending; every sample has at least one pair
+/// - `logits`: `[m]`; `xb`: `[m, 3]`; output `[n, 3]`
+fn blend_scattered(sample: Vec<i32>, n: usize, logits: Tensor<1>, xb: Tensor<2>) -> Tensor<2> {
+    let device = &logits.device();
+    // The per-sample max is a constant shift, taken on the device (no readback).
+    let sample = ints(sample, device);
+    let max = Tensor::<1>::full([n], f32::NEG_INFINITY, device).select_assign(
+        0,
+        sample.clone(),
+        logits.clone().detach(),
+        IndexingUpdateOp::Max,
+    ); // [n]
+    let shift = max.select(0, sample.clone()); // [m]
+    let e = (logits - shift).exp(); // [m], max 1 per sample
+    let denom = Tensor::<1>::zeros([n], device).select_assign(
+        0,
+        sample.clone(),
+        e.clone(),
+        IndexingUpdateOp::Add,
+    );
+    let w = e / denom.select(0, sample.clone()); // [m]
+    Tensor::<2>::zeros([n, 3], device).select_assign(
+        0,
+        sample,
+        xb * w.unsqueeze_dim(1),
+        IndexingUpdateOp::Add,
+    )
+}
+
+/// The softmax blend `x_canonical = sum_b w_b x_b` in a padded `[n, K]` layout: slot
+/// `(s, j)` holds sample `s`'s `j`-th candidate (pairs are sorted by sample), the rest a
+/// pad whose logit is `PAD_LOGIT` (weight exactly 0). Every reduction is along the `K`
+/// axis of one row, so it is parallel over samples on a GPU, where the per-sample sums
+/// into `[n]` (`select_assign`) ran one thread for the whole batch.
+///
+/// # Shapes
+/// - `sample`: `[m]` each pair's sample, ascending; every sample has at least one pair
+/// - `logits`: `[m]`; `xb`: `[m, 3]`; output `[n, 3]`
+fn blend_padded(sample: &[i32], n: usize, logits: Tensor<1>, xb: Tensor<2>) -> Tensor<2> {
+    /// exp(PAD_LOGIT - max) is 0 for any logit a volume holds, and finite arithmetic.
+    const PAD_LOGIT: f32 = -1e30;
+    let device = logits.device();
+    let m = sample.len();
+    let mut count = vec![0usize; n];
+    for &s in sample {
+        count[s as usize] += 1;
+    }
+    let k = count.iter().copied().max().unwrap_or(1).max(1);
+    // Slot (s, j) -> pair index, or the pad (index m).
+    let mut slot = vec![m as i32; n * k];
+    let mut start = 0;
+    for (s, &c) in count.iter().enumerate() {
+        for j in 0..c {
+            slot[s * k + j] = (start + j) as i32;
+        }
+        start += c;
+    }
+    let slot = ints(slot, &device);
+    let logits = Tensor::cat(vec![logits, Tensor::full([1], PAD_LOGIT, &device)], 0);
+    let xb = Tensor::cat(vec![xb, Tensor::zeros([1, 3], &device)], 0);
+    let logits = gather_rows(logits, slot.clone()).reshape([n, k]);
+    let max = logits.clone().detach().max_dim(1); // [n, 1]
+    let e = (logits - max).exp(); // [n, K], 1 at each row's max
+    let w = e.clone() / e.sum_dim(1); // [n, K]
+    let xb = gather_rows(xb, slot).reshape([n, k, 3]);
+    (xb * w.unsqueeze_dim(2)).sum_dim(1).reshape([n, 3])
 }
 
 #[cfg(test)]

@@ -280,3 +280,57 @@ fn gradient_check(posed_tau: Option<f64>, capsules: &[BoneCapsule]) {
     }
     assert!(nonzero > 8);
 }
+
+/// The padded blend (the GPU's) gives the scattered blend's (the CPU's) canonical points
+/// and gradients, for samples with one, several and many candidates and logits far apart.
+#[test]
+fn padded_blend_matches_scattered_blend() {
+    let device = Device::flex().autodiff();
+    let counts = [1usize, 3, 22, 2, 1, 5];
+    let n = counts.len();
+    let sample: Vec<i32> = counts
+        .iter()
+        .enumerate()
+        .flat_map(|(s, &c)| std::iter::repeat_n(s as i32, c))
+        .collect();
+    let m = sample.len();
+    let logits: Vec<f32> = (0..m)
+        .map(|i| ((i as f32 * 1.7).sin() * 3.0) + if i == 7 { 80.0 } else { 0.0 })
+        .collect();
+    let xb: Vec<f32> = (0..m * 3).map(|k| (k as f32 * 0.37).cos()).collect();
+    let coeff = Tensor::<2>::from_data(
+        TensorData::new((0..n * 3).map(|k| 1.0 + k as f32 * 0.1).collect(), [n, 3]),
+        &device,
+    );
+    let run = |padded: bool| {
+        let l =
+            Tensor::<1>::from_data(TensorData::new(logits.clone(), [m]), &device).require_grad();
+        let x = Tensor::<2>::from_data(TensorData::new(xb.clone(), [m, 3]), &device).require_grad();
+        let out = if padded {
+            blend_padded(&sample, n, l.clone(), x.clone())
+        } else {
+            blend_scattered(sample.clone(), n, l.clone(), x.clone())
+        };
+        let grads = (out.clone() * coeff.clone()).sum().backward();
+        (
+            host(&out),
+            host(&l.grad(&grads).unwrap()),
+            host(&x.grad(&grads).unwrap()),
+        )
+    };
+    let (a, b) = (run(false), run(true));
+    for (what, u, v) in [
+        ("x", &a.0, &b.0),
+        ("dlogits", &a.1, &b.1),
+        ("dxb", &a.2, &b.2),
+    ] {
+        assert_eq!(u.len(), v.len(), "{what}");
+        for (p, q) in u.iter().zip(v) {
+            assert!(p.is_finite() && q.is_finite(), "{what}: {p} {q}");
+            assert!(
+                (p - q).abs() <= 1e-5 * (1.0 + p.abs()),
+                "{what}: {u:?} vs {v:?}"
+            );
+        }
+    }
+}
