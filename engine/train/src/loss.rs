@@ -1,6 +1,6 @@
 //! The field, its render and the loss of a step (`LPIPS + 0.2 MSE + 0.05 CE(seg)`, or
-//! without patches `MSE + 0.05 CE`), and the loss's gradients, from two half-batches on
-//! two threads.
+//! without patches `MSE + 0.05 CE`), and the loss's gradients: on the CPU from two
+//! half-batches on two threads, on a GPU from the whole batch.
 //!
 //! burn's Flex backend runs most ops on one core, so a step left the second core idle.
 //! The batch's rays are split in two; each half runs forward and backward on its own
@@ -16,7 +16,9 @@ use talkin_avatar::field_inputs::packed_layout;
 use talkin_grids::{PackedSamples, Ray};
 use talkin_nets::field::leaves::zero_grads;
 use talkin_nets::loss::{PerceptualLoss, mse, seg_cross_entropy};
-use talkin_nets::{FieldInput, FrameConditions, NetsError, PoseGrads, PoseLeaves, TalkinField};
+use talkin_nets::{
+    FieldInput, FrameConditions, NetsError, PoseGrads, PoseLeaves, TalkinField, is_cpu,
+};
 
 use talkin_nets::kernels::grad_sum::sum_grads;
 
@@ -69,7 +71,9 @@ pub(crate) fn loss_and_grads(
 ) -> Result<StepLoss, NetsError> {
     let n = batch.rays.len();
     let patch_rays = batch.patches * batch.patch_side * batch.patch_side;
-    let Some(k) = split_point(n, patch_rays) else {
+    // A GPU takes the batch whole: its work is queued, not run on this thread.
+    let on_cpu = is_cpu(&field.identity.val().device());
+    let Some(k) = split_point(n, patch_rays).filter(|_| on_cpu) else {
         return half(field, false, perceptual, &batch, 0..n, &batch.samples);
     };
     let (head, tail) = batch.samples.split_at_ray(k);
@@ -176,7 +180,9 @@ fn half(
         }
         _ => pixel,
     };
-    let (loss_value, mse_value) = (scalar(&loss), weight * scalar(&l_mse));
+    // The loss and its MSE, read back together once the backward is recorded (on a GPU
+    // one wait, after the step's work is queued).
+    let values = Tensor::cat(vec![loss.clone().detach(), l_mse.detach()], 0);
     // A half whose rays all missed every capsule (e.g. an LPIPS patch beside the person)
     // has no samples: its loss is a constant, with no gradient to take.
     let (grads, pose) = if loss.is_tracked() {
@@ -187,21 +193,14 @@ fn half(
         let pose = batch.pose_grads.then(|| zero_grads(field.pose_dim()));
         (GradientsParams::new(), pose)
     };
+    let values = values.try_to_vec_as::<f32>().unwrap_or_default();
+    let value = |i: usize| values.get(i).copied().unwrap_or(f32::NAN);
     Ok(StepLoss {
-        loss: loss_value,
-        mse: mse_value,
+        loss: value(0),
+        mse: weight * value(1),
         grads,
         pose,
     })
-}
-
-/// Reads a one-element tensor.
-pub(crate) fn scalar(t: &Tensor<1>) -> f32 {
-    t.clone()
-        .try_to_vec_as::<f32>()
-        .ok()
-        .and_then(|v| v.first().copied())
-        .unwrap_or(f32::NAN)
 }
 
 #[cfg(test)]
