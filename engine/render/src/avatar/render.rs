@@ -25,22 +25,27 @@ pub const RENDER_CHUNK_SAMPLES: usize = 1 << 17;
 /// Largest image a render accepts (pixels): 4096 x 4096.
 pub const MAX_RENDER_PIXELS: u64 = 4096 * 4096;
 
-/// One chunk of a frame's rays, rendered.
+/// One chunk of a frame's rays, rendered: per piece (a chunk halved to fit the sample
+/// cap is two pieces), its values still on the device, or the rays' count where no ray
+/// met the body. The frame reads every piece back at once.
 struct ChunkOut {
-    rgb: Vec<f32>,
-    opacity: Vec<f32>,
-    labels: Vec<u8>,
+    pieces: Vec<Piece>,
     samples: usize,
     /// The most samples one field forward of this chunk saw.
     largest_forward: usize,
 }
 
+enum Piece {
+    /// `[rays, 4 + classes]`: colour over the background, opacity, segmentation logits.
+    Rendered(Box<Tensor<2>>),
+    /// This many rays without a sample: the background.
+    Empty(usize),
+}
+
 impl ChunkOut {
     /// `next`'s rays after these.
     fn append(&mut self, next: ChunkOut) {
-        self.rgb.extend(next.rgb);
-        self.opacity.extend(next.opacity);
-        self.labels.extend(next.labels);
+        self.pieces.extend(next.pieces);
         self.samples += next.samples;
         self.largest_forward = self.largest_forward.max(next.largest_forward);
     }
@@ -176,18 +181,14 @@ impl Avatar {
                 self.render_chunk(&ctx, chunk)
             })
             .collect::<Result<_, _>>()?;
-        let n = rays.len();
-        let mut rgb = Vec::with_capacity(3 * n);
-        let mut opacity = Vec::with_capacity(n);
-        let mut labels = Vec::with_capacity(n);
         let (mut total_samples, mut largest_forward) = (0, 0);
+        let mut pieces = Vec::new();
         for c in chunks {
             largest_forward = largest_forward.max(c.largest_forward);
-            rgb.extend_from_slice(&c.rgb);
-            opacity.extend_from_slice(&c.opacity);
-            labels.extend_from_slice(&c.labels);
             total_samples += c.samples;
+            pieces.extend(c.pieces);
         }
+        let (rgb, opacity, labels) = self.read_back(pieces, rays.len())?;
         Ok(RenderedFrame {
             width: camera.width,
             height: camera.height,
@@ -220,9 +221,7 @@ impl Avatar {
         }
         if samples.num_samples() == 0 {
             return Ok(ChunkOut {
-                rgb: chunk.iter().flat_map(|_| self.background).collect(),
-                opacity: vec![0.0; chunk.len()],
-                labels: vec![0; chunk.len()],
+                pieces: vec![Piece::Empty(chunk.len())],
                 samples: 0,
                 largest_forward: 0,
             });
@@ -242,50 +241,91 @@ impl Avatar {
         let output = self.field.forward(&input)?;
         let layout = packed_layout(&samples);
         let rendered = output.render(&layout.view())?;
-        let to_vec = |t: Tensor<2>| t.try_to_vec_as::<f32>().unwrap_or_default();
-        let rgb = to_vec(rendered.rgb_over(self.background));
-        let opacity = rendered
-            .opacity
-            .clone()
-            .try_to_vec_as::<f32>()
-            .unwrap_or_default();
-        let seg = to_vec(rendered.seg_logits.clone());
-        if rgb.len() != 3 * chunk.len() || opacity.len() != chunk.len() {
-            return Err(AvatarError::BadInput {
-                what: "render".into(),
-                problem: "the field returned the wrong number of values".into(),
-            });
-        }
-        if rgb.iter().chain(&opacity).any(|v| !v.is_finite()) {
-            return Err(AvatarError::BadInput {
-                what: "render".into(),
-                problem: "the field produced a non-finite colour or opacity \
-                          (a diverged checkpoint?)"
-                    .into(),
-            });
-        }
-        let classes = seg.len() / chunk.len().max(1);
-        let labels = opacity
-            .iter()
-            .enumerate()
-            .map(|(r, &alpha)| {
-                let logits = &seg[r * classes..(r + 1) * classes];
-                if alpha < 0.5 || classes == 0 {
-                    0
-                } else {
-                    // Argmax among the person classes.
-                    (1..classes)
-                        .max_by(|&a, &b| logits[a].total_cmp(&logits[b]))
-                        .unwrap_or(0) as u8
-                }
-            })
-            .collect();
+        let values = Tensor::cat(
+            vec![
+                rendered.rgb_over(self.background),
+                rendered.opacity.clone().unsqueeze_dim(1),
+                rendered.seg_logits.clone(),
+            ],
+            1,
+        );
         Ok(ChunkOut {
-            rgb,
-            opacity,
-            labels,
+            pieces: vec![Piece::Rendered(Box::new(values))],
             samples: samples.num_samples(),
             largest_forward: samples.num_samples(),
         })
+    }
+
+    /// The frame's colour, opacity and labels from its pieces (`n` rays in all), read back
+    /// in one transfer (on a GPU, one wait for the frame's queued work).
+    #[allow(clippy::type_complexity)]
+    fn read_back(
+        &self,
+        pieces: Vec<Piece>,
+        n: usize,
+    ) -> Result<(Vec<f32>, Vec<f32>, Vec<u8>), AvatarError> {
+        let wrong = || AvatarError::BadInput {
+            what: "render".into(),
+            problem: "the field returned the wrong number of values".into(),
+        };
+        let rendered: Vec<Tensor<2>> = pieces
+            .iter()
+            .filter_map(|p| match p {
+                Piece::Rendered(t) => Some(t.as_ref().clone()),
+                Piece::Empty(_) => None,
+            })
+            .collect();
+        let (values, width) = match rendered.first() {
+            None => (Vec::new(), 0),
+            Some(first) => {
+                let width = first.dims()[1];
+                let values = Tensor::cat(rendered, 0)
+                    .try_to_vec_as::<f32>()
+                    .map_err(|_| wrong())?;
+                (values, width)
+            }
+        };
+        let classes = width.saturating_sub(4);
+        let mut rgb = Vec::with_capacity(3 * n);
+        let mut opacity = Vec::with_capacity(n);
+        let mut labels = Vec::with_capacity(n);
+        let mut rows = values.chunks_exact(width.max(1));
+        for piece in &pieces {
+            let count = match piece {
+                Piece::Empty(count) => {
+                    rgb.extend((0..*count).flat_map(|_| self.background));
+                    opacity.extend(std::iter::repeat_n(0.0, *count));
+                    labels.extend(std::iter::repeat_n(0u8, *count));
+                    continue;
+                }
+                Piece::Rendered(t) => t.dims()[0],
+            };
+            for _ in 0..count {
+                let row = rows.next().ok_or_else(wrong)?;
+                if row.iter().take(4).any(|v| !v.is_finite()) {
+                    return Err(AvatarError::BadInput {
+                        what: "render".into(),
+                        problem: "the field produced a non-finite colour or opacity \
+                                  (a diverged checkpoint?)"
+                            .into(),
+                    });
+                }
+                rgb.extend_from_slice(&row[..3]);
+                opacity.push(row[3]);
+                let logits = &row[4..];
+                // Argmax among the person classes where the ray is mostly opaque.
+                labels.push(if row[3] < 0.5 || classes == 0 {
+                    0
+                } else {
+                    (1..classes)
+                        .max_by(|&a, &b| logits[a].total_cmp(&logits[b]))
+                        .unwrap_or(0) as u8
+                });
+            }
+        }
+        if rgb.len() != 3 * n || rows.next().is_some() {
+            return Err(wrong());
+        }
+        Ok((rgb, opacity, labels))
     }
 }
