@@ -1,0 +1,120 @@
+#!/usr/bin/env bash
+# The GPU check: what a user's GPU does with the default scene, in one JSON.
+#
+#   scripts/gpu-check.sh [BIN] [OUT]
+#
+# Runs on a bare GPU machine with no Rust toolchain and no network: BIN is a prebuilt
+# `--features wgpu` release binary (default target/release/talkin; strip it to carry it),
+# and when the machine has no Vulkan loader, the loader's Debian packages in $GL_DEBS
+# (default .gl; `apt-get download libvulkan1`) are unpacked first. Stages, each under its
+# own time limit so that one slow stage cannot eat the others:
+#
+#   1. synthesise the default scene (CPU);
+#   2. `bench device`, fast preset at the demo's 512 rays a step: step time, samples/s,
+#      the host sampler's share of a step, 540x540 render fps;
+#   3. the demo recipe trained on the GPU for 60 s (InstantAvatar's budget), test_same
+#      scored; then resumed to $GPU_CHECK_MINUTES minutes in all (default 2; 1 skips
+#      it) and scored again;
+#   4. `bench device`, paper preset at 32,768 rays a step (the paper's batch).
+#
+# Everything lands in OUT (default out/gpu-check); OUT/gpu-check.json gathers the
+# numbers, and each stage's log is beside it. A stage that fails or runs out of time is
+# recorded as such and the next one runs. The limits add up to 11 minutes at the default
+# 2 minutes of training; a healthy run on a GPU takes about half of that. Exit status: 0
+# when every stage finished.
+set -uo pipefail
+
+BIN=${1:-target/release/talkin}
+OUT=${2:-out/gpu-check}
+GL_DEBS=${GL_DEBS:-.gl}
+MINUTES=${GPU_CHECK_MINUTES:-2}
+DEVICE=${GPU_CHECK_DEVICE:-wgpu}
+
+if [ ! -x "$BIN" ]; then
+  echo "gpu-check: $BIN is not an executable talkin binary (build one with" \
+    "cargo build --release --features wgpu)" >&2
+  exit 2
+fi
+mkdir -p "$OUT"
+OUT=$(cd "$OUT" && pwd)
+
+# The Vulkan loader, and NVIDIA's driver manifest where the container keeps it apart.
+if ! ldconfig -p 2>/dev/null | grep -q 'libvulkan\.so\.1'; then
+  if compgen -G "$GL_DEBS/*.deb" >/dev/null; then
+    for f in "$GL_DEBS"/*.deb; do dpkg -x "$f" /; done
+    ldconfig
+  else
+    echo "gpu-check: no Vulkan loader (libvulkan.so.1) and no packages in $GL_DEBS" >&2
+  fi
+fi
+nvidia_icd=/usr/local/nvidia/share/vulkan/icd.d/nvidia_icd.json
+if [ -z "${VK_DRIVER_FILES:-}" ] && [ -f "$nvidia_icd" ]; then
+  export VK_DRIVER_FILES=$nvidia_icd
+fi
+
+status=0
+stages=()
+# stage NAME LIMIT_S CMD...: runs CMD under a time limit, logs to OUT/NAME.log.
+stage() {
+  local name=$1 limit=$2
+  shift 2
+  local start end rc
+  start=$(date +%s.%N)
+  echo "== $name (limit ${limit}s): $*"
+  timeout --kill-after=10 "$limit" "$@" >"$OUT/$name.log" 2>&1
+  rc=$?
+  end=$(date +%s.%N)
+  local secs
+  secs=$(awk -v a="$start" -v b="$end" 'BEGIN { printf "%.1f", b - a }')
+  local outcome=ok
+  if [ $rc -eq 124 ] || [ $rc -eq 137 ]; then outcome=timed_out; elif [ $rc -ne 0 ]; then outcome=failed; fi
+  [ $rc -eq 0 ] || status=1
+  echo "   $outcome in ${secs}s"
+  [ $rc -eq 0 ] || tail -n 5 "$OUT/$name.log"
+  stages+=("{\"stage\": \"$name\", \"outcome\": \"$outcome\", \"exit\": $rc, \"seconds\": $secs}")
+}
+
+# The file's contents, or null when it is missing.
+json_or_null() { if [ -s "$1" ]; then cat "$1"; else echo null; fi; }
+
+data=$OUT/data
+stage synth 120 "$BIN" -q synth --out "$data"
+stage bench-fast 90 "$BIN" -q bench device --data "$data" --out "$OUT/bench-fast" \
+  --devices "$DEVICE" --presets fast --batch 512 --warmup 3 --steps 10 --renders 3
+# The demo's recipe (`talkin demo`): MSE + 0.05 CE, 512 rays a step, no LPIPS patch.
+recipe=(--device "$DEVICE" --patches 0 --batch 512 --checkpoint-every 1000000)
+stage train-60s 120 "$BIN" -q train --data "$data" --out "$OUT/run" --force --minutes 1 "${recipe[@]}"
+stage eval-60s 60 "$BIN" -q eval --run "$OUT/run" --data "$data" --split test_same \
+  --json "$OUT/eval_60s.json" --device "$DEVICE"
+if [ "$MINUTES" -gt 1 ]; then
+  # `--minutes` on a resumed run is the new total.
+  stage train-more $(((MINUTES - 1) * 60 + 45)) "$BIN" -q train --data "$data" --out "$OUT/run" \
+    --resume --minutes "$MINUTES" "${recipe[@]}"
+  stage eval-more 60 "$BIN" -q eval --run "$OUT/run" --data "$data" --split test_same \
+    --json "$OUT/eval_more.json" --device "$DEVICE"
+fi
+stage bench-paper 90 "$BIN" -q bench device --data "$data" --out "$OUT/bench-paper" \
+  --devices "$DEVICE" --presets paper --batch 32768 --warmup 2 --steps 5 --renders 2
+
+adapter=$(nvidia-smi --query-gpu=name,driver_version --format=csv,noheader 2>/dev/null | head -n 1)
+{
+  echo "{"
+  echo "  \"gpu\": \"${adapter:-unknown}\","
+  echo "  \"device\": \"$DEVICE\","
+  echo "  \"minutes_in_all\": $MINUTES,"
+  echo "  \"stages\": ["
+  for i in "${!stages[@]}"; do
+    sep=,
+    [ "$i" -eq $((${#stages[@]} - 1)) ] && sep=
+    echo "    ${stages[$i]}$sep"
+  done
+  echo "  ],"
+  echo "  \"bench_fast\": $(json_or_null "$OUT/bench-fast/device.json"),"
+  echo "  \"bench_paper\": $(json_or_null "$OUT/bench-paper/device.json"),"
+  echo "  \"eval_test_same_60s\": $(json_or_null "$OUT/eval_60s.json"),"
+  echo "  \"eval_test_same_more\": $(json_or_null "$OUT/eval_more.json"),"
+  echo "  \"train_log_tail\": \"$(tail -n 1 "$OUT/run/train_log.csv" 2>/dev/null)\""
+  echo "}"
+} >"$OUT/gpu-check.json.tmp" && mv "$OUT/gpu-check.json.tmp" "$OUT/gpu-check.json"
+echo "gpu-check: $OUT/gpu-check.json"
+exit $status
