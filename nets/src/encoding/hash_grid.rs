@@ -204,6 +204,11 @@ impl HashGridConfig {
     }
 }
 
+/// Points per piece of the composed encoding (the GPU's): the table gather's index is
+/// `8 L F` ints a point (192 for the fast preset), so a piece's stays near 50 MB, under
+/// the 128 MiB a storage binding may hold on some adapters (lavapipe).
+const COMPOSED_CHUNK: usize = 1 << 16;
+
 /// The trainable multiresolution hash table.
 #[derive(Module, Debug)]
 pub struct HashGrid {
@@ -280,8 +285,31 @@ impl HashGrid {
             Corners::new(points, resolutions, offsets, f, &|l, c| cells.rows(l, c))
         }) {
             Some(out) => out,
-            None => self.forward_composed(table, x, identity),
+            None => self.forward_pieces(table, x, identity, COMPOSED_CHUNK),
         }
+    }
+
+    /// [`HashGrid::forward_composed`] on pieces of at most `chunk` points, concatenated
+    /// (the corners' row index is `8 L F` ints a point).
+    fn forward_pieces(
+        &self,
+        table: Tensor<2>,
+        x: Tensor<2>,
+        identity: usize,
+        chunk: usize,
+    ) -> Tensor<2> {
+        let [n, _] = x.dims();
+        if n <= chunk {
+            return self.forward_composed(table, x, identity);
+        }
+        let pieces = (0..n)
+            .step_by(chunk)
+            .map(|start| {
+                let piece = x.clone().narrow(0, start, chunk.min(n - start));
+                self.forward_composed(table.clone(), piece, identity)
+            })
+            .collect();
+        Tensor::cat(pieces, 0)
     }
 
     /// [`HashGrid::forward`] as composed tensor ops, for backends without the fused op
@@ -480,6 +508,44 @@ pub(crate) mod tests {
         let composed = grid.forward_composed(grid.table.val(), x, 0);
         for (u, v) in host(&fused).iter().zip(host(&composed).iter()) {
             assert!((u - v).abs() < 1e-6, "{u} {v}");
+        }
+    }
+
+    /// The composed encoding in pieces equals it whole (values and both gradients), with
+    /// a last piece shorter than the rest.
+    #[test]
+    fn composed_pieces_match_the_whole() {
+        let device = Device::flex().autodiff();
+        let grid = HashGridConfig::new()
+            .with_n_levels(4)
+            .with_log2_hashmap_size(9)
+            .init(&device);
+        let n = 23;
+        let pts: Vec<f32> = (0..n * 3).map(|k| (k as f32 * 0.618).fract()).collect();
+        let run = |chunk: usize| {
+            let table = grid.table.val().require_grad();
+            let x = floats(pts.clone(), [n, 3], &device).require_grad();
+            let out = grid.forward_pieces(table.clone(), x.clone(), 1, chunk);
+            let weights = floats(
+                (0..out.dims()[0] * out.dims()[1])
+                    .map(|k| (k as f32 * 0.37).sin())
+                    .collect(),
+                out.dims(),
+                &device,
+            );
+            let g = (out.clone() * weights).sum().backward();
+            (
+                host(&out),
+                host(&table.grad(&g).unwrap()),
+                host(&x.grad(&g).unwrap()),
+            )
+        };
+        let (whole, pieces) = (run(n), run(5));
+        assert_eq!(whole.0, pieces.0);
+        for (a, b) in [(&whole.1, &pieces.1), (&whole.2, &pieces.2)] {
+            for (u, v) in a.iter().zip(b) {
+                assert!((u - v).abs() <= 1e-6 * (1.0 + u.abs()), "{u} {v}");
+            }
         }
     }
 
