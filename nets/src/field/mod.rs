@@ -24,8 +24,8 @@ mod routing;
 
 pub use config::{FieldConfig, PART_LOG2_ENTRIES, POSED_TAU_M, UnitMap};
 pub use leaves::{PoseGrads, PoseLeaves};
-use routing::Router;
 pub use routing::Routing;
+use routing::{Routed, Router};
 
 /// Segmentation classes of the body net (DensePose-derived labels of the paper).
 pub const N_SEG_CLASSES: usize = 5;
@@ -426,23 +426,7 @@ impl TalkinField {
                 stats,
             });
         }
-        let mut x = warp.x_canonical; // [n, 3]
-        let started = self
-            .settings
-            .non_rigid_start_step
-            .is_some_and(|s| step >= s);
-        if let (Some(nr), true) = (&self.non_rigid, started) {
-            let pose = match leaves {
-                Some(l) => l.body_pose.clone(),
-                None => floats(
-                    frame.body_pose.clone(),
-                    [1, self.settings.pose_dim],
-                    &device,
-                ),
-            };
-            x = x.clone() + nr.forward(self.to_unit(x), pose, step); // [n, 3]
-            stats.non_rigid_rows = n;
-        }
+        let x = self.deform(warp.x_canonical, input, leaves, &mut stats); // [n, 3]
         let identity = gather_rows(
             self.identity.val(),
             ints(vec![frame.identity as i32], &device),
@@ -458,66 +442,26 @@ impl TalkinField {
 
         // Hard routing: candidates (the sampler's capsules) whose body label is the part.
         let route = Router::new(input.part_masks, &seg_logits, routing);
-        if let Some(face) = &self.face {
-            let head = route.rows(PART_BIT_HEAD, SEG_HEAD);
-            if !head.rows.is_empty() {
-                let h = head.rows.len();
-                let xh = gather_rows(x.clone(), head.indices(&device)); // [h, 3]
-                let e = match leaves {
-                    Some(l) if self.settings.face_uses_jaw => {
-                        Tensor::cat(vec![l.expression.clone(), l.jaw.clone()], 1)
-                    }
-                    Some(l) => l.expression.clone(),
-                    None => {
-                        let mut e = frame.expression.to_vec();
-                        if self.settings.face_uses_jaw {
-                            e.extend(frame.jaw);
-                        }
-                        let d_e = e.len();
-                        floats(e, [1, d_e], &device)
-                    }
-                };
-                let raw = face.forward(
-                    self.to_unit(xh),
-                    frame.identity,
-                    Tensor::cat(vec![e, identity.clone()], 1),
-                    step,
-                );
-                let (s_face, c_face) = activate(&raw);
-                sigma = head.replace(sigma, s_face);
-                rgb = head.replace(rgb, c_face);
-                stats.face_rows = h;
-            }
+        if let Some((head, s_face, c_face)) = self.face_pass(&route, &x, &identity, input, leaves) {
+            stats.face_rows = head.rows.len();
+            sigma = head.replace(sigma, s_face);
+            rgb = head.replace(rgb, c_face);
         }
         let mut hands_out = None;
-        if let Some(hands) = &self.hands {
-            let idx = route.rows(PART_BIT_HANDS, SEG_HANDS);
-            if !idx.rows.is_empty() {
-                let h = idx.rows.len();
-                let mut xh = gather_rows(x.clone(), idx.indices(&device));
-                if let Some(dh) = &self.hand_deform {
-                    let pose = match leaves {
-                        Some(l) => l.hand_pose.clone(),
-                        None => floats(frame.hand_pose.clone(), [1, HAND_POSE_DIM], &device),
-                    };
-                    xh = xh.clone() + dh.forward(self.to_unit(xh), pose, step);
-                }
-                let raw = hands.forward(self.to_unit(xh), frame.identity, identity, step);
-                let (s_hand, c_hand) = activate(&raw);
-                stats.hand_rows = h;
-                if self.settings.hand_background {
-                    // A candidate whose label is not the hands gets no density: it
-                    // composites to nothing in the second pass.
-                    let s_hand = idx.keep_or(s_hand, 0.0);
-                    hands_out = Some(HandSamples {
-                        indices: idx.rows,
-                        rgb: c_hand,
-                        sigma: s_hand,
-                    });
-                } else {
-                    sigma = idx.replace(sigma, s_hand);
-                    rgb = idx.replace(rgb, c_hand);
-                }
+        if let Some((idx, s_hand, c_hand)) = self.hands_pass(&route, &x, identity, input, leaves) {
+            stats.hand_rows = idx.rows.len();
+            if self.settings.hand_background {
+                // A candidate whose label is not the hands gets no density: it
+                // composites to nothing in the second pass.
+                let s_hand = idx.keep_or(s_hand, 0.0);
+                hands_out = Some(HandSamples {
+                    indices: idx.rows,
+                    rgb: c_hand,
+                    sigma: s_hand,
+                });
+            } else {
+                sigma = idx.replace(sigma, s_hand);
+                rgb = idx.replace(rgb, c_hand);
             }
         }
         Ok(FieldOutput {
@@ -528,6 +472,104 @@ impl TalkinField {
             hands: hands_out,
             stats,
         })
+    }
+
+    /// D_nr on the rigidly warped canonical points, once its start step is reached.
+    fn deform(
+        &self,
+        x: Tensor<2>,
+        input: &FieldInput,
+        leaves: Option<&PoseLeaves>,
+        stats: &mut RoutingStats,
+    ) -> Tensor<2> {
+        let started = self
+            .settings
+            .non_rigid_start_step
+            .is_some_and(|s| input.step >= s);
+        let (Some(nr), true) = (&self.non_rigid, started) else {
+            return x;
+        };
+        let pose = match leaves {
+            Some(l) => l.body_pose.clone(),
+            None => floats(
+                input.frame.body_pose.clone(),
+                [1, self.settings.pose_dim],
+                &self.device(),
+            ),
+        };
+        stats.non_rigid_rows = x.dims()[0];
+        x.clone() + nr.forward(self.to_unit(x), pose, input.step)
+    }
+
+    /// F_face on the head's routed rows: the rows, their density `[h]` and colour
+    /// `[h, 3]` (`None` without F_face or rows).
+    fn face_pass(
+        &self,
+        route: &Router,
+        x: &Tensor<2>,
+        identity: &Tensor<2>,
+        input: &FieldInput,
+        leaves: Option<&PoseLeaves>,
+    ) -> Option<(Routed, Tensor<1>, Tensor<2>)> {
+        let face = self.face.as_ref()?;
+        let head = route.rows(PART_BIT_HEAD, SEG_HEAD);
+        if head.rows.is_empty() {
+            return None;
+        }
+        let device = self.device();
+        let frame = input.frame;
+        let xh = gather_rows(x.clone(), head.indices(&device)); // [h, 3]
+        let e = match leaves {
+            Some(l) if self.settings.face_uses_jaw => {
+                Tensor::cat(vec![l.expression.clone(), l.jaw.clone()], 1)
+            }
+            Some(l) => l.expression.clone(),
+            None => {
+                let mut e = frame.expression.to_vec();
+                if self.settings.face_uses_jaw {
+                    e.extend(frame.jaw);
+                }
+                let d_e = e.len();
+                floats(e, [1, d_e], &device)
+            }
+        };
+        let raw = face.forward(
+            self.to_unit(xh),
+            frame.identity,
+            Tensor::cat(vec![e, identity.clone()], 1),
+            input.step,
+        );
+        let (sigma, rgb) = activate(&raw);
+        Some((head, sigma, rgb))
+    }
+
+    /// D_hands and F_hands on the hands' routed rows: the rows, their density `[h]` and
+    /// colour `[h, 3]` (`None` without F_hands or rows).
+    fn hands_pass(
+        &self,
+        route: &Router,
+        x: &Tensor<2>,
+        identity: Tensor<2>,
+        input: &FieldInput,
+        leaves: Option<&PoseLeaves>,
+    ) -> Option<(Routed, Tensor<1>, Tensor<2>)> {
+        let hands = self.hands.as_ref()?;
+        let idx = route.rows(PART_BIT_HANDS, SEG_HANDS);
+        if idx.rows.is_empty() {
+            return None;
+        }
+        let device = self.device();
+        let mut xh = gather_rows(x.clone(), idx.indices(&device));
+        if let Some(dh) = &self.hand_deform {
+            let pose = match leaves {
+                Some(l) => l.hand_pose.clone(),
+                None => floats(input.frame.hand_pose.clone(), [1, HAND_POSE_DIM], &device),
+            };
+            xh = xh.clone() + dh.forward(self.to_unit(xh), pose, input.step);
+        }
+        let raw = hands.forward(self.to_unit(xh), input.frame.identity, identity, input.step);
+        let (sigma, rgb) = activate(&raw);
+        Some((idx, sigma, rgb))
     }
 }
 
