@@ -167,3 +167,152 @@ mod wgpu {
         }
     }
 }
+
+/// The kernel census of the GPU path, from cubecl's profiling log of `talkin` runs on
+/// wgpu: no `select_assign` kernel (`SelectAssignKernel`: burn-cubecl runs it with one
+/// thread per column, each looping over every index, so the whole batch on one thread)
+/// in a training step of at least 64k samples or in a render, and how many kernels one
+/// step and one frame launch (autotune, at its minimal level, tries kernels the first
+/// time it meets a shape: those runs are counted too).
+/// A step's kernels are the difference between a 2-step and a 1-step run (the same
+/// setup and final checkpoint in both); a frame's, a render's kernels over its frames.
+#[cfg(feature = "wgpu")]
+#[test]
+#[ignore = "needs the wgpu feature and a Vulkan adapter (lavapipe will do): \
+            cargo test --release --features wgpu --test device -- --ignored"]
+fn kernel_census() {
+    use std::collections::BTreeMap;
+    use std::path::Path;
+
+    let bin = env!("CARGO_BIN_EXE_talkin");
+    // The kernels a command ran, by name (generics cut), from its profiling log.
+    let census = |args: &[&str], log: &Path| -> BTreeMap<String, usize> {
+        let _ = std::fs::remove_file(log);
+        let out = Command::new(bin)
+            .args(args)
+            .env("CUBECL_DEBUG_LOG", log)
+            .env("CUBECL_DEBUG_OPTION", "profile")
+            .env("CUBECL_AUTOTUNE_LEVEL", "minimal")
+            .output()
+            .unwrap();
+        assert!(
+            out.status.success(),
+            "talkin {args:?}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        let text = std::fs::read_to_string(log).unwrap_or_default();
+        let mut kernels = BTreeMap::new();
+        // A kernel's line is `| <duration> | <name>`; the summary's rows start with a
+        // name instead.
+        for line in text.lines() {
+            let mut fields = line.splitn(3, '|').skip(1);
+            let (Some(duration), Some(name)) = (fields.next(), fields.next()) else {
+                continue;
+            };
+            let duration = duration.trim();
+            if !(duration.starts_with(|c: char| c.is_ascii_digit()) || duration == "not measured") {
+                continue;
+            }
+            *kernels.entry(name.trim().to_string()).or_insert(0) += 1;
+        }
+        kernels
+    };
+    let total = |k: &BTreeMap<String, usize>| k.values().sum::<usize>();
+    let serial = |k: &BTreeMap<String, usize>| {
+        k.iter()
+            .filter(|(name, _)| {
+                name.to_ascii_lowercase()
+                    .replace('_', "")
+                    .contains("selectassign")
+            })
+            .map(|(name, n)| format!("{name} x{n}"))
+            .collect::<Vec<_>>()
+    };
+
+    let data = common::temp_dir("census_scene");
+    let status = Command::new(bin)
+        .args(["-q", "synth", "--out", data.to_str().unwrap()])
+        .args(["--identities", "1", "--frames", "4", "--size", "256"])
+        .status()
+        .unwrap();
+    assert!(status.success());
+    let logs = common::temp_dir("census_logs");
+    let mut per_run = Vec::new();
+    for steps in [1, 2] {
+        let run = common::temp_dir(&format!("census_run_{steps}"));
+        let args = [
+            "-q",
+            "train",
+            "--data",
+            data.to_str().unwrap(),
+            "--out",
+            run.to_str().unwrap(),
+            "--device",
+            "wgpu",
+            "--steps",
+            &steps.to_string(),
+            "--batch",
+            "3072",
+            "--patches",
+            "0",
+            "--occ-every",
+            "1000",
+        ];
+        let kernels = census(&args, &logs.join(format!("train_{steps}.log")));
+        let csv = std::fs::read_to_string(run.join("train_log.csv")).unwrap();
+        let samples: usize = csv
+            .lines()
+            .nth(steps)
+            .and_then(|row| row.split(',').nth(6))
+            .and_then(|s| s.parse().ok())
+            .unwrap();
+        assert!(samples >= 65536, "step {steps}: only {samples} samples");
+        per_run.push((run, kernels, samples));
+    }
+    let step = total(&per_run[1].1) as i64 - total(&per_run[0].1) as i64;
+    let frames = common::temp_dir("census_frames");
+    let render = census(
+        &[
+            "-q",
+            "render",
+            "--run",
+            per_run[1].0.to_str().unwrap(),
+            "--data",
+            data.to_str().unwrap(),
+            "--split",
+            "train",
+            "--out",
+            frames.to_str().unwrap(),
+            "--device",
+            "wgpu",
+        ],
+        &logs.join("render.log"),
+    );
+    let n_frames = std::fs::read_dir(&frames)
+        .unwrap()
+        .filter(|e| {
+            let name = e.as_ref().unwrap().file_name();
+            let name = name.to_string_lossy();
+            name.starts_with("frame_") && name.ends_with(".png")
+        })
+        .count();
+    assert!(n_frames > 0);
+    println!(
+        "kernel census: a training step of {} samples launches {step} kernels; \
+         a 256 px frame {} ({} frames, {} in all)",
+        per_run[1].2,
+        total(&render) / n_frames,
+        n_frames,
+        total(&render)
+    );
+    let mut biggest: Vec<_> = per_run[1].1.iter().collect();
+    biggest.sort_by_key(|(_, n)| std::cmp::Reverse(**n));
+    for (name, n) in biggest.iter().take(12) {
+        println!("  {n:6} x {name}");
+    }
+    assert!(total(&per_run[0].1) > 0, "the profiling log is empty");
+    for (what, kernels) in [("training", &per_run[1].1), ("render", &render)] {
+        let found = serial(kernels);
+        assert!(found.is_empty(), "{what} ran serial kernels: {found:?}");
+    }
+}
