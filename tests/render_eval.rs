@@ -13,7 +13,8 @@ use talkin::grids::SamplerKind;
 use talkin::human::body::joint;
 use talkin::render::avatar::{Avatar, RENDER_CHUNK_SAMPLES};
 use talkin::render::eval::{
-    self, CropKind, EvalOptions, LpipsScorer, PSNR_CAP_DB, Rect, evaluate, frame_crops, rescore_png,
+    self, CropKind, EvalOptions, HAND_TILE, HANDS_SHEET, LpipsScorer, PSNR_CAP_DB, Rect, evaluate,
+    frame_crops, rescore_png,
 };
 use talkin::render::sequence::split_frames;
 use talkin::train::train;
@@ -149,6 +150,29 @@ fn eval_json_has_the_keys_and_renders_that_rescore_the_same() {
         .sum::<f64>()
         / frames.len() as f64;
     assert!((mean - psnr).abs() < 1e-9);
+    // The hands sheet: one truth | render | error row per scored hand crop, two rows side
+    // by side beyond four.
+    let hand_crops: usize = frames
+        .iter()
+        .map(|f| {
+            f["crops"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .filter(|c| c["kind"].as_str().unwrap().ends_with("_hand"))
+                .count()
+        })
+        .sum();
+    assert!(hand_crops > 0);
+    let sheet = image::open(out.join("eval_renders").join(HANDS_SHEET))
+        .unwrap()
+        .to_rgb8();
+    let (per_row, tile) = (if hand_crops > 4 { 2 } else { 1 }, HAND_TILE + 2);
+    assert_eq!(sheet.width(), per_row * 3 * tile + 2);
+    assert_eq!(
+        sheet.height(),
+        (hand_crops as u32).div_ceil(per_row) * tile + 2
+    );
     assert!(
         std::fs::read_dir(&out)
             .unwrap()

@@ -20,7 +20,9 @@ pub use lpips::LpipsScorer;
 pub use report::{CropScore, EvalReport, FrameScore, LPIPS_SCALE, SkippedCrop};
 
 use crate::avatar::{Avatar, AvatarError};
-use crate::sequence::{SequenceError, Shot, shots_from_frames, smooth_shots, write_png};
+use crate::sequence::{
+    SequenceError, SheetRow, Shot, comparison_sheet, shots_from_frames, smooth_shots, write_png,
+};
 use talkin_data::dataset::{Dataset, DatasetError};
 use talkin_human::smooth::Smoothing;
 
@@ -107,15 +109,23 @@ pub fn evaluate_with_progress(
         })?;
     }
     let mut scores = Vec::with_capacity(shots.len());
+    let mut hands = Vec::new();
     for (k, shot) in shots.iter().enumerate() {
-        scores.push(score_shot(
+        let (score, hand_rows) = score_shot(
             avatar,
             dataset,
             shot,
             opts.renders_dir.as_deref(),
             scorer.as_ref(),
-        )?);
+        )?;
+        scores.push(score);
+        hands.extend(hand_rows);
         progress(k + 1, shots.len());
+    }
+    if let Some(dir) = &opts.renders_dir
+        && !hands.is_empty()
+    {
+        write_png(&comparison_sheet(&hands), &dir.join(HANDS_SHEET))?;
     }
     Ok(EvalReport::new(
         dataset,
@@ -126,14 +136,15 @@ pub fn evaluate_with_progress(
     ))
 }
 
-/// Renders one shot, writes it if asked, scores it and its crops.
+/// Renders one shot, writes it if asked, scores it and its crops; with `renders_dir`,
+/// also its hand crops (truth and render at [`HAND_TILE`] px) for the hands sheet.
 fn score_shot(
     avatar: &Avatar,
     dataset: &Dataset,
     shot: &Shot,
     renders_dir: Option<&Path>,
     scorer: Option<&LpipsScorer>,
-) -> Result<FrameScore, EvalError> {
+) -> Result<(FrameScore, Vec<SheetRow>), EvalError> {
     let index = shot
         .ground_truth
         .expect("evaluation shots come from dataset frames");
@@ -168,10 +179,18 @@ fn score_shot(
     let skeleton = &dataset.subjects[frame.subject].skeleton;
     let mut crops = Vec::new();
     let mut skipped = Vec::new();
+    let mut hand_rows = Vec::new();
     // The shot's pose: a training frame's refined fit, when the run refined it.
     for (kind, crop) in frame_crops(skeleton, &shot.params, &frame.camera) {
         match crop {
             Ok(rect) => {
+                if file.is_some() && matches!(kind, CropKind::LeftHand | CropKind::RightHand) {
+                    hand_rows.push(SheetRow {
+                        truth: crop_tile(&truth, rect),
+                        render: crop_tile(&render, rect),
+                        outlines: Vec::new(),
+                    });
+                }
                 let (p, s, l) = score_rect(rect);
                 crops.push(CropScore {
                     kind,
@@ -184,7 +203,7 @@ fn score_shot(
             Err(reason) => skipped.push(SkippedCrop { kind, reason }),
         }
     }
-    Ok(FrameScore {
+    let score = FrameScore {
         frame: index,
         subject: dataset.subjects[frame.subject].name.clone(),
         rendered_as: avatar.subjects[shot.identity].name.clone(),
@@ -197,7 +216,25 @@ fn score_shot(
         skipped_crops: skipped,
         samples: rendered.samples,
         seconds: rendered.seconds,
-    })
+    };
+    Ok((score, hand_rows))
+}
+
+/// The hands sheet beside the scored renders: every hand crop of the split, one row each
+/// (two side by side beyond four), ground truth | render | error heat map.
+pub const HANDS_SHEET: &str = "hands_sheet.png";
+/// Side of a hand crop on the hands sheet (crops are squares, scaled to it).
+pub const HAND_TILE: u32 = 96;
+
+/// `rect` of `img`, scaled to a `HAND_TILE` square.
+fn crop_tile(img: &RgbImage, rect: Rect) -> RgbImage {
+    let crop = image::imageops::crop_imm(img, rect.x, rect.y, rect.width, rect.height).to_image();
+    image::imageops::resize(
+        &crop,
+        HAND_TILE,
+        HAND_TILE,
+        image::imageops::FilterType::Nearest,
+    )
 }
 
 /// Re-scores a written render against its ground truth (full-frame PSNR): what a reader
