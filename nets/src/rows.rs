@@ -14,7 +14,7 @@
 use burn::prelude::*;
 use burn::tensor::IndexingUpdateOp;
 
-pub(crate) use crate::device::is_cpu as on_cpu;
+use crate::device::is_cpu;
 
 /// `rows` (`[n]`) repeated across the columns of a `[n, ..]` tensor of shape `shape`.
 fn index_like<const D: usize>(rows: Tensor<1, Int>, shape: [usize; D]) -> Tensor<D, Int> {
@@ -30,7 +30,7 @@ fn index_like<const D: usize>(rows: Tensor<1, Int>, shape: [usize; D]) -> Tensor
 
 /// Rows `rows` of `table`: `[R, ..]` -> `[n, ..]` (like `table.select(0, rows)`).
 pub(crate) fn gather_rows<const D: usize>(table: Tensor<D>, rows: Tensor<1, Int>) -> Tensor<D> {
-    if on_cpu(&table.device()) {
+    if is_cpu(&table.device()) {
         return table.select(0, rows);
     }
     let mut shape = table.dims();
@@ -48,7 +48,7 @@ pub(crate) fn add_rows<const D: usize>(
     rows: Tensor<1, Int>,
     values: Tensor<D>,
 ) -> Tensor<D> {
-    if on_cpu(&target.device()) {
+    if is_cpu(&target.device()) {
         return target.select_assign(0, rows, values, IndexingUpdateOp::Add);
     }
     let shape = values.dims();

@@ -501,6 +501,23 @@ impl TalkinField {
         x.clone() + nr.forward(self.to_unit(x), pose, input.step)
     }
 
+    /// The part's routed rows (candidate bit `bit`, label `label`) and their points of
+    /// `x` (`[h, 3]`); `None` when no sample is routed there.
+    fn routed(
+        &self,
+        route: &Router,
+        bit: u8,
+        label: usize,
+        x: &Tensor<2>,
+    ) -> Option<(Routed, Tensor<2>)> {
+        let rows = route.rows(bit, label);
+        if rows.rows.is_empty() {
+            return None;
+        }
+        let points = gather_rows(x.clone(), rows.indices(&self.device()));
+        Some((rows, points))
+    }
+
     /// F_face on the head's routed rows: the rows, their density `[h]` and colour
     /// `[h, 3]` (`None` without F_face or rows).
     fn face_pass(
@@ -512,13 +529,9 @@ impl TalkinField {
         leaves: Option<&PoseLeaves>,
     ) -> Option<(Routed, Tensor<1>, Tensor<2>)> {
         let face = self.face.as_ref()?;
-        let head = route.rows(PART_BIT_HEAD, SEG_HEAD);
-        if head.rows.is_empty() {
-            return None;
-        }
+        let (head, xh) = self.routed(route, PART_BIT_HEAD, SEG_HEAD, x)?; // [h, 3]
         let device = self.device();
         let frame = input.frame;
-        let xh = gather_rows(x.clone(), head.indices(&device)); // [h, 3]
         let e = match leaves {
             Some(l) if self.settings.face_uses_jaw => {
                 Tensor::cat(vec![l.expression.clone(), l.jaw.clone()], 1)
@@ -554,12 +567,8 @@ impl TalkinField {
         leaves: Option<&PoseLeaves>,
     ) -> Option<(Routed, Tensor<1>, Tensor<2>)> {
         let hands = self.hands.as_ref()?;
-        let idx = route.rows(PART_BIT_HANDS, SEG_HANDS);
-        if idx.rows.is_empty() {
-            return None;
-        }
+        let (idx, mut xh) = self.routed(route, PART_BIT_HANDS, SEG_HANDS, x)?; // [h, 3]
         let device = self.device();
-        let mut xh = gather_rows(x.clone(), idx.indices(&device));
         if let Some(dh) = &self.hand_deform {
             let pose = match leaves {
                 Some(l) => l.hand_pose.clone(),

@@ -31,8 +31,9 @@ use burn::module::Param;
 use burn::prelude::*;
 use burn::tensor::IndexingUpdateOp;
 
+use crate::device::is_cpu;
 use crate::error::{NetsError, check_len};
-use crate::rows::{gather_rows, on_cpu};
+use crate::rows::gather_rows;
 use crate::util::{floats, ints};
 
 mod prior;
@@ -344,7 +345,7 @@ impl BlendWeightVolume {
             .sum_dim(1)
             .reshape([m])
             + floats(p.posed, [m], device); // [m]
-        let x_canonical = if on_cpu(device) {
+        let x_canonical = if is_cpu(device) {
             blend_scattered(p.sample, n, logits, xb)
         } else {
             blend_padded(&p.sample, n, logits, xb)
