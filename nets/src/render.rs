@@ -124,6 +124,23 @@ impl RenderWeights {
             .collect();
         let delta = floats(delta, [n], &device);
         let tau = (sigma.clamp_min(0.0) * delta).clamp_max(MAX_OPTICAL_DEPTH); // [n]
+        let ray = ints(samples.ray_indices(), &device);
+        #[cfg(feature = "wgpu")]
+        if !crate::device::is_cpu(&device) {
+            // One unit per ray (`kernels::cube::render`) instead of the scan below.
+            let offsets: Vec<i32> = samples.offsets.iter().map(|&o| o as i32).collect();
+            let (weights, transmittance_end) = crate::kernels::cube::render::render_weights(
+                tau,
+                ints(offsets, &device),
+                SMALL_TAU,
+            );
+            return Ok(Self {
+                weights,
+                transmittance_end,
+                ray_of_sample: Some(ray),
+                n_rays: r,
+            });
+        }
         let depth_before = exclusive_segmented_scan(tau.clone(), samples.offsets); // [n]
         let transmittance = depth_before.neg().exp(); // [n]
         let small = tau.clone().clamp_max(SMALL_TAU);
@@ -133,7 +150,6 @@ impl RenderWeights {
                 .add_scalar(1.0);
         let direct = tau.clone().neg().exp().neg().add_scalar(1.0);
         let alpha = direct.mask_where(tau.clone().lower_elem(SMALL_TAU), taylor); // [n]
-        let ray = ints(samples.ray_indices(), &device);
         let total = add_rows(Tensor::<1>::zeros([r], &device), ray.clone(), tau);
         Ok(Self {
             weights: transmittance * alpha,
@@ -597,6 +613,71 @@ mod tests {
                 (fd - g_rgb[i] as f64).abs() < 2e-4 * (1.0 + fd.abs()),
                 "drgb[{i}]"
             );
+        }
+    }
+
+    /// The device op (`kernels::cube::render`) renders and differentiates a batch as the
+    /// CPU's scan does: long, short and empty rays, a huge density, zero-length intervals,
+    /// through a body pass and a hands pass in front of it (the final transmittance).
+    #[cfg(feature = "wgpu")]
+    #[test]
+    #[ignore = "needs a Vulkan adapter (lavapipe will do): \
+                cargo test --release --features wgpu -p talkin-nets -- --ignored device_op"]
+    fn device_op_renders_like_the_cpu() {
+        let gpu = crate::ComputeDevice::Wgpu { index: 0 }
+            .open()
+            .expect("a wgpu adapter")
+            .autodiff();
+        let mut seed = 5;
+        let (mut s, mut sigma, rgb) = batch(&[0, 5, 1, 0, 37, 128, 2, 0, 9], &mut seed);
+        sigma[3] = 1e6;
+        sigma[50] = 1e6;
+        s.t_end[7] = s.t_start[7];
+        let (front, front_sigma, front_rgb) = batch(&[2, 0, 1, 0, 3, 0, 0, 4, 1], &mut seed);
+        let run = |device: &Device| {
+            let (sig, col) = tensors(&sigma, &rgb, device);
+            let (sig, col) = (sig.require_grad(), col.require_grad());
+            let (fs, fc) = tensors(&front_sigma, &front_rgb, device);
+            let fs = fs.require_grad();
+            let body = render_packed(sig.clone(), col.clone(), col.clone(), &s.view()).unwrap();
+            let out = render_in_front(fs.clone(), fc, &front.view(), &body).unwrap();
+            let stacked = Tensor::cat(
+                vec![
+                    out.rgb,
+                    out.opacity.unsqueeze_dim(1),
+                    out.depth.unsqueeze_dim(1),
+                ],
+                1,
+            );
+            let [r, c] = stacked.dims();
+            let q: Vec<f32> = (0..r * c)
+                .map(|i| ((i * 5 % 7) as f32 - 3.0) / 3.0)
+                .collect();
+            let grads = (stacked.clone() * floats(q, [r, c], device))
+                .sum()
+                .backward();
+            [
+                host(&stacked),
+                host(&sig.grad(&grads).unwrap()),
+                host(&col.grad(&grads).unwrap()),
+                host(&fs.grad(&grads).unwrap()),
+            ]
+        };
+        let (cpu, dev) = (run(&Device::flex().autodiff()), run(&gpu));
+        for (what, a, b) in [
+            ("rendered", &dev[0], &cpu[0]),
+            ("sigma gradient", &dev[1], &cpu[1]),
+            ("rgb gradient", &dev[2], &cpu[2]),
+            ("front sigma gradient", &dev[3], &cpu[3]),
+        ] {
+            assert_eq!(a.len(), b.len(), "{what}");
+            for (i, (u, v)) in a.iter().zip(b).enumerate() {
+                assert!(u.is_finite(), "{what}[{i}]: {u}");
+                assert!(
+                    (u - v).abs() <= 1e-4 * (1.0 + v.abs()),
+                    "{what}[{i}]: device {u}, cpu {v}"
+                );
+            }
         }
     }
 

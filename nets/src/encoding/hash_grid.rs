@@ -285,8 +285,46 @@ impl HashGrid {
             Corners::new(points, resolutions, offsets, f, &|l, c| cells.rows(l, c))
         }) {
             Some(out) => out,
-            None => self.forward_pieces(table, x, identity, COMPOSED_CHUNK),
+            None => self.forward_device(table, x, identity),
         }
+    }
+
+    /// Off the CPU: the device op (`kernels::cube`, one launch) in a build with the GPU
+    /// backend, else the composed ops.
+    fn forward_device(&self, table: Tensor<2>, x: Tensor<2>, identity: usize) -> Tensor<2> {
+        #[cfg(feature = "wgpu")]
+        if let Some(levels) = self.device_levels(identity as u32) {
+            let id_hash = (identity as u32).wrapping_mul(IDENTITY_PRIME);
+            return crate::kernels::cube::hash::encode(table, x, &levels, id_hash);
+        }
+        self.forward_pieces(table, x, identity, COMPOSED_CHUNK)
+    }
+
+    /// Each level's numbers for the device kernels (`kernels::cube`'s layout: cells per
+    /// axis, first row, rows, vertices per axis or 0 when hashed, the identity's shift),
+    /// every one exact in f32; `None` for a grid too large for that.
+    #[cfg_attr(not(feature = "wgpu"), allow(dead_code))]
+    fn device_levels(&self, id: u32) -> Option<Vec<f32>> {
+        let exact = |v: usize| (v < 1 << 24).then_some(v as f32);
+        let mut out = Vec::with_capacity(self.resolutions.len() * 5);
+        for (level, &res) in self.resolutions.iter().enumerate() {
+            let res1 = res + 1;
+            let block = res1.pow(3);
+            let size = self.offsets[level + 1] - self.offsets[level];
+            let (res1, shift) = if block <= size && size.is_multiple_of(block) {
+                (res1, (id as usize * block) % size)
+            } else if size.is_power_of_two() {
+                (0, 0)
+            } else {
+                return None;
+            };
+            for v in [res, self.offsets[level], size, res1, shift] {
+                out.push(exact(v)?);
+            }
+        }
+        // The table's last row too (rows are indexed in f32-exact offsets).
+        exact(self.n_entries())?;
+        Some(out)
     }
 
     /// [`HashGrid::forward_composed`] on pieces of at most `chunk` points, concatenated
@@ -608,6 +646,71 @@ pub(crate) mod tests {
             // Clamped coordinates carry no point gradient.
             assert_eq!(fused.2[3 * 3], 0.0);
             assert_eq!(fused.2[3 * 3 + 2], 0.0);
+        }
+    }
+
+    /// The device op (`kernels::cube`) and the composed ops give the same encoding and the
+    /// same gradients for the table and the points on a wgpu adapter, on dense and hashed
+    /// levels, for every identity and one past them, with two and three features a level;
+    /// and it is the op `forward` takes there.
+    #[cfg(feature = "wgpu")]
+    #[test]
+    #[ignore = "needs a Vulkan adapter (lavapipe will do): \
+                cargo test --release --features wgpu -p talkin-nets -- --ignored device_op"]
+    fn device_op_matches_composed_ops() {
+        let device = crate::ComputeDevice::Wgpu { index: 0 }
+            .open()
+            .expect("a wgpu adapter")
+            .autodiff();
+        for features in [2, 3] {
+            let grid = HashGridConfig::new()
+                .with_n_levels(5)
+                .with_n_features_per_level(features)
+                .with_log2_hashmap_size(10)
+                .with_base_resolution(3)
+                .with_per_level_scale(1.7)
+                .with_init_scale(1.0)
+                .with_n_identities(2)
+                .init(&device);
+            let pts = awkward_points();
+            let n = pts.len();
+            let out_dim = grid.output_dim();
+            let coeff: Vec<f32> = (0..n * out_dim)
+                .map(|i| ((i * 7 % 13) as f32 - 6.0) / 6.0)
+                .collect();
+            let c = floats(coeff, [n, out_dim], &device);
+            for id in [0, 1, 3] {
+                let run = |op: bool| {
+                    let flat = pts.iter().flatten().copied().collect();
+                    let x = floats(flat, [n, 3], &device).require_grad();
+                    let table = grid.table.val();
+                    let out = if op {
+                        grid.forward(x.clone(), id)
+                    } else {
+                        grid.forward_composed(table, x.clone().clamp(0.0, 1.0), id)
+                    };
+                    let grads = (out.clone() * c.clone()).sum().backward();
+                    (
+                        host(&out),
+                        host(&grid.table.grad(&grads).expect("table grad")),
+                        host(&x.grad(&grads).expect("point grad")),
+                    )
+                };
+                let (op, composed) = (run(true), run(false));
+                for (what, a, b) in [
+                    ("encoding", &op.0, &composed.0),
+                    ("table gradient", &op.1, &composed.1),
+                    ("point gradient", &op.2, &composed.2),
+                ] {
+                    assert_eq!(a.len(), b.len(), "{what}");
+                    for (i, (u, v)) in a.iter().zip(b.iter()).enumerate() {
+                        assert!(
+                            (u - v).abs() <= 1e-4 * (1.0 + v.abs()),
+                            "{features} features, identity {id}, {what}[{i}]: op {u}, composed {v}"
+                        );
+                    }
+                }
+            }
         }
     }
 

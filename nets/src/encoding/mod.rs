@@ -6,7 +6,7 @@
 pub mod frequency;
 mod hash_corners;
 pub mod hash_grid;
-mod hash_primes;
+pub(crate) mod hash_primes;
 
 use burn::prelude::*;
 

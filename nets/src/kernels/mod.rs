@@ -10,6 +10,8 @@
 //! - [`grad_sum`]: two half-batches' gradients summed in place.
 
 pub mod adam;
+#[cfg(feature = "wgpu")]
+pub(crate) mod cube;
 pub(crate) mod flex_data;
 pub(crate) mod frequency;
 pub mod grad_sum;

@@ -1,0 +1,19 @@
+//! The device kernels (CubeCL, the `wgpu` feature): each a burn backend extension with its
+//! own backward, used where tensors live on a CubeCL device, and tested against the
+//! composed burn ops the other devices run.
+//!
+//! - `hash`: the multiresolution hash encoding, all levels in one launch.
+//! - `render`: volume rendering's weights, one unit per ray.
+
+use cubecl::{CubeCount, CubeDim, calculate_cube_count_elemwise, client::Client};
+
+pub(crate) mod hash;
+mod hash_kernels;
+pub(crate) mod render;
+mod render_kernels;
+
+/// The launch grid for `units` work items, one unit each.
+fn launch_shape(client: &Client, units: usize) -> (CubeCount, CubeDim) {
+    let dim = CubeDim::new(client, units);
+    (calculate_cube_count_elemwise(client, units, dim), dim)
+}
