@@ -290,18 +290,9 @@ impl RenderedRays {
     /// Colour over a constant background: `C + (1 - opacity) * bg`. `[r, 3]`
     pub fn rgb_over(&self, background: [f32; 3]) -> Tensor<2> {
         let device = self.rgb.device();
-        let bg = floats(background.to_vec(), [1, 3], &device);
-        let clear = self
-            .opacity
-            .clone()
-            .neg()
-            .add_scalar(1.0)
-            .unsqueeze_dim::<2>(1); // [r, 1]
-        self.rgb.clone() + clear * bg
+        self.rgb_over_tensor(floats(background.to_vec(), [1, 3], &device))
     }
-}
 
-impl RenderedRays {
     /// Colour over per-ray backgrounds: `C + (1 - opacity) * bg`.
     ///
     /// # Shapes

@@ -201,6 +201,25 @@ fn composed_pieces_match_the_whole() {
 
 fn fused_matches_composed(features: usize) {
     let device = Device::flex().autodiff();
+    op_matches_composed(&device, features, &|grid, x, id| {
+        let (res, off, f) = (&grid.resolutions, &grid.offsets, grid.n_features);
+        hash_fused::encode(&grid.table.val(), &x, |points| {
+            let cells = CellRows::new(res, off, id as u32);
+            Corners::new(points, res, off, f, &|l, c| cells.rows(l, c))
+        })
+        .expect("Flex autodiff tensors take the fused op")
+    });
+}
+
+/// An encoding op (`op(grid, clamped points, identity)`) against the composed ops on
+/// `device` (with autodiff): the encoding and the table's and points' gradients, on dense
+/// and hashed levels, for every identity of a 2-identity grid and one past them (it wraps
+/// onto the others' dense blocks), points on and outside the cube's faces.
+fn op_matches_composed(
+    device: &Device,
+    features: usize,
+    op: &dyn Fn(&HashGrid, Tensor<2>, usize) -> Tensor<2>,
+) {
     let grid = HashGridConfig::new()
         .with_n_levels(5)
         .with_n_features_per_level(features)
@@ -209,29 +228,22 @@ fn fused_matches_composed(features: usize) {
         .with_per_level_scale(1.7)
         .with_init_scale(1.0)
         .with_n_identities(2)
-        .init(&device);
+        .init(device);
     let pts = awkward_points();
     let n = pts.len();
     let out_dim = grid.output_dim();
     let coeff: Vec<f32> = (0..n * out_dim)
         .map(|i| ((i * 7 % 13) as f32 - 6.0) / 6.0)
         .collect();
-    let c = floats(coeff, [n, out_dim], &device);
-    // Identity 3 of a 2-identity grid wraps onto the others' dense blocks.
+    let c = floats(coeff, [n, out_dim], device);
     for id in [0, 1, 3] {
-        let run = |fused: bool| {
-            let x = floats(pts.iter().flatten().copied().collect(), [n, 3], &device).require_grad();
+        let run = |under_test: bool| {
+            let x = floats(pts.iter().flatten().copied().collect(), [n, 3], device).require_grad();
             let clamped = x.clone().clamp(0.0, 1.0);
-            let table = grid.table.val();
-            let out = if fused {
-                let (res, off, f) = (&grid.resolutions, &grid.offsets, grid.n_features);
-                hash_fused::encode(&table, &clamped, |points| {
-                    let cells = CellRows::new(res, off, id as u32);
-                    Corners::new(points, res, off, f, &|l, c| cells.rows(l, c))
-                })
-                .expect("Flex autodiff tensors take the fused op")
+            let out = if under_test {
+                op(&grid, clamped, id)
             } else {
-                grid.forward_composed(table, clamped, id)
+                grid.forward_composed(grid.table.val(), clamped, id)
             };
             let grads = (out.clone() * c.clone()).sum().backward();
             (
@@ -240,30 +252,28 @@ fn fused_matches_composed(features: usize) {
                 host(&x.grad(&grads).expect("point grad")),
             )
         };
-        let (fused, composed) = (run(true), run(false));
+        let (tested, composed) = (run(true), run(false));
         for (what, a, b) in [
-            ("encoding", &fused.0, &composed.0),
-            ("table gradient", &fused.1, &composed.1),
-            ("point gradient", &fused.2, &composed.2),
+            ("encoding", &tested.0, &composed.0),
+            ("table gradient", &tested.1, &composed.1),
+            ("point gradient", &tested.2, &composed.2),
         ] {
             assert_eq!(a.len(), b.len(), "{what}");
             for (i, (u, v)) in a.iter().zip(b.iter()).enumerate() {
                 assert!(
                     (u - v).abs() <= 1e-4 * (1.0 + v.abs()),
-                    "{features} features, identity {id}, {what}[{i}]: fused {u}, composed {v}"
+                    "{features} features, identity {id}, {what}[{i}]: op {u}, composed {v}"
                 );
             }
         }
         // Clamped coordinates carry no point gradient.
-        assert_eq!(fused.2[3 * 3], 0.0);
-        assert_eq!(fused.2[3 * 3 + 2], 0.0);
+        assert_eq!(tested.2[3 * 3], 0.0);
+        assert_eq!(tested.2[3 * 3 + 2], 0.0);
     }
 }
 
-/// The device op (`kernels::cube`) and the composed ops give the same encoding and the
-/// same gradients for the table and the points on a wgpu adapter, on dense and hashed
-/// levels, for every identity and one past them, with two and three features a level;
-/// and it is the op `forward` takes there.
+/// The device op (`kernels::cube`) against the composed ops on a wgpu adapter, as the
+/// fused CPU op is above, through `forward` (which takes it there).
 #[cfg(feature = "wgpu")]
 #[test]
 #[ignore = "needs a Vulkan adapter (lavapipe will do): \
@@ -274,54 +284,14 @@ fn device_op_matches_composed_ops() {
         .expect("a wgpu adapter")
         .autodiff();
     for features in [2, 3] {
-        let grid = HashGridConfig::new()
-            .with_n_levels(5)
-            .with_n_features_per_level(features)
-            .with_log2_hashmap_size(10)
-            .with_base_resolution(3)
-            .with_per_level_scale(1.7)
-            .with_init_scale(1.0)
-            .with_n_identities(2)
-            .init(&device);
-        let pts = awkward_points();
-        let n = pts.len();
-        let out_dim = grid.output_dim();
-        let coeff: Vec<f32> = (0..n * out_dim)
-            .map(|i| ((i * 7 % 13) as f32 - 6.0) / 6.0)
-            .collect();
-        let c = floats(coeff, [n, out_dim], &device);
-        for id in [0, 1, 3] {
-            let run = |op: bool| {
-                let flat = pts.iter().flatten().copied().collect();
-                let x = floats(flat, [n, 3], &device).require_grad();
-                let table = grid.table.val();
-                let out = if op {
-                    grid.forward(x.clone(), id)
-                } else {
-                    grid.forward_composed(table, x.clone().clamp(0.0, 1.0), id)
-                };
-                let grads = (out.clone() * c.clone()).sum().backward();
-                (
-                    host(&out),
-                    host(&grid.table.grad(&grads).expect("table grad")),
-                    host(&x.grad(&grads).expect("point grad")),
-                )
-            };
-            let (op, composed) = (run(true), run(false));
-            for (what, a, b) in [
-                ("encoding", &op.0, &composed.0),
-                ("table gradient", &op.1, &composed.1),
-                ("point gradient", &op.2, &composed.2),
-            ] {
-                assert_eq!(a.len(), b.len(), "{what}");
-                for (i, (u, v)) in a.iter().zip(b.iter()).enumerate() {
-                    assert!(
-                        (u - v).abs() <= 1e-4 * (1.0 + v.abs()),
-                        "{features} features, identity {id}, {what}[{i}]: op {u}, composed {v}"
-                    );
-                }
-            }
-        }
+        op_matches_composed(&device, features, &|grid, x, id| {
+            // Else `forward` would take the composed ops and compare them with themselves.
+            assert!(
+                grid.device_levels(id as u32).is_some(),
+                "the grid fits the device op"
+            );
+            grid.forward(x, id)
+        });
     }
 }
 

@@ -16,28 +16,28 @@ const P2: u32 = PRIMES[2];
 /// Numbers per level in the `levels` tensor.
 pub(crate) const LEVEL_PARAMS: usize = 5;
 
-/// Table row of vertex `(x, y, z)` on a level (see the module docs).
-#[cube]
-fn vertex_row(
-    x: u32,
-    y: u32,
-    z: u32,
+/// One level's numbers (see the module docs).
+#[derive(CubeType)]
+struct Level {
+    /// Cells per axis.
+    res: f32,
     offset: u32,
     size: u32,
+    /// Vertices per axis on a dense level, 0 on a hashed one.
     res1: u32,
     shift: u32,
-    id_hash: u32,
-) -> u32 {
-    // Hashed unless the level has vertices per axis; the dense index wraps once at most.
-    let h = (x * P0) ^ (y * P1) ^ (z * P2) ^ id_hash;
-    let mut local = h & (size - 1);
-    if res1 > 0 {
-        local = x + res1 * (y + res1 * z) + shift;
-        if local >= size {
-            local -= size;
-        }
+}
+
+#[cube]
+fn level_of(levels: &Tensor<f32>, level: usize) -> Level {
+    let base = level * LEVEL_PARAMS;
+    Level {
+        res: levels[base],
+        offset: u32::cast_from(levels[base + 1]),
+        size: u32::cast_from(levels[base + 2]),
+        res1: u32::cast_from(levels[base + 3]),
+        shift: u32::cast_from(levels[base + 4]),
     }
-    offset + local
 }
 
 /// One level's cell of a point: lower corner and the fraction inside the cell, per axis.
@@ -51,9 +51,15 @@ struct Cell {
     fz: f32,
 }
 
+/// The cell of point `p` (`points` `[n, 3]`) on level `lv`.
 #[cube]
-fn cell_of(px: f32, py: f32, pz: f32, res: f32) -> Cell {
-    let (qx, qy, qz) = (px * res, py * res, pz * res);
+fn cell_of(points: &Tensor<f32>, p: usize, lv: &Level) -> Cell {
+    let res = lv.res;
+    let (qx, qy, qz) = (
+        points[p * 3] * res,
+        points[p * 3 + 1] * res,
+        points[p * 3 + 2] * res,
+    );
     let top = res - 1.0;
     let cx = f32::max(f32::min(qx.floor(), top), 0.0);
     let cy = f32::max(f32::min(qy.floor(), top), 0.0);
@@ -68,74 +74,27 @@ fn cell_of(px: f32, py: f32, pz: f32, res: f32) -> Cell {
     }
 }
 
-/// The level's parameters as u32: (cells, offset, rows, vertices per axis, shift).
+/// First table element of corner `k` (`(k & 1, k >> 1 & 1, k >> 2)`) of cell `c`: its row
+/// times `n_features`. Hashed unless the level has vertices per axis; the dense index
+/// wraps once at most.
 #[cube]
-fn level_params(levels: &Tensor<f32>, level: usize) -> (u32, u32, u32, u32, u32) {
-    let base = level * LEVEL_PARAMS;
-    (
-        u32::cast_from(levels[base]),
-        u32::cast_from(levels[base + 1]),
-        u32::cast_from(levels[base + 2]),
-        u32::cast_from(levels[base + 3]),
-        u32::cast_from(levels[base + 4]),
-    )
-}
-
-/// `out[p, level F + j] = sum_k w_k table[row_k, j]`, one unit per (point, level).
-#[cube(launch)]
-pub(crate) fn encode_kernel(
-    points: &Tensor<f32>,
-    table: &Tensor<f32>,
-    levels: &Tensor<f32>,
-    out: &mut Tensor<f32>,
-    id_hash: u32,
-    #[comptime] n_levels: usize,
-    #[comptime] n_features: usize,
-) {
-    let n = points.shape(0);
-    if ABSOLUTE_POS >= n * n_levels {
-        terminate!();
-    }
-    let p = ABSOLUTE_POS / n_levels;
-    let level = ABSOLUTE_POS % n_levels;
-    let (cells, offset, size, res1, shift) = level_params(levels, level);
-    let c = cell_of(
-        points[p * 3],
-        points[p * 3 + 1],
-        points[p * 3 + 2],
-        f32::cast_from(cells),
-    );
-    let out_base = p * n_levels * n_features + level * n_features;
-    #[unroll]
-    for j in 0..n_features {
-        out[out_base + j] = 0.0;
-    }
-    #[unroll]
-    for k in 0..8u32 {
-        let (dx, dy, dz) = (k & 1, (k >> 1) & 1, k >> 2);
-        let row = vertex_row(
-            c.x + dx,
-            c.y + dy,
-            c.z + dz,
-            offset,
-            size,
-            res1,
-            shift,
-            id_hash,
-        );
-        let w = corner_weight(&c, dx, dy, dz);
-        let row_base = usize::cast_from(row) * n_features;
-        #[unroll]
-        for j in 0..n_features {
-            out[out_base + j] += w * table[row_base + j];
+fn corner_base(c: &Cell, lv: &Level, k: u32, id_hash: u32, #[comptime] n_features: usize) -> usize {
+    let (x, y, z) = (c.x + (k & 1), c.y + ((k >> 1) & 1), c.z + (k >> 2));
+    let h = (x * P0) ^ (y * P1) ^ (z * P2) ^ id_hash;
+    let mut local = h & (lv.size - 1);
+    if lv.res1 > 0 {
+        local = x + lv.res1 * (y + lv.res1 * z) + lv.shift;
+        if local >= lv.size {
+            local -= lv.size;
         }
     }
+    usize::cast_from(lv.offset + local) * n_features
 }
 
-/// Trilinear weight of corner `(dx, dy, dz)` (each 0 or 1) of cell `c`.
+/// Trilinear weight of corner `k` of cell `c`.
 #[cube]
-fn corner_weight(c: &Cell, dx: u32, dy: u32, dz: u32) -> f32 {
-    axis_weight(c.fx, dx) * axis_weight(c.fy, dy) * axis_weight(c.fz, dz)
+fn corner_weight(c: &Cell, k: u32) -> f32 {
+    axis_weight(c.fx, k & 1) * axis_weight(c.fy, (k >> 1) & 1) * axis_weight(c.fz, k >> 2)
 }
 
 #[cube]
@@ -153,6 +112,38 @@ fn axis_sign(d: u32) -> f32 {
     f32::cast_from(2 * d) - 1.0
 }
 
+/// `out[p, level F + j] = sum_k w_k table[row_k, j]`, one unit per (point, level); each
+/// output is summed in a register and written once.
+#[cube(launch)]
+pub(crate) fn encode_kernel(
+    points: &Tensor<f32>,
+    table: &Tensor<f32>,
+    levels: &Tensor<f32>,
+    out: &mut Tensor<f32>,
+    id_hash: u32,
+    #[comptime] n_levels: usize,
+    #[comptime] n_features: usize,
+) {
+    if ABSOLUTE_POS >= points.shape(0) * n_levels {
+        terminate!();
+    }
+    let p = ABSOLUTE_POS / n_levels;
+    let level = ABSOLUTE_POS % n_levels;
+    let lv = level_of(levels, level);
+    let c = cell_of(points, p, &lv);
+    let out_base = p * n_levels * n_features + level * n_features;
+    #[unroll]
+    for j in 0..n_features {
+        let mut acc = 0.0f32;
+        #[unroll]
+        for k in 0..8u32 {
+            let row = corner_base(&c, &lv, k, id_hash, n_features);
+            acc += corner_weight(&c, k) * table[row + j];
+        }
+        out[out_base + j] = acc;
+    }
+}
+
 /// The table's gradient: every (point, level) adds `w_k grad[p, level, j]` to its 8 rows
 /// with atomic float adds (into a zeroed `[rows, F]`).
 #[cube(launch)]
@@ -165,38 +156,21 @@ pub(crate) fn table_grad_kernel(
     #[comptime] n_levels: usize,
     #[comptime] n_features: usize,
 ) {
-    let n = points.shape(0);
-    if ABSOLUTE_POS >= n * n_levels {
+    if ABSOLUTE_POS >= points.shape(0) * n_levels {
         terminate!();
     }
     let p = ABSOLUTE_POS / n_levels;
     let level = ABSOLUTE_POS % n_levels;
-    let (cells, offset, size, res1, shift) = level_params(levels, level);
-    let c = cell_of(
-        points[p * 3],
-        points[p * 3 + 1],
-        points[p * 3 + 2],
-        f32::cast_from(cells),
-    );
+    let lv = level_of(levels, level);
+    let c = cell_of(points, p, &lv);
     let g_base = p * n_levels * n_features + level * n_features;
     #[unroll]
     for k in 0..8u32 {
-        let (dx, dy, dz) = (k & 1, (k >> 1) & 1, k >> 2);
-        let row = vertex_row(
-            c.x + dx,
-            c.y + dy,
-            c.z + dz,
-            offset,
-            size,
-            res1,
-            shift,
-            id_hash,
-        );
-        let w = corner_weight(&c, dx, dy, dz);
-        let row_base = usize::cast_from(row) * n_features;
+        let row = corner_base(&c, &lv, k, id_hash, n_features);
+        let w = corner_weight(&c, k);
         #[unroll]
         for j in 0..n_features {
-            table_grad[row_base + j].fetch_add(w * grad[g_base + j]);
+            table_grad[row + j].fetch_add(w * grad[g_base + j]);
         }
     }
 }
@@ -219,38 +193,26 @@ pub(crate) fn point_grad_kernel(
     if p >= points.shape(0) {
         terminate!();
     }
-    let (px, py, pz) = (points[p * 3], points[p * 3 + 1], points[p * 3 + 2]);
     let mut gx = 0.0f32;
     let mut gy = 0.0f32;
     let mut gz = 0.0f32;
     for level in 0..n_levels {
-        let (cells, offset, size, res1, shift) = level_params(levels, level);
-        let res = f32::cast_from(cells);
-        let c = cell_of(px, py, pz, res);
+        let lv = level_of(levels, level);
+        let c = cell_of(points, p, &lv);
         let g_base = p * n_levels * n_features + level * n_features;
         let mut lx = 0.0f32;
         let mut ly = 0.0f32;
         let mut lz = 0.0f32;
         #[unroll]
         for k in 0..8u32 {
-            let (dx, dy, dz) = (k & 1, (k >> 1) & 1, k >> 2);
-            let row = vertex_row(
-                c.x + dx,
-                c.y + dy,
-                c.z + dz,
-                offset,
-                size,
-                res1,
-                shift,
-                id_hash,
-            );
-            let row_base = usize::cast_from(row) * n_features;
+            let row = corner_base(&c, &lv, k, id_hash, n_features);
             // sum_j grad[p, level, j] table[row, j]: how much this corner's weight matters.
             let mut s = 0.0f32;
             #[unroll]
             for j in 0..n_features {
-                s += grad[g_base + j] * table[row_base + j];
+                s += grad[g_base + j] * table[row + j];
             }
+            let (dx, dy, dz) = (k & 1, (k >> 1) & 1, k >> 2);
             let wx = axis_weight(c.fx, dx);
             let wy = axis_weight(c.fy, dy);
             let wz = axis_weight(c.fz, dz);
@@ -259,9 +221,9 @@ pub(crate) fn point_grad_kernel(
             lz += s * axis_sign(dz) * wx * wy;
         }
         // The fraction moves `res` per unit of the point.
-        gx += res * lx;
-        gy += res * ly;
-        gz += res * lz;
+        gx += lv.res * lx;
+        gy += lv.res * ly;
+        gz += lv.res * lz;
     }
     point_grad[p * 3] = gx;
     point_grad[p * 3 + 1] = gy;

@@ -123,9 +123,9 @@ impl RenderWeightOps for CubeBackend {
     }
 }
 
-/// The backward of the weights: one parent (tau), two outputs joined by burn as one node
-/// each; `WeightsBackward` handles the weights' node and `EndBackward` the final
-/// transmittance's, each passing a zero for the other output's gradient.
+/// The backward of the weights. The op has two outputs and burn gives each its own node:
+/// both nodes are this step, told apart by the state's flag, and each passes a zero for
+/// the other output's gradient (the two gradients of tau then add up in burn).
 #[derive(Debug)]
 struct WeightsBackward;
 
