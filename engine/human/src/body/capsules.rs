@@ -16,7 +16,8 @@ use super::skeleton::joint::*;
 #[derive(Clone, Copy)]
 enum End {
     Joint(usize),
-    /// Past the last joint of a chain (finger tips): `to + (to - from) * k`.
+    /// Past the last joint of a chain (finger tips): `to + (to - from) * k` in the rest
+    /// pose, moving with `to`.
     Extrapolate {
         from: usize,
         to: usize,
@@ -112,7 +113,12 @@ pub fn limb_capsules(skeleton: &Skeleton, posed: &PosedSkeleton) -> Vec<Capsule>
             let end = match bone.to {
                 End::Joint(j) => posed.joint(j),
                 End::Extrapolate { from, to, k } => {
-                    posed.joint(to) + (posed.joint(to) - posed.joint(from)) * k
+                    // The tip is rigid with `to` (the capsule's own joint): extrapolated in
+                    // the rest pose and carried by `to`'s transform, so it follows a bent
+                    // last phalanx instead of pointing on along the one before it.
+                    let rest = &skeleton.rest_joints;
+                    let tip = rest[to] + (rest[to] - rest[from]) * k;
+                    posed.world_from_rest[to].transform_point3(tip)
                 }
                 End::Up(len) => {
                     let up = posed.world_from_joint[bone.from].transform_vector3(DVec3::Y);
@@ -156,5 +162,36 @@ mod tests {
             caps.iter()
                 .all(|c| c.a.is_finite() && c.b.is_finite() && c.radius > 0.0)
         );
+    }
+
+    /// A last phalanx bent 90 degrees: its capsule turns with it (rigid with its joint,
+    /// as the finger's surface is), not on along the middle phalanx.
+    #[test]
+    fn a_bent_fingertip_capsule_follows_its_phalanx() {
+        let mut rest = [DVec3::ZERO; N_JOINTS];
+        for j in 1..N_JOINTS {
+            rest[j] = rest[crate::body::PARENTS[j] as usize] + DVec3::new(0.03, 0.0, 0.0);
+        }
+        let s = Skeleton { rest_joints: rest };
+        let distal = LEFT_HAND_FIRST + 2; // index finger, third joint
+        let mut p = FrameParams::default();
+        p.left_hand_pose[2] = DVec3::new(0.0, 0.0, -std::f64::consts::FRAC_PI_2);
+        let posed = s.pose(&p);
+        let tip = limb_capsules(&s, &posed)
+            .into_iter()
+            .find(|c| c.bone as usize == distal)
+            .unwrap();
+        // The rest tip: 0.9 of the last segment past the joint, along +x.
+        let want = posed.world_from_rest[distal]
+            .transform_point3(rest[distal] + DVec3::new(0.027, 0.0, 0.0));
+        assert!(
+            (tip.b.as_dvec3() - want).length() < 1e-6,
+            "{:?} against {want:?}",
+            tip.b
+        );
+        // Bent: perpendicular to the middle phalanx.
+        let middle = posed.joint(distal) - posed.joint(distal - 1);
+        let last = tip.b.as_dvec3() - tip.a.as_dvec3();
+        assert!(middle.normalize().dot(last.normalize()).abs() < 1e-6);
     }
 }
