@@ -106,7 +106,7 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
     })?;
     println!("== 4/4 evaluate every held-out split (renders, metrics, a contact sheet)");
     let mut table = String::from(
-        "| split | frames | PSNR | SSIM | LPIPS* | person PSNR | person SSIM | person LPIPS* | face PSNR | hands PSNR |\n|---|---|---|---|---|---|---|---|---|---|\n",
+        "| split | frames | PSNR | SSIM | LPIPS* | person PSNR | person SSIM | person LPIPS* | face PSNR | hands PSNR | hands SSIM | hands LPIPS* |\n|---|---|---|---|---|---|---|---|---|---|---|---|\n",
     );
     for split in ["test_same", "test_cross", "test_ood"] {
         let json = args.out.join(format!("eval_{split}.json"));
@@ -133,7 +133,7 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
                 .map_or("-".to_string(), |v| format!("{v:.d$}"))
         };
         table.push_str(&format!(
-            "| {split} | {} | {} | {} | {} | {} | {} | {} | {} | {} |\n",
+            "| {split} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |\n",
             report["frames_evaluated"],
             num("psnr", 2),
             num("ssim", 4),
@@ -143,6 +143,8 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
             num("lpips_person", 1),
             num("psnr_face", 2),
             num("psnr_hands", 2),
+            num("ssim_hands", 3),
+            num("lpips_hands", 1),
         ));
     }
     println!("\n== results ({})\n{table}", run_dir.display());
