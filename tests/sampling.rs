@@ -142,7 +142,7 @@ fn unjittered_samples_sit_at_regular_bins() {
     let scene = FrameScene::new(skeleton, &canonical, &frame.params);
     let (labelled, _) = foreground_rays(&frame.camera, &dataset.images(i).unwrap()).unwrap();
     let rays: Vec<_> = labelled.iter().map(|l| l.ray).collect();
-    let sampler = FrameSampler::new(scene, &shells, &rays).unwrap();
+    let sampler = FrameSampler::new(scene, &shells, &rays, true).unwrap();
     let dilated = DilatedGrids::default();
     // The largest width difference between adjacent bins of a ray, relative to the step.
     let spread = |s: &PackedSamples| {

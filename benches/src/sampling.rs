@@ -196,7 +196,7 @@ fn measure_frame(
     // of the accelerated sampler's cost (once per frame); the BVHs are the reference,
     // built outside the timing.
     let (sampler, build_s) = median_time(|| {
-        let sampler = FrameSampler::new(scene.clone(), shells, &rays)?;
+        let sampler = FrameSampler::new(scene.clone(), shells, &rays, true)?;
         sampler.prepare(grid, dilated)?;
         Ok::<_, talkin_grids::GridError>(sampler)
     });

@@ -10,7 +10,6 @@ use crate::scene::{
     CanonicalGrid, CapsuleShells, DilatedGrids, canonical_surface_points, fit_subject_margins,
 };
 use talkin_data::dataset::{Dataset, DatasetError};
-use talkin_human::body::skeleton::body_ancestor;
 use talkin_human::body::{PosedSkeleton, Skeleton, canonical_params, limb_capsules};
 
 /// One trained subject.
@@ -101,14 +100,14 @@ impl SubjectModel {
 }
 
 /// The skinning-weight prior of the field: every subject's canonical limb capsules as
-/// segments labelled with their body bone.
+/// segments labelled with their joint (the field reads each as its skinned joint).
 pub fn bone_prior<'a>(skeletons: impl IntoIterator<Item = &'a Skeleton>) -> Vec<BoneSegment> {
     let mut prior = Vec::new();
     for skeleton in skeletons {
         let canonical = skeleton.pose(&canonical_params());
         for c in limb_capsules(skeleton, &canonical) {
             prior.push(BoneSegment {
-                bone: body_ancestor(c.bone as usize),
+                bone: c.bone as usize,
                 a: c.a.to_array(),
                 b: c.b.to_array(),
             });

@@ -27,7 +27,9 @@ pub mod trainer;
 pub use error::TrainError;
 pub use log::{LOG_FILE, StepLog};
 pub use preset::Preset;
-pub use recipe::{Ablation, Budget, DEFAULT_LPIPS_DIR, DEVICE_ARG, Identities, TrainOptions};
+pub use recipe::{
+    Ablation, Budget, DEFAULT_LPIPS_DIR, DEVICE_ARG, FingerSkinning, Identities, TrainOptions,
+};
 pub use rng::SplitMix64;
 pub use setup::{RECIPE_FILE, existing_run};
 pub use talkin_grids::SamplerKind;

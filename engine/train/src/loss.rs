@@ -259,7 +259,8 @@ mod tests {
         );
         config.skinning = SkinningConfig::new()
             .with_resolution(8)
-            .with_posed_tau(Some(0.005));
+            .with_posed_tau(Some(0.005))
+            .with_finger_bones(Some(true));
         // A synthetic subject in its canonical pose, as training builds it.
         let skeleton = default_rest_joints(0);
         let prior = bone_prior([&skeleton]);
@@ -274,7 +275,7 @@ mod tests {
             core_shrink: vec![0.0; n],
             from_depth: true,
         };
-        let frame = frame_conditions(0, &params, &scene, &shells);
+        let frame = frame_conditions(0, &params, &scene, &shells, true);
         let (lo, hi) = capsule_bounds(&scene.capsules, 0.02);
         let field = config.init(&prior, &device).unwrap();
         // Rays across the body's box, along -z; rays 0-3 miss the box (no samples) with

@@ -5,7 +5,7 @@
 use std::path::PathBuf;
 use std::str::FromStr;
 
-use clap::{Arg, ArgMatches, Args, FromArgMatches};
+use clap::{Arg, ArgMatches, Args, FromArgMatches, ValueEnum};
 use serde::{Deserialize, Serialize};
 use talkin_data::dataset::{Dataset, Matting};
 use talkin_grids::SamplerKind;
@@ -37,6 +37,13 @@ pub struct TrainOptions {
     /// per ray).
     #[arg(long, default_value_t = SamplerKind::Accelerated, help_heading = "Model and device")]
     pub sampler: SamplerKind,
+    /// How hand samples are skinned: `bones` (each finger about its own knuckles, so the
+    /// field learns the rest-pose hand) or `wrist` (the fingers move with their wrist and
+    /// the hand networks learn every finger pose seen).
+    #[arg(long, value_enum, default_value_t = FingerSkinning::Bones, help_heading = "Model and device")]
+    // Runs recorded before finger skinning moved the fingers with their wrist.
+    #[serde(default = "FingerSkinning::recorded_before")]
+    pub skin_fingers: FingerSkinning,
     #[command(flatten, next_help_heading = "Run")]
     pub budget: Budget,
     /// Seed of the initialisation, the frame and ray choice and the sample jitter.
@@ -118,6 +125,27 @@ fn one() -> f64 {
 
 fn every_pixel() -> Option<u32> {
     Some(0)
+}
+
+/// How inverse LBS moves a hand's samples (`--skin-fingers`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum FingerSkinning {
+    /// Over the 15 finger joints of the hand as well as the wrist.
+    Bones,
+    /// With the wrist only (finger joints map to their body ancestor).
+    Wrist,
+}
+
+impl FingerSkinning {
+    fn recorded_before() -> Self {
+        FingerSkinning::Wrist
+    }
+
+    /// Whether the field skins the finger joints.
+    pub fn finger_bones(self) -> bool {
+        self == FingerSkinning::Bones
+    }
 }
 
 /// The clap id of `--device`: where a run trains, not what it trains (a resume takes it).
@@ -281,6 +309,7 @@ impl Default for TrainOptions {
             device: ComputeDevice::Cpu,
             preset: Preset::Fast,
             sampler: SamplerKind::Accelerated,
+            skin_fingers: FingerSkinning::Bones,
             budget: Budget::default(),
             seed: 0,
             identities: Identities::All,
@@ -478,8 +507,12 @@ mod tests {
             "64",
             "--seconds-of-video",
             "3",
+            "--skin-fingers",
+            "wrist",
         ])
         .unwrap();
+        assert_eq!(o.skin_fingers, FingerSkinning::Wrist);
+        assert_eq!(parse(&[]).unwrap().skin_fingers, FingerSkinning::Bones);
         assert_eq!(o.preset, Preset::Paper);
         assert_eq!(o.sampler, SamplerKind::Dense);
         assert_eq!(o.budget, Budget::Seconds(90.0));
@@ -511,7 +544,13 @@ mod tests {
         assert_eq!(json["batch_rays"], 1024);
         let all = serde_json::to_value(TrainOptions::default()).unwrap();
         assert!(all["identities"].is_null());
-        let back: TrainOptions = serde_json::from_value(json).unwrap();
+        assert_eq!(json["skin_fingers"], "bones");
+        let back: TrainOptions = serde_json::from_value(json.clone()).unwrap();
         assert_eq!(back.identities.names(), Some(&["ada".to_string()][..]));
+        // A run recorded before finger skinning moved the fingers with their wrist.
+        let mut old = json;
+        old.as_object_mut().unwrap().remove("skin_fingers");
+        let old: TrainOptions = serde_json::from_value(old).unwrap();
+        assert_eq!(old.skin_fingers, FingerSkinning::Wrist);
     }
 }

@@ -16,6 +16,7 @@ use crate::refine::chain::correction_gradient;
 use crate::schedule;
 use crate::trainer::Trainer;
 use talkin_nets::PoseGrads;
+use talkin_nets::skinning::skinned_candidates;
 
 impl Trainer<'_> {
     /// One optimizer step (and, when due, an occupancy-grid update).
@@ -39,7 +40,8 @@ impl Trainer<'_> {
         let samples = self.draw_samples(frame, &batch)?;
         let sampling_s = sampling_start.elapsed().as_secs_f64();
         let (n_rays, n_samples) = (batch.rays.len(), samples.num_samples());
-        let bones_per_sample = mean_candidate_bones(&samples.bone_mask);
+        let bones_per_sample =
+            mean_candidate_bones(&samples.bone_mask, self.config.skinning.skins_fingers());
 
         // Field and loss: forward, render, loss and backward.
         let StepLoss {
@@ -97,8 +99,9 @@ impl Trainer<'_> {
                 .as_ref()
                 .expect("a trained subject has a model");
             let mask_edge = self.opts.mask_edge_in(self.dataset, i);
-            let cached =
-                FrameCache::new(self.dataset, i, slot, model, mask_edge).map_err(|e| match e {
+            let fingers = self.config.skinning.skins_fingers();
+            let cached = FrameCache::new(self.dataset, i, slot, model, mask_edge, fingers)
+                .map_err(|e| match e {
                     CacheError::Dataset(e) => TrainError::Dataset(e),
                     CacheError::Grid(source) => grid_error(self.dataset, i, source),
                 })?;
@@ -178,7 +181,13 @@ impl Trainer<'_> {
             .expect("a trained subject has a model");
         let params = refiner.params_of(self.dataset, frame);
         cache
-            .repose(&params, delta, slot, model)
+            .repose(
+                &params,
+                delta,
+                slot,
+                model,
+                self.config.skinning.skins_fingers(),
+            )
             .map_err(|source| grid_error(self.dataset, frame, source))
     }
 
@@ -289,12 +298,13 @@ impl Trainer<'_> {
     }
 }
 
-/// The mean number of body bones inverse skinning evaluates per sample: each sample's
-/// candidate joints mapped to their body ancestors (all 22 for a dense sample).
-fn mean_candidate_bones(bone_masks: &[u64]) -> f64 {
+/// The mean number of bones inverse skinning evaluates per sample: each sample's
+/// candidate joints mapped to their skinned joints (all 22 body joints for a dense
+/// sample).
+fn mean_candidate_bones(bone_masks: &[u64], finger_bones: bool) -> f64 {
     let total: u64 = bone_masks
         .iter()
-        .map(|&m| u64::from(talkin_nets::skinning::body_candidates(m).count_ones()))
+        .map(|&m| u64::from(skinned_candidates(m, finger_bones).count_ones()))
         .sum();
     total as f64 / bone_masks.len().max(1) as f64
 }

@@ -119,7 +119,9 @@ impl FieldConfig {
             MlpConfig::new(6, 128).with_skips(vec![4]),
             HannWindowConfig::new(100_000, 150_000),
             HannWindowConfig::new(0, 50_000),
-            SkinningConfig::new().with_posed_tau(Some(POSED_TAU_M)),
+            SkinningConfig::new()
+                .with_posed_tau(Some(POSED_TAU_M))
+                .with_finger_bones(Some(true)),
         )
         .with_n_identities(n_identities)
         .with_unit_map(Some(UnitMap::Isotropic))
@@ -149,7 +151,9 @@ impl FieldConfig {
             small,
             HannWindowConfig::new(100_000, 150_000),
             HannWindowConfig::new(0, 50_000),
-            SkinningConfig::new().with_posed_tau(Some(POSED_TAU_M)),
+            SkinningConfig::new()
+                .with_posed_tau(Some(POSED_TAU_M))
+                .with_finger_bones(Some(true)),
         )
         .with_part_encoding(Some(grid(PART_LOG2_ENTRIES)))
         .with_n_identities(n_identities)

@@ -1,7 +1,7 @@
 //! A frame's conditions as differentiable leaves: what pose refinement learns through.
 //!
 //! [`crate::TalkinField::forward_with_leaves`] reads the frame's skinning transforms
-//! (`canonical_from_posed`, `[22, 12]`: the top three rows of each 4x4), D_nr's body pose,
+//! (`canonical_from_posed`, `[55, 12]`: the top three rows of each 4x4), D_nr's body pose,
 //! the face's expression and jaw and D_hands' hand pose from these tensors instead of the
 //! host copies in [`FrameConditions`], so that one backward gives the loss's gradient
 //! with respect to each of them. Where the pose goes from there (forward kinematics) is
@@ -11,7 +11,7 @@ use burn::prelude::*;
 use burn::tensor::Gradients;
 
 use super::{EXPRESSION_DIM, FrameConditions, HAND_POSE_DIM, JAW_DIM};
-use crate::skinning::N_BODY_JOINTS;
+use crate::skinning::N_SMPLX_JOINTS;
 use crate::util::{floats, host};
 
 /// Rows of a skinning transform that carry numbers (the bottom row is `0 0 0 1`).
@@ -20,7 +20,7 @@ pub const TRANSFORM_ROWS: usize = 12;
 /// One frame's conditions as leaves that require gradients.
 #[derive(Clone, Debug)]
 pub struct PoseLeaves {
-    /// `[22, 12]` row-major top three rows of each `canonical_from_posed`.
+    /// `[55, 12]` row-major top three rows of each `canonical_from_posed`.
     pub canonical_from_posed: Tensor<2>,
     /// `[1, pose_dim]` D_nr's body pose.
     pub body_pose: Tensor<2>,
@@ -36,7 +36,7 @@ pub struct PoseLeaves {
 /// one: a field without D_nr gives no body-pose gradient).
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct PoseGrads {
-    /// `[22]` gradients of the top three rows of each `canonical_from_posed`.
+    /// `[55]` gradients of the top three rows of each `canonical_from_posed`.
     pub canonical_from_posed: Vec<[f32; TRANSFORM_ROWS]>,
     pub body_pose: Vec<f32>,
     pub expression: Vec<f32>,
@@ -129,7 +129,7 @@ impl PoseLeaves {
 /// Zero gradients of a frame's leaves (a half-batch with no samples).
 pub fn zero_grads(pose_dim: usize) -> PoseGrads {
     PoseGrads {
-        canonical_from_posed: vec![[0.0; TRANSFORM_ROWS]; N_BODY_JOINTS],
+        canonical_from_posed: vec![[0.0; TRANSFORM_ROWS]; N_SMPLX_JOINTS],
         body_pose: vec![0.0; pose_dim],
         expression: vec![0.0; EXPRESSION_DIM],
         jaw: vec![0.0; JAW_DIM],
@@ -207,7 +207,7 @@ mod tests {
             }
             assert!((row[3] - n as f32).abs() < 1e-3, "{row:?}");
         }
-        for b in (0..N_BODY_JOINTS).filter(|&b| b != 15) {
+        for b in (0..N_SMPLX_JOINTS).filter(|&b| b != 15) {
             assert!(g.canonical_from_posed[b].iter().all(|&v| v == 0.0));
         }
 

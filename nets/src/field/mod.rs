@@ -14,7 +14,7 @@ use crate::error::{NetsError, check_len};
 use crate::mlp::Mlp;
 use crate::render::{OwnedRaySamples, RaySamples, RenderedRays, render_in_front, render_packed};
 use crate::rows::{add_rows, gather_rows};
-use crate::skinning::{BlendWeightVolume, BoneCapsule, N_BODY_JOINTS, RigidWarp};
+use crate::skinning::{BlendWeightVolume, BoneCapsule, N_SMPLX_JOINTS, RigidWarp};
 use crate::util::{floats, ints, softplus};
 
 mod config;
@@ -125,7 +125,8 @@ impl FieldSettings {
 pub struct FrameConditions {
     /// Subject index (< `n_identities`).
     pub identity: usize,
-    /// `[22]` row-major 4x4 `canonical_from_posed` per body bone (see [`crate::skinning`]).
+    /// `[55]` row-major 4x4 `canonical_from_posed` per SMPL-X joint (see
+    /// [`crate::skinning`]).
     pub canonical_from_posed: Vec<[f32; 16]>,
     /// `[pose_dim]` body pose for D_nr (21 x 3 axis-angle).
     pub body_pose: Vec<f32>,
@@ -135,8 +136,8 @@ pub struct FrameConditions {
     pub jaw: [f32; JAW_DIM],
     /// `[90]` both hands' poses.
     pub hand_pose: Vec<f32>,
-    /// The posed solid cores of the body bones, for the skinning's posed-space prior
-    /// (see [`crate::skinning`]); unused without it.
+    /// The posed solid cores of the bones, each labelled with its SMPL-X joint, for the
+    /// skinning's posed-space prior (see [`crate::skinning`]); unused without it.
     pub bone_capsules: Vec<BoneCapsule>,
 }
 
@@ -151,7 +152,7 @@ impl FrameConditions {
         }
         FrameConditions {
             identity: 0,
-            canonical_from_posed: vec![t; N_BODY_JOINTS],
+            canonical_from_posed: vec![t; N_SMPLX_JOINTS],
             body_pose: vec![0.05; 63],
             expression: [0.1; EXPRESSION_DIM],
             jaw: [0.2, 0.0, 0.0],
@@ -344,7 +345,7 @@ impl TalkinField {
         check_len(
             "canonical_from_posed",
             f.canonical_from_posed.len(),
-            N_BODY_JOINTS,
+            N_SMPLX_JOINTS,
         )?;
         check_len("body_pose", f.body_pose.len(), self.settings.pose_dim)?;
         check_len("hand_pose", f.hand_pose.len(), HAND_POSE_DIM)?;

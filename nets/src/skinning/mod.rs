@@ -1,11 +1,14 @@
-//! D_r: inverse linear blend skinning over the 22 SMPL-X body joints with a learned
-//! blend-weight volume in canonical space (HumanNeRF's motion-weight volume), initialised
-//! from a bone-distance prior.
+//! D_r: inverse linear blend skinning over the SMPL-X joints with a learned blend-weight
+//! volume in canonical space (HumanNeRF's motion-weight volume), initialised from a
+//! bone-distance prior. The skinned joints are the 22 body joints, and with
+//! [`SkinningConfig::finger_bones`] the 30 finger joints too: a finger then bends about its
+//! own knuckles, so the canonical hand is the rest-pose hand, not the blur of every finger
+//! pose seen (the jaw and eyes always follow the head).
 //!
 //! # Convention
-//! The caller gives, per frame, 22 row-major 4x4 matrices `canonical_from_posed[b]`
-//! (`x_canonical_b = R_b x + t_b` in the paper's eq. 2: the inverse of bone `b`'s skinning
-//! transform `posed_from_canonical`); the bottom row is ignored.
+//! The caller gives, per frame, 55 row-major 4x4 matrices `canonical_from_posed[j]`, one per
+//! SMPL-X joint (`x_canonical_j = R_j x + t_j` in the paper's eq. 2: the inverse of joint
+//! `j`'s skinning transform `posed_from_canonical`); the bottom row is ignored.
 //!
 //! # What is evaluated
 //! HumanNeRF's observation-space weights (its eq. 5): every candidate bone `b` maps the
@@ -14,8 +17,9 @@
 //! candidate bones, `w_b = exp(l_b) / sum_k exp(l_k)`; then `x_canonical = sum_b w_b x_b`.
 //! Reading each bone's weight at that bone's canonical point is what makes the weights live
 //! in canonical space without an iterative root search, so no fixed-point step is needed.
-//! Only the sample's candidate bones (the caller's 55-bit mask, mapped to body ancestors)
-//! are evaluated; a sample with no candidate falls back to all 22.
+//! Only the sample's candidate bones (the caller's 55-bit mask, each mapped to its
+//! [`skinned_joint`]) are evaluated; a sample with no candidate falls back to the 22 body
+//! joints.
 //!
 //! # The posed-space prior (`SkinningConfig::posed_tau`)
 //! Initialised from distances to the canonical bones (HumanNeRF's prior), the weights are
@@ -26,6 +30,13 @@
 //! signed distance in the *posed* frame to bone `b`'s nearest solid core (the caller's
 //! [`BoneCapsule`]s), and the volume starts at zero as a learned correction: in contact
 //! the limb whose core the sample is in (or nearest) wins, as it should.
+//!
+//! A temperature is a length, and a finger is a fifth of a forearm's thickness: with
+//! finger bones, a sample with a finger among its candidates is weighed at
+//! [`FINGER_TAU_FRACTION`] of the temperature. At the limbs' 5 mm, a fingertip 12 cm in
+//! front of the face kept a few percent of the head's weight, and the head's canonical
+//! point is half a metre from the hand's: the tip landed 22 mm from its own (median 15
+//! mm); at 1 mm, 0.01 mm.
 
 use burn::module::Param;
 use burn::prelude::*;
@@ -52,8 +63,20 @@ pub const LEFT_WRIST: usize = 20;
 /// Right wrist (right fingers map here).
 pub const RIGHT_WRIST: usize = 21;
 
-/// The body joint that drives SMPL-X joint `joint` in D_r: itself for body joints, the
-/// head for jaw and eyes (22-24), the wrists for the fingers (25-39 left, 40-54 right).
+/// The first finger joint (left index 1); joints 25-39 are the left hand's, 40-54 the
+/// right's.
+pub const FIRST_FINGER_JOINT: usize = 25;
+
+/// The SMPL-X joints that are fingers, as a candidate mask.
+const FINGER_MASK: u64 = ((1u64 << N_SMPLX_JOINTS) - 1) & !((1u64 << FIRST_FINGER_JOINT) - 1);
+
+/// The posed prior's temperature for a sample with a finger candidate, as a fraction of
+/// the limbs' (module docs).
+pub const FINGER_TAU_FRACTION: f32 = 0.2;
+
+/// The body joint that drives SMPL-X joint `joint` without finger bones: itself for body
+/// joints, the head for jaw and eyes (22-24), the wrists for the fingers (25-39 left, 40-54
+/// right).
 pub const fn body_ancestor(joint: usize) -> usize {
     match joint {
         0..=21 => joint,
@@ -63,14 +86,31 @@ pub const fn body_ancestor(joint: usize) -> usize {
     }
 }
 
-/// Candidate body bones (22-bit mask) of a 55-bit SMPL-X candidate mask; all 22 when the
-/// mask names none.
-pub fn body_candidates(mask: u64) -> u32 {
-    let mut out = 0u32;
-    let mut m = mask & ((1u64 << N_SMPLX_JOINTS) - 1);
+/// The joint whose transform and weight channel skin what SMPL-X joint `joint`'s capsules
+/// hold: with `finger_bones`, a finger joint itself; else (and for the jaw and eyes always)
+/// its [`body_ancestor`].
+pub const fn skinned_joint(joint: usize, finger_bones: bool) -> usize {
+    if finger_bones && joint >= FIRST_FINGER_JOINT && joint < N_SMPLX_JOINTS {
+        joint
+    } else {
+        body_ancestor(joint)
+    }
+}
+
+/// Candidate skinned joints (a mask over the SMPL-X joints) of a 55-bit SMPL-X candidate
+/// mask; the 22 body joints when the mask names none or all of them. A mask naming every
+/// joint carries no candidate information (HumanNeRF's dense samples): such a sample is
+/// skinned as HumanNeRF's are, over the body joints, its fingers with their wrist; the
+/// 30 finger bones would make a dense step 1.5x dearer for samples that are almost all
+/// far from a hand.
+pub fn skinned_candidates(mask: u64, finger_bones: bool) -> u64 {
+    let all = (1u64 << N_SMPLX_JOINTS) - 1;
+    let finger_bones = finger_bones && mask & all != all;
+    let mut out = 0u64;
+    let mut m = mask & all;
     while m != 0 {
         let j = m.trailing_zeros() as usize;
-        out |= 1 << body_ancestor(j);
+        out |= 1 << skinned_joint(j, finger_bones);
         m &= m - 1;
     }
     if out == 0 {
@@ -94,9 +134,18 @@ pub struct SkinningConfig {
     /// before the posed prior existed read as `None`).
     #[config(default = "None")]
     pub posed_tau: Option<f64>,
+    /// Whether the 30 finger joints skin their own samples (module docs): 55 weight
+    /// channels instead of 22. `None` (checkpoints written before finger skinning): no.
+    #[config(default = "None")]
+    pub finger_bones: Option<bool>,
 }
 
 impl SkinningConfig {
+    /// Whether the finger joints are skinned ([`Self::finger_bones`]).
+    pub fn skins_fingers(&self) -> bool {
+        self.finger_bones == Some(true)
+    }
+
     /// Builds the volume over the canonical box, logits from the bone-distance prior. Bones
     /// without a segment get a very low logit (they only win where nothing else is a
     /// candidate).
@@ -108,13 +157,15 @@ impl SkinningConfig {
         device: &Device,
     ) -> Result<BlendWeightVolume, NetsError> {
         let r = self.resolution.max(2);
-        if let Some(s) = prior.iter().find(|s| s.bone >= N_BODY_JOINTS) {
+        if let Some(s) = prior.iter().find(|s| s.bone >= N_SMPLX_JOINTS) {
             return Err(NetsError::Index {
                 what: "bone segment",
                 index: s.bone,
-                limit: N_BODY_JOINTS,
+                limit: N_SMPLX_JOINTS,
             });
         }
+        let finger_bones = self.skins_fingers();
+        let channels = channels(finger_bones);
         let posed_tau = match self.posed_tau {
             Some(t) if !(t.is_finite() && t > 0.0) => {
                 return Err(NetsError::Config {
@@ -128,14 +179,17 @@ impl SkinningConfig {
         // With the posed prior the volume is a learned correction and starts at zero;
         // without it, it holds the canonical bone-distance prior.
         let logits = match posed_tau {
-            Some(_) => vec![0.0; N_BODY_JOINTS * r * r * r],
-            None => canonical_prior_logits(r, aabb_min, aabb_max, prior, self.prior_sigma),
+            Some(_) => vec![0.0; channels * r * r * r],
+            None => {
+                canonical_prior_logits(r, aabb_min, aabb_max, prior, self.prior_sigma, finger_bones)
+            }
         };
         Ok(BlendWeightVolume {
-            logits: Param::from_tensor(floats(logits, [N_BODY_JOINTS * r * r * r], device)),
+            logits: Param::from_tensor(floats(logits, [channels * r * r * r], device)),
             resolution: r,
             aabb: aabb_min.iter().chain(&aabb_max).copied().collect(),
             posed_tau,
+            finger_bones,
         })
     }
 }
@@ -149,10 +203,21 @@ pub struct RigidWarp {
     pub n_pairs: usize,
 }
 
-/// Learned skinning-weight logits, one channel per body bone, over the canonical box.
+/// Weight channels of the volume: one per body joint, or one per SMPL-X joint with finger
+/// bones (a channel's index is its joint's; the jaw's and eyes' three are never read).
+pub(crate) const fn channels(finger_bones: bool) -> usize {
+    if finger_bones {
+        N_SMPLX_JOINTS
+    } else {
+        N_BODY_JOINTS
+    }
+}
+
+/// Learned skinning-weight logits, one channel per skinned joint, over the canonical box.
 #[derive(Module, Debug)]
 pub struct BlendWeightVolume {
-    /// `[22 * R^3]`, index `((bone * R + z) * R + y) * R + x`.
+    /// `[C * R^3]` (`C`: 22 joints, or 55 with finger bones), index
+    /// `((joint * R + z) * R + y) * R + x`.
     pub logits: Param<Tensor<1>>,
     resolution: usize,
     /// `[min xyz, max xyz]`
@@ -160,6 +225,9 @@ pub struct BlendWeightVolume {
     /// The posed-space prior's temperature (metres), if on.
     #[module(skip)]
     posed_tau: Option<f32>,
+    /// Whether the finger joints are skinned (see [`SkinningConfig::finger_bones`]).
+    #[module(skip)]
+    finger_bones: bool,
 }
 
 /// Host-side (sample, bone) pairs with their canonical points and volume corners.
@@ -182,6 +250,17 @@ impl BlendWeightVolume {
         self.resolution
     }
 
+    /// Whether the finger joints are skinned (see [`SkinningConfig::finger_bones`]).
+    pub fn finger_bones(&self) -> bool {
+        self.finger_bones
+    }
+
+    /// Candidate skinned joints of a sample with SMPL-X candidate mask `mask`: what
+    /// [`Self::inverse_lbs`] evaluates for it.
+    pub fn candidates(&self, mask: u64) -> u64 {
+        skinned_candidates(mask, self.finger_bones)
+    }
+
     pub(crate) fn pairs(
         &self,
         points: &[[f32; 3]],
@@ -198,12 +277,16 @@ impl BlendWeightVolume {
             weights: vec![],
             posed: vec![],
         };
-        let mut by_bone: [Vec<&BoneCapsule>; N_BODY_JOINTS] = Default::default();
+        let mut by_bone: [Vec<&BoneCapsule>; N_SMPLX_JOINTS] = std::array::from_fn(|_| vec![]);
         for c in bone_capsules {
-            by_bone[c.bone].push(c);
+            by_bone[skinned_joint(c.bone, self.finger_bones)].push(c);
         }
         for (s, (x, &mask)) in points.iter().zip(bone_masks).enumerate() {
-            let mut bones = body_candidates(mask);
+            let mut bones = self.candidates(mask);
+            let tau = match self.posed_tau {
+                Some(tau) if bones & FINGER_MASK != 0 => Some(tau * FINGER_TAU_FRACTION),
+                tau => tau,
+            };
             while bones != 0 {
                 let b = bones.trailing_zeros() as usize;
                 bones &= bones - 1;
@@ -237,7 +320,7 @@ impl BlendWeightVolume {
                 p.sample.push(s as i32);
                 p.bone.push(b);
                 p.x.extend(xc);
-                p.posed.push(match self.posed_tau {
+                p.posed.push(match tau {
                     Some(tau) => by_bone[b].iter().fold(NO_CAPSULE_LOGIT, |l, c| {
                         l.max(-capsule_distance(*x, c) / tau)
                     }),
@@ -252,8 +335,9 @@ impl BlendWeightVolume {
     ///
     /// # Shapes
     /// - `points`: `[n]` observation-space positions; `bone_masks`: `[n]` 55-bit SMPL-X
-    ///   candidate masks; `canonical_from_posed`: `[22]` row-major 4x4; `bone_capsules`:
-    ///   the frame's posed solid cores (any number; read only with the posed prior on)
+    ///   candidate masks; `canonical_from_posed`: `[55]` row-major 4x4, one per SMPL-X
+    ///   joint; `bone_capsules`: the frame's posed solid cores, each labelled with its
+    ///   SMPL-X joint (any number; read only with the posed prior on)
     /// - output `x_canonical`: `[n, 3]`
     pub fn inverse_lbs(
         &self,
@@ -274,7 +358,7 @@ impl BlendWeightVolume {
     }
 
     /// [`BlendWeightVolume::inverse_lbs`], with each candidate's canonical point
-    /// `x_b = R_b x + t_b` taken from `transforms` (`[22, 12]`, the top rows of
+    /// `x_b = R_b x + t_b` taken from `transforms` (`[55, 12]`, the top rows of
     /// `canonical_from_posed`, e.g. leaves that require gradients) when given, so that the
     /// warp is differentiable in them. The trilinear corners and weights where each bone's
     /// logit is read stay those of the host transforms: the transforms' gradient flows
@@ -293,7 +377,7 @@ impl BlendWeightVolume {
         check_len(
             "canonical_from_posed",
             canonical_from_posed.len(),
-            N_BODY_JOINTS,
+            N_SMPLX_JOINTS,
         )?;
         if n == 0 {
             return Ok(RigidWarp {
@@ -312,11 +396,11 @@ impl BlendWeightVolume {
                 what: "bone_capsules",
             });
         }
-        if let Some(c) = bone_capsules.iter().find(|c| c.bone >= N_BODY_JOINTS) {
+        if let Some(c) = bone_capsules.iter().find(|c| c.bone >= N_SMPLX_JOINTS) {
             return Err(NetsError::Index {
                 what: "bone capsule",
                 index: c.bone,
-                limit: N_BODY_JOINTS,
+                limit: N_SMPLX_JOINTS,
             });
         }
         let p = self.pairs(points, bone_masks, canonical_from_posed, bone_capsules);

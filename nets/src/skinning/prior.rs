@@ -2,13 +2,13 @@
 //! bone-distance initialisation) and posed solid cores (the posed-space prior), and the
 //! distances both are made of.
 
-use super::N_BODY_JOINTS;
+use super::{N_BODY_JOINTS, channels, skinned_joint};
 
 /// A segment of bone `bone` in canonical space (a bone may have several, e.g. the pelvis
 /// to both hips; a leaf bone may give a point, `a == b`).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct BoneSegment {
-    /// Body joint index (< 22).
+    /// SMPL-X joint index (< 55); the volume reads it as its skinned joint.
     pub bone: usize,
     /// Segment start (metres, canonical).
     pub a: [f32; 3],
@@ -32,11 +32,11 @@ pub fn ladder_prior() -> Vec<BoneSegment> {
         .collect()
 }
 
-/// A solid core of body bone `bone` in the posed (observation) frame: the posed-space
-/// prior's geometry (see the module docs).
+/// A solid core of bone `bone` in the posed (observation) frame: the posed-space prior's
+/// geometry (see the module docs).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct BoneCapsule {
-    /// Body joint index (< 22).
+    /// SMPL-X joint index (< 55); the volume reads it as its skinned joint.
     pub bone: usize,
     /// Segment start (metres, posed).
     pub a: [f32; 3],
@@ -49,17 +49,18 @@ pub struct BoneCapsule {
 /// Logit of a bone with no capsule in the posed-space prior.
 pub(super) const NO_CAPSULE_LOGIT: f32 = -1e4;
 
-/// HumanNeRF's initialisation: per bone, `-d^2 / (2 sigma^2)` at every vertex, `d` the
-/// distance to the bone's nearest canonical segment; bones without one get -1e4.
+/// HumanNeRF's initialisation: per skinned joint, `-d^2 / (2 sigma^2)` at every vertex,
+/// `d` the distance to the joint's nearest canonical segment; joints without one get -1e4.
 pub(super) fn canonical_prior_logits(
     r: usize,
     aabb_min: [f32; 3],
     aabb_max: [f32; 3],
     prior: &[BoneSegment],
     sigma: f64,
+    finger_bones: bool,
 ) -> Vec<f32> {
     let inv = 1.0 / (2.0 * sigma * sigma);
-    let mut logits = vec![-1e4f32; N_BODY_JOINTS * r * r * r];
+    let mut logits = vec![-1e4f32; channels(finger_bones) * r * r * r];
     for z in 0..r {
         for y in 0..r {
             for x in 0..r {
@@ -69,7 +70,8 @@ pub(super) fn canonical_prior_logits(
                 });
                 for s in prior {
                     let d2 = segment_distance2(p, s.a, s.b);
-                    let slot = &mut logits[((s.bone * r + z) * r + y) * r + x];
+                    let j = skinned_joint(s.bone, finger_bones);
+                    let slot = &mut logits[((j * r + z) * r + y) * r + x];
                     *slot = slot.max((-d2 * inv) as f32);
                 }
             }

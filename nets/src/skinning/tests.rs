@@ -4,7 +4,7 @@ use super::*;
 use crate::util::host;
 
 fn identity_transforms() -> Vec<[f32; 16]> {
-    (0..N_BODY_JOINTS)
+    (0..N_SMPLX_JOINTS)
         .map(|b| {
             let s = b as f32 * 0.01;
             [
@@ -37,11 +37,21 @@ fn ancestors_and_candidates() {
     assert_eq!(body_ancestor(39), LEFT_WRIST);
     assert_eq!(body_ancestor(40), RIGHT_WRIST);
     assert_eq!(body_ancestor(54), RIGHT_WRIST);
-    assert_eq!(body_candidates(0), (1 << 22) - 1);
-    assert_eq!(
-        body_candidates((1 << 30) | (1 << 23) | 1),
-        (1 << 20) | (1 << 15) | 1
-    );
+    assert_eq!(skinned_candidates(0, false), (1 << 22) - 1);
+    assert_eq!(skinned_candidates(0, true), (1 << 22) - 1);
+    let mask = (1 << 30) | (1 << 23) | 1;
+    assert_eq!(skinned_candidates(mask, false), (1 << 20) | (1 << 15) | 1);
+    // With finger bones a finger is its own candidate; the jaw and eyes still follow the
+    // head.
+    assert_eq!(skinned_candidates(mask, true), (1 << 30) | (1 << 15) | 1);
+    // A mask naming every joint (a dense sample) is skinned over the body joints.
+    let all = (1u64 << N_SMPLX_JOINTS) - 1;
+    assert_eq!(skinned_candidates(all, true), (1 << 22) - 1);
+    assert_eq!(skinned_candidates(all, false), (1 << 22) - 1);
+    assert_eq!(skinned_joint(54, true), 54);
+    assert_eq!(skinned_joint(24, true), HEAD_JOINT);
+    assert_eq!(skinned_joint(FIRST_FINGER_JOINT - 1, true), HEAD_JOINT);
+    assert_eq!(skinned_joint(N_SMPLX_JOINTS, true), RIGHT_WRIST);
 }
 
 #[test]
@@ -145,7 +155,7 @@ fn posed_prior_checks_its_input() {
     };
     let run = |c: BoneCapsule| vol.inverse_lbs(&[[0.0; 3]], &[1], &t, &[c], &device);
     assert!(matches!(
-        run(capsule(22, 0.1)),
+        run(capsule(55, 0.1)),
         Err(NetsError::Index {
             what: "bone capsule",
             ..
@@ -160,12 +170,69 @@ fn posed_prior_checks_its_input() {
     assert!(run(capsule(2, 0.1)).is_ok());
 }
 
-/// A config written before the posed prior existed reads as the canonical prior alone.
+/// A config written before the posed prior existed reads as the canonical prior alone,
+/// and one written before finger skinning moves the fingers with their wrist.
 #[test]
 fn configs_without_posed_tau_read_as_off() {
     let old: SkinningConfig =
         serde_json::from_str(r#"{"resolution": 32, "prior_sigma": 0.1}"#).unwrap();
     assert_eq!(old.posed_tau, None);
+    assert!(!old.skins_fingers());
+    let device = Device::flex();
+    let vol = old
+        .init([-1.0; 3], [1.0; 3], &ladder_prior(), &device)
+        .unwrap();
+    assert_eq!(vol.logits.dims(), [N_BODY_JOINTS * 32 * 32 * 32]);
+}
+
+/// With finger bones a finger sample inside one phalanx's core goes where that
+/// phalanx's transform sends it, though its wrist is a candidate too; without, it goes
+/// with the wrist. The volume has a channel per SMPL-X joint.
+#[test]
+fn finger_bones_skin_a_finger_sample_by_its_own_phalanx() {
+    let device = Device::flex();
+    let config = SkinningConfig::new()
+        .with_resolution(8)
+        .with_posed_tau(Some(0.005));
+    let phalanx = FIRST_FINGER_JOINT + 4; // left middle finger, second joint
+    let mut t = identity_transforms();
+    t[phalanx][7] = 0.3; // the phalanx's transform moves points 0.3 m along y
+    let capsules = [
+        BoneCapsule {
+            bone: LEFT_WRIST,
+            a: [0.0, 0.0, 0.0],
+            b: [0.08, 0.0, 0.0],
+            radius: 0.015,
+        },
+        BoneCapsule {
+            bone: phalanx,
+            a: [0.12, 0.0, 0.0],
+            b: [0.15, 0.0, 0.0],
+            radius: 0.004,
+        },
+    ];
+    let mask = (1u64 << LEFT_WRIST) | (1 << phalanx);
+    let p = [[0.135f32, 0.0, 0.002]];
+    for (finger_bones, by) in [(true, phalanx), (false, LEFT_WRIST)] {
+        let vol = config
+            .clone()
+            .with_finger_bones(Some(finger_bones))
+            .init([-1.0; 3], [1.0; 3], &ladder_prior(), &device)
+            .unwrap();
+        let channels = if finger_bones {
+            N_SMPLX_JOINTS
+        } else {
+            N_BODY_JOINTS
+        };
+        assert_eq!(vol.logits.dims(), [channels * 8 * 8 * 8]);
+        let warp = vol
+            .inverse_lbs(&p, &[mask], &t, &capsules, &device)
+            .unwrap();
+        assert_eq!(warp.n_pairs, if finger_bones { 2 } else { 1 });
+        let x = host(&warp.x_canonical);
+        let want = p[0][1] + t[by][7];
+        assert!((x[1] - want).abs() < 1e-3, "{finger_bones}: {x:?}");
+    }
 }
 
 /// d(sum x_canonical * c)/d(logits) against central differences of an f64 reference,

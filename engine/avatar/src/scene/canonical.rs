@@ -1,12 +1,10 @@
-//! Canonical space for the grids: the subject's initial occupancy grid and the
-//! skeleton-only posed-to-canonical map used before (and besides) the learned one.
+//! Canonical space for the grids: the subject's initial occupancy grid.
 
 use glam::Vec3;
-use rayon::prelude::*;
 use talkin_grids::{Capsule, GridError, OccupancyGrid, Part};
 
+use super::frame::capsule_bounds;
 use super::frame::shell_capsules;
-use super::frame::{FrameScene, capsule_bounds};
 use super::margins::CapsuleShells;
 use talkin_human::body::skeleton::body_ancestor;
 use talkin_human::body::{FrameParams, Skeleton, canonical_params, joint};
@@ -23,10 +21,12 @@ pub struct CanonicalGrid;
 
 impl CanonicalGrid {
     /// The grid over the subject's canonical space: the canonical-pose capsules inflated by
-    /// their shells' margins, with, for every given frame, that frame's fingers, jaw and eyes (inverse
-    /// LBS over the 22 body joints does not undo them, so the grid holds their union), plus
-    /// each wrist's reach (a sphere of the hand's length) so novel finger poses are never
-    /// culled. Marks are grown by one cell diagonal against discretisation.
+    /// their shells' margins, with, for every given frame, that frame's fingers, jaw and
+    /// eyes (inverse LBS over the body joints alone does not undo them, so the grid holds
+    /// their union; a field that skins the fingers needs only the rest-pose hand, and its
+    /// occupancy updates clear the rest), plus each wrist's reach (a sphere of the hand's
+    /// length) so novel finger poses are never culled. Marks are grown by one cell
+    /// diagonal against discretisation.
     /// `resolution` is the cell count along the longest axis. With `surface` (canonical
     /// surface points of the training frames, see
     /// [`super::canonical_surface_points`]), the body and arm cells are carved to those
@@ -117,68 +117,4 @@ fn wrist_reach(capsules: &[Capsule]) -> Vec<Capsule> {
             })
         })
         .collect()
-}
-
-/// Skeleton-only inverse LBS: each sample follows the candidate bone whose bare capsule
-/// is nearest (hard weights from the bone-distance prior), mapped by that bone's body
-/// ancestor. The learned blend weights refine this in training; the grid culling uses it
-/// where no network exists yet.
-pub struct PosedToCanonical<'a> {
-    scene: &'a FrameScene,
-    /// Per bone (joint index), the indices of its capsules.
-    capsules_of_bone: Vec<Vec<u16>>,
-}
-
-impl<'a> PosedToCanonical<'a> {
-    pub fn new(scene: &'a FrameScene) -> Self {
-        let mut capsules_of_bone = vec![Vec::new(); 64];
-        for (i, c) in scene.capsules.iter().enumerate() {
-            capsules_of_bone[c.bone as usize].push(i as u16);
-        }
-        PosedToCanonical {
-            scene,
-            capsules_of_bone,
-        }
-    }
-
-    /// Canonical position of every posed sample (NaN input stays NaN, which the grid
-    /// treats as empty).
-    pub fn map(&self, p_posed: &[Vec3], bone_mask: &[u64]) -> Vec<Vec3> {
-        p_posed
-            .par_iter()
-            .zip(bone_mask)
-            .map(|(&p, &mask)| {
-                let bone = self.nearest_bone(p, mask);
-                self.scene.canonical_from_posed[body_ancestor(bone)].transform_point3(p)
-            })
-            .collect()
-    }
-
-    /// The bone among `mask`'s (all bones if the mask names none) whose capsule surface is
-    /// nearest to `p`.
-    pub fn nearest_bone(&self, p: Vec3, mask: u64) -> usize {
-        if mask.count_ones() == 1 {
-            // The common case: inside one bone's capsules only.
-            return mask.trailing_zeros() as usize;
-        }
-        let mut best = (f32::INFINITY, 0usize);
-        for pass_mask in [mask, u64::MAX] {
-            let mut bits = pass_mask;
-            while bits != 0 {
-                let bone = bits.trailing_zeros() as usize;
-                bits &= bits - 1;
-                for &i in &self.capsules_of_bone[bone] {
-                    let c = &self.scene.capsules[i as usize];
-                    let d = talkin_grids::intersect::distance_to_segment(p, c.a, c.b) - c.radius;
-                    if d < best.0 {
-                        best = (d, bone);
-                    }
-                }
-            }
-            if best.0.is_finite() {
-                break;
-            }
-        }
-        best.1
-    }
 }

@@ -4,19 +4,17 @@ use glam::{Affine3A, Vec3};
 use talkin_grids::{Capsule, GridError, LabelledRay, Ray};
 
 use talkin_data::dataset::FrameImages;
-use talkin_human::body::{
-    N_BODY_JOINTS, PosedSkeleton, Skeleton, canonical_from_posed, limb_capsules,
-};
+use talkin_human::body::{N_JOINTS, PosedSkeleton, Skeleton, canonical_from_posed, limb_capsules};
 use talkin_human::camera::Camera;
 
-/// A posed frame: its skeleton, bare capsules and per-body-joint posed-to-canonical maps.
+/// A posed frame: its skeleton, bare capsules and per-joint posed-to-canonical maps.
 #[derive(Clone, Debug)]
 pub struct FrameScene {
     pub posed: PosedSkeleton,
     /// Bare (uninflated) limb capsules in world space.
     pub capsules: Vec<Capsule>,
-    /// Per body joint: posed (world) -> canonical, for points rigidly attached to it.
-    pub canonical_from_posed: [Affine3A; N_BODY_JOINTS],
+    /// Per SMPL-X joint: posed (world) -> canonical, for points rigidly attached to it.
+    pub canonical_from_posed: [Affine3A; N_JOINTS],
 }
 
 impl FrameScene {

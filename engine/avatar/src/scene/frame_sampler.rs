@@ -16,7 +16,7 @@ use talkin_grids::{
 use super::frame::{FrameScene, capsule_bounds, median_dense_step};
 use super::margins::CapsuleShells;
 use talkin_human::body::PosedSkeleton;
-use talkin_human::body::skeleton::body_ancestor;
+use talkin_nets::skinning::skinned_joint;
 
 /// Dense samples per ray (the HumanNeRF baseline).
 pub const DENSE_SAMPLES_PER_RAY: u32 = 128;
@@ -50,7 +50,8 @@ pub struct FrameSampler {
     pub step: f32,
     grown: Vec<Capsule>,
     cores: Vec<Capsule>,
-    /// Per bone (0..64): posed -> canonical by its body ancestor's skinning transform.
+    /// Per bone (0..64): posed -> canonical by its skinned joint's transform (its body
+    /// ancestor's, or a finger's own where the field skins the fingers).
     canonical_from_posed: Vec<Affine3A>,
     /// The accelerated sampler for the canonical grid with this fingerprint.
     accelerated: Mutex<Option<(u64, Arc<AcceleratedSampler>)>>,
@@ -61,11 +62,14 @@ impl FrameSampler {
     /// step 128 samples would take on the median of `step_rays` (the frame's foreground
     /// rays) through the grown capsules' box + 2 cm: as fine as a dense sampler in the
     /// tightest box around the person. HumanNeRF's looser box makes the dense baseline's
-    /// own step coarser (about 1.4x on the default scene).
+    /// own step coarser (about 1.4x on the default scene). The cull maps a bin into the
+    /// canonical grid as the field skins it: a finger's bins by the finger's own transform
+    /// with `finger_bones`, else by the wrist's.
     pub fn new(
         scene: FrameScene,
         shells: &CapsuleShells,
         step_rays: &[Ray],
+        finger_bones: bool,
     ) -> Result<FrameSampler, GridError> {
         let grown = shells.inflate(&scene.capsules);
         let cores = shells.cores(&scene.capsules);
@@ -76,7 +80,7 @@ impl FrameSampler {
         let (dense_from_world, dense_min, dense_max) = joints_box(&scene.posed);
         let canonical_from_posed = (0..64)
             .map(|b| {
-                let j = body_ancestor(b.min(54));
+                let j = skinned_joint(b.min(54), finger_bones);
                 scene.canonical_from_posed[j]
             })
             .collect();

@@ -9,7 +9,7 @@ mod frame;
 mod frame_sampler;
 mod margins;
 
-pub use canonical::{CanonicalGrid, PosedToCanonical, SURFACE_REACH_M};
+pub use canonical::{CanonicalGrid, SURFACE_REACH_M};
 pub use carve::{CARVED_PARTS, canonical_surface_points};
 pub use frame::{FrameScene, capsule_bounds, foreground_rays, median_dense_step, shell_capsules};
 pub use frame_sampler::{DENSE_BOX_MARGIN_M, DENSE_SAMPLES_PER_RAY, DilatedGrids, FrameSampler};

@@ -4,7 +4,7 @@ use glam::{DAffine3, DVec3};
 
 use super::params::FrameParams;
 use super::rotation::rotation_from_axis_angle;
-use super::skeleton::{N_BODY_JOINTS, N_JOINTS, PARENTS, joint};
+use super::skeleton::{N_JOINTS, PARENTS, joint};
 
 /// A subject's skeleton: rest-pose (T-pose) joint locations in metres.
 #[derive(Clone, Debug, PartialEq)]
@@ -85,13 +85,13 @@ pub fn canonical_params() -> FrameParams {
     p
 }
 
-/// Per body joint, the map from posed (observation) space to canonical space of points
+/// Per SMPL-X joint, the map from posed (observation) space to canonical space of points
 /// rigidly attached to that joint: `canonical_from_posed_j = world_from_rest_j(canonical)
 /// * world_from_rest_j(posed)^-1`. Inverse LBS blends these with learned weights.
 pub fn canonical_from_posed(
     posed: &PosedSkeleton,
     canonical: &PosedSkeleton,
-) -> [DAffine3; N_BODY_JOINTS] {
+) -> [DAffine3; N_JOINTS] {
     std::array::from_fn(|j| canonical.world_from_rest[j] * posed.world_from_rest[j].inverse())
 }
 
@@ -159,9 +159,10 @@ mod tests {
             ..Default::default()
         };
         p.body_pose[joint::LEFT_ELBOW - 1] = DVec3::new(0.0, 1.2, 0.0);
+        p.left_hand_pose[4] = DVec3::new(0.0, 0.0, -1.4); // a finger bent past 80 degrees
         let posed = s.pose(&p);
         let maps = canonical_from_posed(&posed, &canonical);
-        for j in 0..N_BODY_JOINTS {
+        for j in 0..N_JOINTS {
             // A point rigidly attached to joint j at a fixed offset in the joint's frame.
             let offset = DVec3::new(0.02, -0.03, 0.05);
             let p_posed = posed.world_from_joint[j].transform_point3(offset);

@@ -160,9 +160,10 @@ impl Avatar {
         }
         let kind = sampler.unwrap_or(self.sampler);
         let scene = FrameScene::new(&model.skeleton, &model.canonical, params);
-        let conditions = frame_conditions(subject, params, &scene, &model.shells);
+        let fingers = self.config.skinning.skins_fingers();
+        let conditions = frame_conditions(subject, params, &scene, &model.shells, fingers);
         let rays = pixel_rays(camera)?;
-        let frame_sampler = FrameSampler::new(scene, &model.shells, &rays)?;
+        let frame_sampler = FrameSampler::new(scene, &model.shells, &rays, fingers)?;
 
         // Chunks render in parallel (the field's inference runs on about one core); the
         // samples sit at their bins' regular places (no jitter), so the image is the same

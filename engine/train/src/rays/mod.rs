@@ -41,13 +41,15 @@ pub(crate) enum CacheError {
 
 impl FrameCache {
     /// Frame `i` of `dataset`, its subject being identity `slot` with `model`, posed as
-    /// its fit; random rays stay `mask_edge` px off the mask's cut.
+    /// its fit; random rays stay `mask_edge` px off the mask's cut; for a field that
+    /// skins the finger joints (`finger_bones`) or not.
     pub fn new(
         dataset: &Dataset,
         i: usize,
         slot: usize,
         model: &SubjectModel,
         mask_edge: u32,
+        finger_bones: bool,
     ) -> Result<FrameCache, CacheError> {
         let frame = &dataset.frames[i];
         let images = dataset.images(i).map_err(CacheError::Dataset)?;
@@ -63,8 +65,9 @@ impl FrameCache {
             );
         }
         let pixels = PixelPool::new(&images.mask, &images.segmentation, mask_edge);
-        let conditions = frame_conditions(slot, &frame.params, &scene, &model.shells);
-        let sampler = FrameSampler::new(scene, &model.shells, &rays).map_err(CacheError::Grid)?;
+        let conditions = frame_conditions(slot, &frame.params, &scene, &model.shells, finger_bones);
+        let sampler = FrameSampler::new(scene, &model.shells, &rays, finger_bones)
+            .map_err(CacheError::Grid)?;
         Ok(FrameCache {
             images,
             pixels,
@@ -83,10 +86,12 @@ impl FrameCache {
         delta: &[f32],
         slot: usize,
         model: &SubjectModel,
+        finger_bones: bool,
     ) -> Result<(), GridError> {
         let scene = FrameScene::new(&model.skeleton, &model.canonical, params);
-        let conditions = frame_conditions(slot, params, &scene, &model.shells);
-        self.sampler = FrameSampler::new(scene, &model.shells, &self.foreground_rays)?;
+        let conditions = frame_conditions(slot, params, &scene, &model.shells, finger_bones);
+        self.sampler =
+            FrameSampler::new(scene, &model.shells, &self.foreground_rays, finger_bones)?;
         self.conditions = conditions;
         self.posed_with = Some(delta.to_vec());
         Ok(())

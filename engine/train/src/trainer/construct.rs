@@ -37,6 +37,7 @@ impl<'a> Trainer<'a> {
         config.use_d_hands = opts.ablation.use_d_hands;
         config.hand_background = opts.ablation.hand_background;
         config.face_uses_jaw = opts.ablation.face_uses_jaw;
+        config.skinning.finger_bones = Some(opts.skin_fingers.finger_bones());
         let subjects = fit_subjects(dataset, &frames, opts.grid_resolution)?;
         fit_field_box(&mut config, &subjects);
         let device = open_device(opts.device)?;
