@@ -125,8 +125,7 @@ impl FieldSettings {
 pub struct FrameConditions {
     /// Subject index (< `n_identities`).
     pub identity: usize,
-    /// `[55]` row-major 4x4 `canonical_from_posed` per SMPL-X joint (see
-    /// [`crate::skinning`]).
+    /// `[55]` row-major 4x4 `canonical_from_posed`, one per SMPL-X joint ([`crate::skinning`]).
     pub canonical_from_posed: Vec<[f32; 16]>,
     /// `[pose_dim]` body pose for D_nr (21 x 3 axis-angle).
     pub body_pose: Vec<f32>,
