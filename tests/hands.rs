@@ -1,5 +1,5 @@
 //! Hard hand poses: a fist, spread fingers, a finger bent past 90 degrees, two hands
-//! touching, a hand in front of the face and a hand half outside the image. Each pose is
+//! touching, a hand in front of the face and a hand partly outside the image. Each pose is
 //! rendered by the synthetic generator (which knows every surface point's joint) close up
 //! around the hand, then sampled and skinned as training would:
 //! - every finger pixel's true surface point lies inside the accelerated sampler's
@@ -46,8 +46,8 @@ struct Case {
     target: DVec3,
 }
 
-/// `fingers` x the flexion of every joint of every finger of both hands (radians), the
-/// thumbs at half.
+/// Flexes every joint of every finger of both hands by `fingers` radians, the thumbs by
+/// half.
 fn curl(params: &mut FrameParams, fingers: f64) {
     for (pose, sign) in [
         (&mut params.left_hand_pose, 1.0),
@@ -152,11 +152,12 @@ fn cases(dataset: &Dataset) -> Vec<Case> {
         params: face,
     });
 
-    // A camera aimed 9 cm past the hand: a third of it falls outside the image.
+    // A camera aimed 17 cm past the wrist: the wrist and part of the palm fall outside
+    // the image.
     let mut outside = base.clone();
     curl(&mut outside, 0.6);
     out.push(Case {
-        name: "hand half outside the image",
+        name: "hand partly outside the image",
         target: wrist(&outside, joint::LEFT_WRIST) + DVec3::new(0.17, 0.0, 0.0),
         params: outside,
     });
