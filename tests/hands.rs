@@ -16,8 +16,7 @@ use talkin::avatar::field_inputs::frame_conditions;
 use talkin::avatar::scene::{FrameSampler, FrameScene};
 use talkin::avatar::subject::{SubjectModel, bone_prior};
 use talkin::data::dataset::{Dataset, Split};
-use talkin::grids::intersect::signed_distance;
-use talkin::grids::{PackedSamples, Ray, SamplerKind};
+use talkin::grids::{Ray, SURFACE_SLACK_M, SamplerKind};
 use talkin::human::body::skeleton::joint;
 use talkin::human::body::{FrameParams, canonical_params};
 use talkin::human::camera::Camera;
@@ -164,13 +163,6 @@ fn cases(dataset: &Dataset) -> Vec<Case> {
     out
 }
 
-/// Whether a sample of ray `r` holds `t`.
-fn surface_sampled(samples: &PackedSamples, r: usize, t: f32) -> bool {
-    samples
-        .range(r)
-        .any(|s| samples.t_start[s] - 2e-4 <= t && t <= samples.t_end[s] + 2e-4)
-}
-
 /// A case's finger pixels: for each, the ray, the surface point and its owning joint.
 struct FingerPixels {
     rays: Vec<Ray>,
@@ -263,7 +255,7 @@ fn hard_hand_poses_are_sampled_and_skinned_to_the_rest_pose_hand() {
             )
             .unwrap();
         let misses = (0..px.rays.len())
-            .filter(|&r| !surface_sampled(&samples, r, px.t[r]))
+            .filter(|&r| !samples.holds(r, px.t[r], SURFACE_SLACK_M))
             .count();
         assert!(
             samples
@@ -279,32 +271,17 @@ fn hard_hand_poses_are_sampled_and_skinned_to_the_rest_pose_hand() {
         let masks: Vec<u64> = px
             .points
             .iter()
-            .map(|p| {
-                let p = Vec3::from_array(*p);
-                grown
-                    .iter()
-                    .filter(|c| signed_distance(p, c) <= 0.0)
-                    .fold(0u64, |m, c| m | 1 << c.bone)
-            })
+            .map(|p| common::candidate_mask(&grown, Vec3::from_array(*p)))
             .collect();
         let tip_errors = |finger_bones: bool| -> Vec<f64> {
             let volume = if finger_bones { &bones } else { &wrist };
             let conditions = frame_conditions(0, &case.params, &scene, &model.shells, finger_bones);
-            let warp = volume
-                .inverse_lbs(
-                    &px.points,
-                    &masks,
-                    &conditions.canonical_from_posed,
-                    &conditions.bone_capsules,
-                    &device,
-                )
-                .unwrap();
-            let x = warp.x_canonical.try_to_vec_as::<f32>().unwrap();
+            let x = common::skin(volume, &px.points, &masks, &conditions);
             assert!(x.iter().all(|v| v.is_finite()), "{}: NaN", case.name);
             (0..px.points.len())
                 .filter(|&k| (px.joints[k] - FIRST_FINGER_JOINT) % 3 == 2)
                 .map(|k| {
-                    let got = Vec3::new(x[3 * k], x[3 * k + 1], x[3 * k + 2]);
+                    let got = x[k];
                     let p = Vec3::from_array(px.points[k]);
                     let want = scene.canonical_from_posed[skinned_joint(px.joints[k], true)]
                         .transform_point3(p);

@@ -10,13 +10,11 @@
 mod common;
 
 use burn::prelude::*;
-use glam::Vec3;
 use talkin::avatar::field_inputs::frame_conditions;
 use talkin::avatar::scene::{CapsuleShells, FrameScene, fit_subject_margins, foreground_rays};
 use talkin::avatar::subject::bone_prior;
 use talkin::data::dataset::{Dataset, Split};
 use talkin::grids::MarginFitOpts;
-use talkin::grids::intersect::signed_distance;
 use talkin::human::body::canonical_params;
 use talkin::human::body::skeleton::body_ancestor;
 use talkin::nets::field::POSED_TAU_M;
@@ -103,12 +101,7 @@ fn mapping_errors(
                 continue;
             };
             let p = ray.ray.origin + ray.ray.direction * (z / ray.ray.direction.dot(forward));
-            // Candidates as the sampler gives them: the bones of the grown capsules that
-            // hold the point.
-            let mask = grown
-                .iter()
-                .filter(|c| signed_distance(p, c) <= 0.0)
-                .fold(0u64, |m, c| m | 1 << c.bone);
+            let mask = common::candidate_mask(&grown, p);
             let joint = fig.owning_joint(&scene.posed, p);
             points.push(p.to_array());
             masks.push(mask);
@@ -122,18 +115,8 @@ fn mapping_errors(
                 .transform_point3(p),
             ));
         }
-        let warp = volume
-            .inverse_lbs(
-                &points,
-                &masks,
-                &conditions.canonical_from_posed,
-                &conditions.bone_capsules,
-                &device,
-            )
-            .unwrap();
-        let x = warp.x_canonical.try_to_vec_as::<f32>().unwrap();
-        for (k, (joint, want)) in truth.into_iter().enumerate() {
-            let got = Vec3::new(x[3 * k], x[3 * k + 1], x[3 * k + 2]);
+        let mapped = common::skin(&volume, &points, &masks, &conditions);
+        for ((joint, want), got) in truth.into_iter().zip(mapped) {
             let error = (got - want).length() as f64;
             let jaw_or_eye = (22..FIRST_FINGER_JOINT).contains(&joint).then_some(6);
             let tip = is_fingertip(joint).then_some(5);

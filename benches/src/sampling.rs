@@ -10,7 +10,7 @@ use talkin_avatar::scene::{
     canonical_surface_points, fit_subject_margins, foreground_rays, grid_error,
 };
 use talkin_grids::{
-    MarginFitOpts, OccupancyGrid, PackedSamples, Part, Ray, SamplerKind, sample_in_capsules,
+    MarginFitOpts, OccupancyGrid, Part, Ray, SURFACE_SLACK_M, SamplerKind, sample_in_capsules,
     sample_in_front_of_cores,
 };
 
@@ -246,11 +246,11 @@ fn measure_frame(
         let covered = match t_surface {
             Some(t) => {
                 tally.totals.checked += 1;
-                let found = surface_sampled(&acc, r, t);
+                let found = acc.holds(r, t, SURFACE_SLACK_M);
                 if !found {
-                    let stage = if !surface_sampled(&in_capsules, r, t) {
+                    let stage = if !in_capsules.holds(r, t, SURFACE_SLACK_M) {
                         "outside_grown_capsules"
-                    } else if !surface_sampled(&in_front, r, t) {
+                    } else if !in_front.holds(r, t, SURFACE_SLACK_M) {
                         "behind_a_core"
                     } else {
                         "culled_by_grid"
@@ -385,14 +385,6 @@ struct Totals {
     acc_s: f64,
     build_s: f64,
     intervals_s: f64,
-}
-
-/// Whether some sample of ray `r` contains `t` (with 0.2 mm of slack for the 0.1 mm
-/// depth quantisation).
-fn surface_sampled(samples: &PackedSamples, r: usize, t: f32) -> bool {
-    samples
-        .range(r)
-        .any(|s| samples.t_start[s] - 2e-4 <= t && t <= samples.t_end[s] + 2e-4)
 }
 
 /// Runs `f` `REPEATS` times; returns the last result and the median seconds.

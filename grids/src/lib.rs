@@ -101,5 +101,5 @@ pub use sampler_reference::{
     AcceleratedOpts, cull_with_grid, sample_in_capsules, sample_in_capsules_before,
     sample_reference,
 };
-pub use samples::{ALL_BONES, ALL_PARTS, PackedSamples};
+pub use samples::{ALL_BONES, ALL_PARTS, PackedSamples, SURFACE_SLACK_M};
 pub use truncate::{first_core_entry, sample_in_front_of_cores, truncate_behind_cores};

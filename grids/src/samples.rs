@@ -38,6 +38,10 @@ pub(crate) struct Sample {
     pub bone_mask: u64,
 }
 
+/// Slack (metres) of [`PackedSamples::holds`] for a surface point read from a depth map:
+/// 0.2 mm for the maps' 0.1 mm quantisation.
+pub const SURFACE_SLACK_M: f32 = 2e-4;
+
 impl PackedSamples {
     pub fn num_rays(&self) -> usize {
         self.ray_offsets.len().saturating_sub(1)
@@ -50,6 +54,14 @@ impl PackedSamples {
     /// Index range of ray `i`'s samples.
     pub fn range(&self, i: usize) -> Range<usize> {
         self.ray_offsets[i] as usize..self.ray_offsets[i + 1] as usize
+    }
+
+    /// Whether a sample of ray `i` holds the point at `t` along it, give or take `slack`
+    /// (the benches' and tests' check that a true surface point was sampled, with
+    /// [`SURFACE_SLACK_M`]).
+    pub fn holds(&self, i: usize, t: f32, slack: f32) -> bool {
+        self.range(i)
+            .any(|s| self.t_start[s] - slack <= t && t <= self.t_end[s] + slack)
     }
 
     /// The ray of every sample (nerfacc's `ray_indices`).

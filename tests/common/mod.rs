@@ -219,3 +219,35 @@ pub fn write_beat2(file: &Path, n: usize, poses: Vec<f32>) {
         .unwrap();
     w.finish().unwrap();
 }
+
+/// The candidate mask the sampler gives a point: the joints of the grown capsules that
+/// hold it.
+pub fn candidate_mask(grown: &[talkin::grids::Capsule], p: glam::Vec3) -> u64 {
+    grown
+        .iter()
+        .filter(|c| talkin::grids::intersect::signed_distance(p, c) <= 0.0)
+        .fold(0u64, |m, c| m | 1 << c.bone)
+}
+
+/// `points` mapped to canonical space by `volume` with each point's candidate `masks`
+/// and the frame's `conditions`, read back.
+pub fn skin(
+    volume: &talkin::nets::skinning::BlendWeightVolume,
+    points: &[[f32; 3]],
+    masks: &[u64],
+    conditions: &talkin::nets::FrameConditions,
+) -> Vec<glam::Vec3> {
+    use burn::prelude::*;
+    let device = Device::flex();
+    let warp = volume
+        .inverse_lbs(
+            points,
+            masks,
+            &conditions.canonical_from_posed,
+            &conditions.bone_capsules,
+            &device,
+        )
+        .unwrap();
+    let x = warp.x_canonical.try_to_vec_as::<f32>().unwrap();
+    x.chunks_exact(3).map(glam::Vec3::from_slice).collect()
+}

@@ -59,6 +59,13 @@ fn encode_meta(
     TensorSpec::new([points.shape[0], width].into(), table.dtype)
 }
 
+/// Points, levels and features a level of an encoding's operands.
+fn dims(points: &CubeTensor, levels: &CubeTensor, table: &CubeTensor) -> (usize, usize, usize) {
+    let n = points.meta.shape()[0];
+    let n_levels = levels.meta.shape()[0] / LEVEL_PARAMS;
+    (n, n_levels, table.meta.shape()[1])
+}
+
 impl HashEncodeOps for CubeBackend {
     fn hash_encode(
         table: CubeTensor,
@@ -71,9 +78,7 @@ impl HashEncodeOps for CubeBackend {
             into_contiguous(points),
             into_contiguous(levels),
         );
-        let n = points.meta.shape()[0];
-        let n_levels = levels.meta.shape()[0] / LEVEL_PARAMS;
-        let f = table.meta.shape()[1];
+        let (n, n_levels, f) = dims(&points, &levels, &table);
         let out = empty_device_dtype(
             points.client.clone(),
             points.device.clone(),
@@ -109,9 +114,7 @@ impl HashEncodeOps for CubeBackend {
             into_contiguous(levels),
             into_contiguous(grad),
         );
-        let n = points.meta.shape()[0];
-        let n_levels = levels.meta.shape()[0] / LEVEL_PARAMS;
-        let f = table.meta.shape()[1];
+        let (n, n_levels, f) = dims(&points, &levels, &table);
         let client = points.client.clone();
         let table_grad = zeros_client(
             client.clone(),
