@@ -11,6 +11,7 @@ use std::time::Instant;
 use burn::optim::{AdamConfig, GradientsParams};
 use burn::prelude::*;
 use talkin_nets::field::{FieldConfig, FieldInput, FrameConditions, PART_BIT_HANDS, PART_BIT_HEAD};
+use talkin_nets::init::WeightRng;
 use talkin_nets::render::OwnedRaySamples;
 use talkin_nets::skinning::ladder_prior;
 
@@ -85,7 +86,6 @@ fn run(device: &Device, device_name: &str, preset: &str, b: &Batch, iters: usize
         other => panic!("PRESETS: unknown preset `{other}` (fast or paper)"),
     };
     // Same initialisation (hence the same routing) in every run.
-    device.seed(17);
     let f = FrameConditions::still();
     // Past D_nr's start, so every module runs.
     let input = FieldInput {
@@ -96,7 +96,9 @@ fn run(device: &Device, device_name: &str, preset: &str, b: &Batch, iters: usize
         step: 1 << 30,
     };
 
-    let field = cfg.init(&ladder_prior(), device).expect("field");
+    let field = cfg
+        .init(&ladder_prior(), device, &mut WeightRng::seeded(17))
+        .expect("field");
     let warm = field.forward(&input).expect("forward");
     let stats = warm.stats;
     let start = Instant::now();
@@ -107,8 +109,9 @@ fn run(device: &Device, device_name: &str, preset: &str, b: &Batch, iters: usize
     let fwd = start.elapsed().as_secs_f64() / iters as f64;
 
     let ad = device.clone().autodiff();
-    ad.seed(17);
-    let mut field = cfg.init(&ladder_prior(), &ad).expect("field");
+    let mut field = cfg
+        .init(&ladder_prior(), &ad, &mut WeightRng::seeded(17))
+        .expect("field");
     let mut optim = AdamConfig::new().init();
     let r = b.samples.offsets.len() - 1;
     let target = Tensor::<2>::full([r, 3], 0.5, &ad);

@@ -30,6 +30,7 @@ pub mod device;
 pub mod encoding;
 pub mod error;
 pub mod field;
+pub mod init;
 pub mod kernels;
 pub mod loss;
 pub mod mlp;

@@ -1,9 +1,10 @@
 //! NeRF-style ReLU MLP with input skip connections.
 
-use burn::module::Initializer;
-use burn::nn::{Linear, LinearConfig};
+use burn::nn::Linear;
 use burn::prelude::*;
 use burn::tensor::activation::relu;
+
+use crate::init::WeightRng;
 
 /// Width and depth of one MLP (the input and output widths come from where it is used).
 #[derive(Config, Debug)]
@@ -18,14 +19,16 @@ pub struct MlpConfig {
 }
 
 impl MlpConfig {
-    /// Builds the network. `output_init`: `Some(b)` starts the output layer uniform in
-    /// `[-b, b]` (deformation nets start near the identity map), `None` uses burn's default.
+    /// Builds the network, drawing its weights from `rng` layer by layer (weight, then
+    /// bias). `output_init`: `Some(b)` starts the output layer uniform in `[-b, b]`
+    /// (deformation nets start near the identity map), `None` uses burn's default.
     pub fn init(
         &self,
         d_input: usize,
         d_output: usize,
         output_init: Option<f64>,
         device: &Device,
+        rng: &mut WeightRng,
     ) -> Mlp {
         let mut hidden = Vec::with_capacity(self.depth);
         let mut d = d_input;
@@ -35,16 +38,13 @@ impl MlpConfig {
             } else {
                 d
             };
-            hidden.push(LinearConfig::new(d_in, self.width).init(device));
+            hidden.push(rng.linear(d_in, self.width, None, device));
             d = self.width;
         }
-        let mut out = LinearConfig::new(d, d_output);
-        if let Some(b) = output_init {
-            out = out.with_initializer(Initializer::Uniform { min: -b, max: b });
-        }
+        let output = rng.linear(d, d_output, output_init, device);
         Mlp {
             hidden,
-            output: out.init(device),
+            output,
             skips: self
                 .skips
                 .iter()
@@ -169,9 +169,13 @@ mod tests {
     fn a_shared_row_matches_the_repeated_input() {
         let device = Device::flex().autodiff();
         for skips in [vec![], vec![2]] {
-            let mlp = MlpConfig::new(3, 16)
-                .with_skips(skips.clone())
-                .init(7, 4, None, &device);
+            let mlp = MlpConfig::new(3, 16).with_skips(skips.clone()).init(
+                7,
+                4,
+                None,
+                &device,
+                &mut WeightRng::seeded(1),
+            );
             let (x, row) = (tensor(9, 4, 1, &device), tensor(1, 3, 5, &device));
             let x = x.require_grad();
             let row = row.require_grad();
@@ -226,7 +230,13 @@ mod tests {
         let device = Device::flex().autodiff();
         for (depth, with_row) in [(2, true), (2, false), (1, true), (3, false)] {
             let d_row = if with_row { 3 } else { 0 };
-            let mlp = MlpConfig::new(depth, 16).init(5 + d_row, 4, None, &device);
+            let mlp = MlpConfig::new(depth, 16).init(
+                5 + d_row,
+                4,
+                None,
+                &device,
+                &mut WeightRng::seeded(1),
+            );
             let n = 1100;
             let x = tensor(n, 5, 3, &device).require_grad();
             let row = with_row.then(|| tensor(1, 3, 5, &device).require_grad());
@@ -254,7 +264,7 @@ mod tests {
             }
         }
         let device = Device::flex();
-        let mlp = MlpConfig::new(2, 16).init(5, 4, None, &device);
+        let mlp = MlpConfig::new(2, 16).init(5, 4, None, &device, &mut WeightRng::seeded(1));
         let x = tensor(700, 5, 3, &device);
         let fused = mlp
             .fused(&x, None)
@@ -266,7 +276,7 @@ mod tests {
     #[test]
     fn the_fused_gradients_are_reproducible() {
         let device = Device::flex().autodiff();
-        let mlp = MlpConfig::new(2, 32).init(6, 3, None, &device);
+        let mlp = MlpConfig::new(2, 32).init(6, 3, None, &device, &mut WeightRng::seeded(1));
         let run = || {
             let x = tensor(5000, 6, 1, &device).require_grad();
             let g = mlp.forward(x.clone()).powi_scalar(2).sum().backward();
@@ -286,7 +296,7 @@ mod tests {
     #[test]
     fn a_shared_row_with_no_rows_gives_no_rows() {
         let device = Device::flex();
-        let mlp = MlpConfig::new(2, 8).init(5, 4, None, &device);
+        let mlp = MlpConfig::new(2, 8).init(5, 4, None, &device, &mut WeightRng::seeded(1));
         let out = mlp.forward_with_row(
             Tensor::zeros([0, 3], &device),
             Some(tensor(1, 2, 0, &device)),

@@ -210,6 +210,7 @@ mod tests {
     use talkin_grids::{DenseOpts, sample_dense};
     use talkin_nets::FieldConfig;
     use talkin_nets::encoding::{EncodingConfig, HashGridConfig};
+    use talkin_nets::init::WeightRng;
     use talkin_nets::skinning::SkinningConfig;
 
     use super::*;
@@ -277,7 +278,9 @@ mod tests {
         };
         let frame = frame_conditions(0, &params, &scene, &shells, true);
         let (lo, hi) = capsule_bounds(&scene.capsules, 0.02);
-        let field = config.init(&prior, &device).unwrap();
+        let field = config
+            .init(&prior, &device, &mut WeightRng::seeded(5))
+            .unwrap();
         // Rays across the body's box, along -z; rays 0-3 miss the box (no samples) with
         // `first_half_empty`, so the first half has no gradient: its loss is a constant.
         let make_rays = |first_half_empty: bool| -> Vec<Ray> {

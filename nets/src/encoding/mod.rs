@@ -10,6 +10,8 @@ pub(crate) mod hash_primes;
 
 use burn::prelude::*;
 
+use crate::init::WeightRng;
+
 pub use frequency::{FrequencyConfig, FrequencyEncoding, HannWindowConfig};
 pub use hash_grid::{HashGrid, HashGridConfig};
 
@@ -23,11 +25,11 @@ pub enum EncodingConfig {
 }
 
 impl EncodingConfig {
-    /// Builds the encoding.
-    pub fn init(&self, device: &Device) -> Encoding {
+    /// Builds the encoding; a hash grid draws its table from `rng`.
+    pub fn init(&self, device: &Device, rng: &mut WeightRng) -> Encoding {
         match self {
             EncodingConfig::Frequency(c) => Encoding::Frequency(c.init()),
-            EncodingConfig::HashGrid(c) => Encoding::HashGrid(c.init(device)),
+            EncodingConfig::HashGrid(c) => Encoding::HashGrid(c.init(device, rng)),
         }
     }
 }

@@ -11,8 +11,11 @@ use super::{
     DeformNet, EXPRESSION_DIM, FieldSettings, HAND_POSE_DIM, JAW_DIM, N_SEG_CLASSES, RadianceNet,
     TalkinField,
 };
-use crate::encoding::{EncodingConfig, FrequencyConfig, HannWindowConfig, HashGridConfig};
+use crate::encoding::{
+    Encoding, EncodingConfig, FrequencyConfig, HannWindowConfig, HashGridConfig,
+};
 use crate::error::NetsError;
+use crate::init::WeightRng;
 use crate::mlp::MlpConfig;
 use crate::skinning::{BoneSegment, SkinningConfig};
 
@@ -164,50 +167,66 @@ impl FieldConfig {
         EXPRESSION_DIM + if self.face_uses_jaw { JAW_DIM } else { 0 }
     }
 
-    /// Builds the field; `prior` initialises the skinning weights. Modules the config
-    /// switches off are not built.
-    pub fn init(&self, prior: &[BoneSegment], device: &Device) -> Result<TalkinField, NetsError> {
-        let radiance = |encoding: &EncodingConfig, mlp: &MlpConfig, d_cond: usize, d_out: usize| {
-            let encoding = encoding.init(device);
+    /// Builds the field; `prior` initialises the skinning weights and `rng` draws the
+    /// rest. Modules the config switches off are not built.
+    pub fn init(
+        &self,
+        prior: &[BoneSegment],
+        device: &Device,
+        rng: &mut WeightRng,
+    ) -> Result<TalkinField, NetsError> {
+        let skinning = self
+            .skinning
+            .init(self.aabb_min, self.aabb_max, prior, device)?;
+        // The draws keep the order burn's lazily initialised layers gave them, so a seed
+        // gives the field it always gave: the identity codes and the encodings' tables
+        // first, then every layer in the order the field lists its modules.
+        let identity = rng.tensor(
+            [self.n_identities.max(1), self.identity_dim],
+            Distribution::Normal(0.0, 0.1),
+            device,
+        );
+        let part_encoding = self.part_encoding.as_ref().unwrap_or(&self.encoding);
+        let body_encoding = self.encoding.init(device, rng);
+        let face_encoding = self.has_face.then(|| part_encoding.init(device, rng));
+        let hands_encoding = self.has_hands.then(|| part_encoding.init(device, rng));
+        let radiance = |encoding: Encoding,
+                        mlp: &MlpConfig,
+                        d_cond: usize,
+                        d_out: usize,
+                        rng: &mut WeightRng| {
             let d_in = encoding.output_dim() + d_cond + self.identity_dim;
             RadianceNet {
-                mlp: mlp.init(d_in, d_out, None, device),
+                mlp: mlp.init(d_in, d_out, None, device, rng),
                 encoding,
             }
         };
-        let part_encoding = self.part_encoding.as_ref().unwrap_or(&self.encoding);
-        let deform = |window: HannWindowConfig, d_cond: usize| {
+        let deform = |window: HannWindowConfig, d_cond: usize, rng: &mut WeightRng| {
             let encoding = FrequencyConfig::new(self.deform_bands)
                 .with_window(Some(window))
                 .init();
             let d_in = encoding.output_dim(3) + d_cond;
             DeformNet {
-                mlp: self.deform.init(d_in, 3, Some(1e-5), device),
+                mlp: self.deform.init(d_in, 3, Some(1e-5), device, rng),
                 encoding,
             }
         };
-        let identity = Tensor::<2>::random(
-            [self.n_identities.max(1), self.identity_dim],
-            Distribution::Normal(0.0, 0.1),
-            device,
-        );
+        let non_rigid = self
+            .non_rigid_start_step
+            .map(|_| deform(self.non_rigid_window, self.pose_dim, rng));
+        let body = radiance(body_encoding, &self.body, 0, 4 + N_SEG_CLASSES, rng);
+        let face = face_encoding.map(|e| radiance(e, &self.face, self.expression_dim(), 4, rng));
+        let hand_deform = (self.has_hands && self.use_d_hands)
+            .then(|| deform(self.hand_window, HAND_POSE_DIM, rng));
+        let hands = hands_encoding.map(|e| radiance(e, &self.hands, 0, 4, rng));
         Ok(TalkinField {
             identity: Param::from_tensor(identity),
-            skinning: self
-                .skinning
-                .init(self.aabb_min, self.aabb_max, prior, device)?,
-            non_rigid: self
-                .non_rigid_start_step
-                .map(|_| deform(self.non_rigid_window, self.pose_dim)),
-            body: radiance(&self.encoding, &self.body, 0, 4 + N_SEG_CLASSES),
-            face: self
-                .has_face
-                .then(|| radiance(part_encoding, &self.face, self.expression_dim(), 4)),
-            hand_deform: (self.has_hands && self.use_d_hands)
-                .then(|| deform(self.hand_window, HAND_POSE_DIM)),
-            hands: self
-                .has_hands
-                .then(|| radiance(part_encoding, &self.hands, 0, 4)),
+            skinning,
+            non_rigid,
+            body,
+            face,
+            hand_deform,
+            hands,
             settings: FieldSettings {
                 aabb_min: self.aabb_min,
                 aabb_max: self.aabb_max,

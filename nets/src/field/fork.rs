@@ -48,6 +48,7 @@ mod tests {
 
     use super::super::tests::tiny_fast;
     use super::*;
+    use crate::init::WeightRng;
     use crate::skinning::ladder_prior;
 
     /// A trained parameter that gets no gradient (D_nr before its start step) keeps its
@@ -117,7 +118,9 @@ mod tests {
             p.0
         };
         let device = Device::flex().autodiff();
-        let field = tiny_fast().init(&ladder_prior(), &device).unwrap();
+        let field = tiny_fast()
+            .init(&ladder_prior(), &device, &mut WeightRng::seeded(5))
+            .unwrap();
         let (a, b) = (params(&field), params(&field.fork_leaves()));
         assert!(
             a.len() > 10 && a.iter().all(|p| p.2),

@@ -144,6 +144,7 @@ mod tests {
     use crate::FieldInput;
     use crate::field::FrameConditions;
     use crate::field::{PART_BIT_HANDS, PART_BIT_HEAD};
+    use crate::init::WeightRng;
     use crate::skinning::ladder_prior;
 
     /// Through the leaves the field gives the host path's outputs, and the skinning
@@ -164,7 +165,9 @@ mod tests {
             0.0, 0.0, 1.0, 0.05, //
             0.0, 0.0, 0.0, 1.0,
         ];
-        let mut field = tiny_fast().init(&ladder_prior(), &device).unwrap();
+        let mut field = tiny_fast()
+            .init(&ladder_prior(), &device, &mut WeightRng::seeded(5))
+            .unwrap();
         // Every sample is labelled head: the face net sees them all.
         force_body(&mut field, [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 5.0]);
         let input = FieldInput {

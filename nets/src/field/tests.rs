@@ -3,6 +3,7 @@
 
 use super::*;
 use crate::encoding::{EncodingConfig, HashGridConfig};
+use crate::init::WeightRng;
 use crate::skinning::SkinningConfig;
 use crate::skinning::ladder_prior;
 use crate::util::host;
@@ -84,7 +85,9 @@ fn unit_map_is_isotropic_unless_an_old_config_says_otherwise() {
     );
     let corners = floats(vec![-1.0, 0.0, -0.25, 1.0, 4.0, 0.25], [2, 3], &device);
     let unit = |config: &FieldConfig| {
-        let field = config.init(&ladder_prior(), &device).unwrap();
+        let field = config
+            .init(&ladder_prior(), &device, &mut WeightRng::seeded(5))
+            .unwrap();
         host(&field.to_unit(corners.clone()))
     };
     let got = unit(&config);
@@ -115,7 +118,9 @@ fn part_tables_are_smaller_unless_an_old_config_says_otherwise() {
         Encoding::Frequency(_) => 0,
     };
     let config = FieldConfig::fast(3);
-    let field = config.init(&ladder_prior(), &device).unwrap();
+    let field = config
+        .init(&ladder_prior(), &device, &mut WeightRng::seeded(5))
+        .unwrap();
     let body = rows(&field.body.encoding);
     let face = rows(&field.face.as_ref().unwrap().encoding);
     let hands = rows(&field.hands.as_ref().unwrap().encoding);
@@ -133,7 +138,9 @@ fn part_tables_are_smaller_unless_an_old_config_says_otherwise() {
     json.as_object_mut().unwrap().remove("part_encoding");
     let old: FieldConfig = serde_json::from_value(json).unwrap();
     assert!(old.part_encoding.is_none());
-    let old_field = old.init(&ladder_prior(), &device).unwrap();
+    let old_field = old
+        .init(&ladder_prior(), &device, &mut WeightRng::seeded(5))
+        .unwrap();
     assert_eq!(rows(&old_field.face.as_ref().unwrap().encoding), body);
     assert_eq!(rows(&old_field.hands.as_ref().unwrap().encoding), body);
 }
@@ -145,7 +152,9 @@ fn non_candidates_never_reach_face_or_hands() {
     let n = pts.len();
     let bones = vec![1u64 << 15; n];
     let frame = FrameConditions::still();
-    let mut field = tiny_fast().init(&ladder_prior(), &device).unwrap();
+    let mut field = tiny_fast()
+        .init(&ladder_prior(), &device, &mut WeightRng::seeded(5))
+        .unwrap();
     poison(field.face.as_mut().unwrap());
     poison(field.hands.as_mut().unwrap());
     // Every sample's body label is head; only every third sample is a head candidate,
@@ -223,10 +232,9 @@ fn routing_on_the_device_matches_routing_on_the_host() {
         step: 0,
     };
     for background in [true, false] {
-        device.seed(5);
         let mut field = tiny_fast()
             .with_hand_background(background)
-            .init(&ladder_prior(), &device)
+            .init(&ladder_prior(), &device, &mut WeightRng::seeded(5))
             .unwrap();
         // Labels that vary from sample to sample (the hash features and the output
         // layer scaled up, its bias zero), so a part's net usually gets candidates
@@ -301,7 +309,7 @@ fn hands_without_background_replace_body_outputs() {
     let (bones, frame) = (vec![0u64; n], FrameConditions::still());
     let mut field = tiny_fast()
         .with_hand_background(false)
-        .init(&ladder_prior(), &device)
+        .init(&ladder_prior(), &device, &mut WeightRng::seeded(5))
         .unwrap();
     force_body(&mut field, [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 5.0, 0.0]);
     let parts: Vec<u8> = (0..n)
@@ -326,12 +334,16 @@ fn hands_without_background_replace_body_outputs() {
 #[test]
 fn absent_modules_are_not_built_or_run() {
     let device = Device::flex();
-    let full = tiny_fast().init(&ladder_prior(), &device).unwrap();
+    let full = tiny_fast()
+        .init(&ladder_prior(), &device, &mut WeightRng::seeded(5))
+        .unwrap();
     let cfg = tiny_fast()
         .with_has_face(false)
         .with_has_hands(false)
         .with_non_rigid_start_step(None);
-    let mut bare = cfg.init(&ladder_prior(), &device).unwrap();
+    let mut bare = cfg
+        .init(&ladder_prior(), &device, &mut WeightRng::seeded(5))
+        .unwrap();
     assert!(
         bare.face.is_none()
             && bare.hands.is_none()
@@ -341,12 +353,12 @@ fn absent_modules_are_not_built_or_run() {
     assert!(bare.num_params() < full.num_params());
     let no_dh = tiny_fast()
         .with_use_d_hands(false)
-        .init(&ladder_prior(), &device)
+        .init(&ladder_prior(), &device, &mut WeightRng::seeded(5))
         .unwrap();
     assert!(no_dh.hand_deform.is_none() && no_dh.hands.is_some());
     let jawless = tiny_fast()
         .with_face_uses_jaw(false)
-        .init(&ladder_prior(), &device)
+        .init(&ladder_prior(), &device, &mut WeightRng::seeded(5))
         .unwrap();
     assert!(jawless.num_params() < full.num_params());
 
@@ -375,7 +387,9 @@ fn absent_modules_are_not_built_or_run() {
 #[test]
 fn empty_batch_renders_empty_rays() {
     let device = Device::flex().autodiff();
-    let field = tiny_fast().init(&ladder_prior(), &device).unwrap();
+    let field = tiny_fast()
+        .init(&ladder_prior(), &device, &mut WeightRng::seeded(5))
+        .unwrap();
     let frame = FrameConditions::still();
     let input = FieldInput {
         points: &[],
@@ -399,7 +413,9 @@ fn empty_batch_renders_empty_rays() {
 #[test]
 fn non_rigid_switches_on_at_its_step() {
     let device = Device::flex();
-    let field = tiny_fast().init(&ladder_prior(), &device).unwrap();
+    let field = tiny_fast()
+        .init(&ladder_prior(), &device, &mut WeightRng::seeded(5))
+        .unwrap();
     let (pts, _) = batch(2, 4);
     let n = pts.len();
     let (bones, parts, frame) = (vec![1u64 << 3; n], vec![0u8; n], FrameConditions::still());
@@ -418,7 +434,9 @@ fn non_rigid_switches_on_at_its_step() {
 #[test]
 fn rejects_bad_conditions() {
     let device = Device::flex();
-    let field = tiny_fast().init(&ladder_prior(), &device).unwrap();
+    let field = tiny_fast()
+        .init(&ladder_prior(), &device, &mut WeightRng::seeded(5))
+        .unwrap();
     let (pts, _) = batch(1, 2);
     let mut f = FrameConditions::still();
     f.identity = 2;
@@ -498,7 +516,6 @@ fn train_step(
 #[test]
 fn both_presets_train_and_the_fast_one_fits() {
     let device = Device::flex().autodiff();
-    device.seed(5);
     let (pts, samples) = batch(24, 8);
     let r = samples.offsets.len() - 1;
     let target: Vec<f32> = (0..r * 3)
@@ -509,13 +526,17 @@ fn both_presets_train_and_the_fast_one_fits() {
     let mut paper = FieldConfig::paper(1);
     paper.skinning = SkinningConfig::new().with_resolution(8);
     let mut optim = AdamConfig::new().init();
-    let field = paper.init(&ladder_prior(), &device).unwrap();
+    let field = paper
+        .init(&ladder_prior(), &device, &mut WeightRng::seeded(5))
+        .unwrap();
     let (field, first) = train_step(field, &mut optim, &pts, &samples, &target, 200_000);
     let (_, second) = train_step(field, &mut optim, &pts, &samples, &target, 200_000);
     assert!(first.is_finite() && second.is_finite());
 
     let mut optim = AdamConfig::new().init();
-    let mut field = tiny_fast().init(&ladder_prior(), &device).unwrap();
+    let mut field = tiny_fast()
+        .init(&ladder_prior(), &device, &mut WeightRng::seeded(5))
+        .unwrap();
     let mut losses = Vec::new();
     for step in 0..25 {
         let (f, loss) = train_step(field, &mut optim, &pts, &samples, &target, step);

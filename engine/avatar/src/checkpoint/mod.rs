@@ -34,13 +34,13 @@ use burn::store::ModuleRecord;
 use burn::tensor::Bytes;
 use talkin_data::atomic::{sync_dir, write_atomic, write_synced};
 use talkin_data::dataset::{Dataset, INDEX_FILE};
+use talkin_nets::init::WeightRng;
 use talkin_nets::{FieldConfig, TalkinField};
 
 pub use grid_file::{grid_from_bytes, grid_to_bytes};
 pub use manifest::{MANIFEST_FILE, Manifest, sha256_hex};
 pub use subjects_file::SubjectsFile;
 
-use crate::device_rng::DeviceRng;
 use crate::subject::{SubjectSlot, bone_prior};
 
 /// The checkpoint directory inside a run directory.
@@ -424,13 +424,8 @@ impl Checkpoint {
     }
 
     /// Builds the field on `device` (add `.autodiff()` to train it further) with the
-    /// checkpoint's weights. Building it draws initial weights (then overwritten) from
-    /// burn's RNG, so it takes the caller's turn at it.
-    pub fn field(
-        &self,
-        device: &Device,
-        _turn: &mut DeviceRng,
-    ) -> Result<TalkinField, CheckpointError> {
+    /// checkpoint's weights.
+    pub fn field(&self, device: &Device) -> Result<TalkinField, CheckpointError> {
         let model_file = self.dir.join(MODEL_FILE);
         let skeletons: Vec<_> = self
             .subjects
@@ -439,7 +434,8 @@ impl Checkpoint {
             .collect();
         let field = self
             .config
-            .init(&bone_prior(skeletons), device)
+            // Whatever this draws is overwritten by the record.
+            .init(&bone_prior(skeletons), device, &mut WeightRng::seeded(0))
             .map_err(|e| CheckpointError::format(&self.dir.join(CONFIG_FILE), "FieldConfig", e))?;
         let record = ModuleRecord::from_bytes(Bytes::from_bytes_vec(self.model_bytes.clone()))
             .map_err(|e| CheckpointError::format(&model_file, "record", e))?;

@@ -9,7 +9,6 @@ use std::path::{Path, PathBuf};
 
 use burn::prelude::*;
 use talkin_avatar::checkpoint::{Checkpoint, CheckpointError, STATE_FILE};
-use talkin_avatar::device_rng::DeviceRng;
 use talkin_avatar::refined::RefinedFits;
 use talkin_avatar::subject::{SubjectModel, SubjectSlot};
 use talkin_grids::SamplerKind;
@@ -63,7 +62,7 @@ impl Avatar {
     /// host arrays, whichever device trained them).
     pub fn load_on(run: &Path, device: &Device) -> Result<Avatar, AvatarError> {
         let checkpoint = Checkpoint::load(run)?;
-        let field = checkpoint.field(device, &mut DeviceRng::take_turn())?;
+        let field = checkpoint.field(device)?;
         let state_file = checkpoint.dir.join(STATE_FILE);
         let bad = |field: &'static str, problem: &str| AvatarError::State {
             file: state_file.clone(),

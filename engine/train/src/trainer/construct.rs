@@ -6,10 +6,10 @@ use std::path::Path;
 use burn::optim::ModuleOptimizer;
 use burn::prelude::*;
 use talkin_avatar::checkpoint::{Checkpoint, dataset_sha256};
-use talkin_avatar::device_rng::DeviceRng;
 use talkin_avatar::subject::{SubjectModel, SubjectSlot, bone_prior};
 use talkin_data::dataset::Dataset;
 use talkin_grids::OccUpdateOpts;
+use talkin_nets::init::WeightRng;
 use talkin_nets::loss::{Backbone, PerceptualLoss};
 use talkin_nets::{ComputeDevice, FieldConfig, TalkinField};
 
@@ -44,25 +44,20 @@ impl<'a> Trainer<'a> {
         let skeletons = subjects
             .iter()
             .filter_map(|s| s.model.as_ref().map(|m| &m.skeleton));
-        let field = {
-            // The initial weights are drawn on the CPU whatever the device, so one seed
-            // gives one field on every device. The CPU's RNG is process-wide: seeding and
-            // drawing take one turn at it, or another trainer's draws (tests, benches in
-            // threads) would interleave and the same seed give different weights.
-            let cpu = Device::flex().autodiff();
-            let mut rng = DeviceRng::take_turn();
-            rng.seed(&cpu, opts.seed);
-            let field = config
-                .init(&bone_prior(skeletons), &cpu)
-                .map_err(|source| TrainError::Field { source })?;
-            // burn draws a layer's weights lazily, on first use: draw them all now, on
-            // the CPU and during the turn, or a forked field would draw them on its device.
-            materialize(&field);
-            if device == cpu {
-                field
-            } else {
-                field.fork(&device)
-            }
+        // The initial weights are drawn on the host whatever the device, so one seed gives
+        // one field on every device.
+        let cpu = Device::flex().autodiff();
+        let field = config
+            .init(
+                &bone_prior(skeletons),
+                &cpu,
+                &mut WeightRng::seeded(opts.seed),
+            )
+            .map_err(|source| TrainError::Field { source })?;
+        let field = if device == cpu {
+            field
+        } else {
+            field.fork(&device)
         };
         let slot_of = (0..n_subjects).map(Some).collect();
         Trainer::start(dataset, out, opts, config, field, subjects, frames, slot_of)
@@ -99,13 +94,7 @@ impl<'a> Trainer<'a> {
         }
         let checkpoint = Checkpoint::load(base)?;
         let device = open_device(opts.device)?;
-        // The field's initial draw is overwritten by the checkpoint's record; the seed is
-        // for what the adaptation draws after it.
-        let mut field = {
-            let mut rng = DeviceRng::take_turn();
-            rng.seed(&device, opts.seed);
-            checkpoint.field(&device, &mut rng)?
-        };
+        let mut field = checkpoint.field(&device)?;
         let mut config = checkpoint.config.clone();
         let mut subjects = checkpoint.subjects.clone();
         let name = dataset.subjects[s].name.clone();
@@ -268,15 +257,4 @@ pub(super) fn optimizer(preset: Preset) -> ModuleOptimizer {
 /// `on`, opened for training (with autodiff).
 pub(super) fn open_device(on: ComputeDevice) -> Result<Device, TrainError> {
     Ok(on.open()?.autodiff())
-}
-
-/// Draws every lazily initialised parameter of `field` now.
-fn materialize(field: &TalkinField) {
-    struct Touch;
-    impl burn::module::ModuleVisitor for Touch {
-        fn visit_float<const D: usize>(&mut self, param: &burn::module::Param<Tensor<D>>) {
-            let _ = param.val();
-        }
-    }
-    field.visit(&mut Touch);
 }

@@ -4,7 +4,6 @@ use std::path::Path;
 
 use burn::tensor::Bytes;
 use talkin_avatar::checkpoint::{Checkpoint, dataset_sha256};
-use talkin_avatar::device_rng::DeviceRng;
 use talkin_data::dataset::Dataset;
 use talkin_nets::ComputeDevice;
 
@@ -76,7 +75,7 @@ impl<'a> Trainer<'a> {
             });
         }
         let device = open_device(on)?;
-        let field = checkpoint.field(&device, &mut DeviceRng::take_turn())?;
+        let field = checkpoint.field(&device)?;
         let optim_bytes = checkpoint
             .optimizer_bytes()
             .ok_or_else(|| TrainError::Resume {

@@ -10,6 +10,7 @@ use burn::tensor::Distribution;
 
 use super::hash_corners::corners_on_device;
 use super::hash_primes::{IDENTITY_PRIME, PRIMES};
+use crate::init::WeightRng;
 use crate::kernels::hash::{self as hash_fused, Corners};
 use crate::rows::gather_rows;
 use crate::util::{floats, host, ints};
@@ -173,8 +174,8 @@ pub struct HashGridConfig {
 }
 
 impl HashGridConfig {
-    /// Builds the grid with a freshly initialised table.
-    pub fn init(&self, device: &Device) -> HashGrid {
+    /// Builds the grid with a freshly initialised table drawn from `rng`.
+    pub fn init(&self, device: &Device, rng: &mut WeightRng) -> HashGrid {
         let max_entries = 1usize << self.log2_hashmap_size;
         let mut resolutions = Vec::with_capacity(self.n_levels);
         let mut offsets = Vec::with_capacity(self.n_levels + 1);
@@ -190,7 +191,7 @@ impl HashGridConfig {
         }
         offsets.push(total);
         let s = self.init_scale;
-        let table = Tensor::<2>::random(
+        let table = rng.tensor(
             [total, self.n_features_per_level],
             Distribution::Uniform(-s, s),
             device,

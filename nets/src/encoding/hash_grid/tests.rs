@@ -38,7 +38,7 @@ fn small_grid(device: &Device) -> HashGrid {
         .with_base_resolution(3)
         .with_per_level_scale(2.0)
         .with_init_scale(1.0)
-        .init(device)
+        .init(device, &mut WeightRng::seeded(3))
 }
 
 #[test]
@@ -92,7 +92,7 @@ fn device_corners_equal_host_corners() {
         .with_n_levels(16)
         .with_log2_hashmap_size(19)
         .with_n_identities(3)
-        .init(&device);
+        .init(&device, &mut WeightRng::seeded(3));
     let on_boundary = |p: &[f32; 3]| {
         grid.resolutions.iter().any(|&r| {
             p.iter().any(|&v| {
@@ -147,7 +147,9 @@ fn fused_op_matches_composed_ops() {
     }
     // Without autodiff (rendering) the fused op is taken too.
     let plain = Device::flex();
-    let grid = HashGridConfig::new().with_n_levels(3).init(&plain);
+    let grid = HashGridConfig::new()
+        .with_n_levels(3)
+        .init(&plain, &mut WeightRng::seeded(3));
     let x = floats(vec![0.3, 0.6, 0.9], [1, 3], &plain);
     let (res, off) = (&grid.resolutions, &grid.offsets);
     let fused = hash_fused::encode(&grid.table.val(), &x, |points| {
@@ -169,7 +171,7 @@ fn composed_pieces_match_the_whole() {
     let grid = HashGridConfig::new()
         .with_n_levels(4)
         .with_log2_hashmap_size(9)
-        .init(&device);
+        .init(&device, &mut WeightRng::seeded(3));
     let n = 23;
     let pts: Vec<f32> = (0..n * 3).map(|k| (k as f32 * 0.618).fract()).collect();
     let run = |chunk: usize| {
@@ -228,7 +230,7 @@ fn op_matches_composed(
         .with_per_level_scale(1.7)
         .with_init_scale(1.0)
         .with_n_identities(2)
-        .init(device);
+        .init(device, &mut WeightRng::seeded(3));
     let pts = awkward_points();
     let n = pts.len();
     let out_dim = grid.output_dim();
@@ -307,7 +309,7 @@ fn identities_read_their_own_features() {
         .with_per_level_scale(2.0)
         .with_init_scale(1.0)
         .with_n_identities(2)
-        .init(&device);
+        .init(&device, &mut WeightRng::seeded(3));
     // Level 0: two dense blocks of 4^3; level 1 (7^3 * 2 > 512) hashed.
     assert_eq!(grid.offsets[1], 128);
     assert_eq!(
