@@ -14,15 +14,17 @@ use crate::error::{NetsError, check_len};
 use crate::mlp::Mlp;
 use crate::render::{OwnedRaySamples, RaySamples, RenderedRays, render_in_front, render_packed};
 use crate::rows::{add_rows, gather_rows};
-use crate::skinning::{BlendWeightVolume, BoneCapsule, N_SMPLX_JOINTS, RigidWarp};
+use crate::skinning::{BlendWeightVolume, N_SMPLX_JOINTS, RigidWarp};
 use crate::util::{floats, ints, softplus};
 
 mod config;
 mod fork;
+mod frame;
 pub mod leaves;
 mod routing;
 
 pub use config::{FieldConfig, PART_LOG2_ENTRIES, POSED_TAU_M, UnitMap};
+pub use frame::FrameConditions;
 pub use leaves::{PoseGrads, PoseLeaves};
 pub use routing::Routing;
 use routing::{Routed, Router};
@@ -117,47 +119,6 @@ impl FieldSettings {
         let side = extent.into_iter().fold(0.0f32, f32::max);
         let min = std::array::from_fn(|a| 0.5 * (lo[a] + hi[a]) - 0.5 * side);
         (min, [1.0 / side; 3])
-    }
-}
-
-/// Per-frame conditions (one frame per forward call).
-#[derive(Clone, Debug, PartialEq)]
-pub struct FrameConditions {
-    /// Subject index (< `n_identities`).
-    pub identity: usize,
-    /// `[55]` row-major 4x4 `canonical_from_posed`, one per SMPL-X joint ([`crate::skinning`]).
-    pub canonical_from_posed: Vec<[f32; 16]>,
-    /// `[pose_dim]` body pose for D_nr (21 x 3 axis-angle).
-    pub body_pose: Vec<f32>,
-    /// psi.
-    pub expression: [f32; EXPRESSION_DIM],
-    /// Jaw axis-angle.
-    pub jaw: [f32; JAW_DIM],
-    /// `[90]` both hands' poses.
-    pub hand_pose: Vec<f32>,
-    /// The posed solid cores of the bones, each labelled with its SMPL-X joint, for the
-    /// skinning's posed-space prior (see [`crate::skinning`]); unused without it.
-    pub bone_capsules: Vec<BoneCapsule>,
-}
-
-impl FrameConditions {
-    /// A made-up frame for tests and benches: subject 0, every bone at rest (identity
-    /// transforms), a slight body pose, expression and jaw, flat hands, no cores.
-    #[doc(hidden)]
-    pub fn still() -> FrameConditions {
-        let mut t = [0.0f32; 16];
-        for i in 0..4 {
-            t[i * 5] = 1.0;
-        }
-        FrameConditions {
-            identity: 0,
-            canonical_from_posed: vec![t; N_SMPLX_JOINTS],
-            body_pose: vec![0.05; 63],
-            expression: [0.1; EXPRESSION_DIM],
-            jaw: [0.2, 0.0, 0.0],
-            hand_pose: vec![0.0; HAND_POSE_DIM],
-            bone_capsules: vec![],
-        }
     }
 }
 
