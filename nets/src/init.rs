@@ -65,3 +65,48 @@ impl WeightRng {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use burn::module::Initializer;
+    use burn::nn::LinearConfig;
+
+    use super::*;
+    use crate::util::host;
+
+    /// The draws are burn-flex's: what seeding burn's generator and drawing with burn's
+    /// tensor and layer initialisers give, value for value and in order.
+    #[test]
+    fn draws_what_burns_seeded_generator_draws() {
+        let device = Device::flex();
+        let bound = 1e-5;
+        device.seed(7);
+        // burn-nn's layers draw lazily, on first use: weight, then bias.
+        let default = LinearConfig::new(5, 3).init(&device);
+        let mut theirs = vec![host(&default.weight.val())];
+        theirs.push(host(&default.bias.unwrap().val()));
+        let uniform = LinearConfig::new(4, 2)
+            .with_initializer(Initializer::Uniform {
+                min: -bound,
+                max: bound,
+            })
+            .init(&device);
+        theirs.push(host(&uniform.weight.val()));
+        theirs.push(host(&uniform.bias.unwrap().val()));
+        let normal = Distribution::Normal(0.0, 0.1);
+        theirs.push(host(&Tensor::<2>::random([4, 2], normal, &device)));
+
+        let mut rng = WeightRng::seeded(7);
+        let default = rng.linear(5, 3, None, &device);
+        let mut ours = vec![host(&default.weight.val())];
+        ours.push(host(&default.bias.unwrap().val()));
+        let uniform = rng.linear(4, 2, Some(bound), &device);
+        ours.push(host(&uniform.weight.val()));
+        ours.push(host(&uniform.bias.unwrap().val()));
+        ours.push(host(&rng.tensor([4, 2], normal, &device)));
+        assert_eq!(ours, theirs);
+        // And the draws are not all alike (a generator that returned one value would pass
+        // the comparison above only if burn's did too).
+        assert!(ours[0].windows(2).all(|w| w[0] != w[1]), "{:?}", ours[0]);
+    }
+}

@@ -546,3 +546,48 @@ fn both_presets_train_and_the_fast_one_fits() {
     assert!(losses.iter().all(|l| l.is_finite()));
     assert!(losses[24] < 0.5 * losses[0], "{losses:?}");
 }
+
+/// Every float parameter of `field`, in the order the field lists them.
+fn parameters(field: &TalkinField) -> Vec<Vec<f32>> {
+    use burn::module::{ModuleVisitor, Param as P};
+    struct Values(Vec<Vec<f32>>);
+    impl ModuleVisitor for Values {
+        fn visit_float<const D: usize>(&mut self, param: &P<Tensor<D>>) {
+            self.0.push(host(&param.val()));
+        }
+    }
+    let mut values = Values(Vec::new());
+    field.visit(&mut values);
+    values.0
+}
+
+/// A seed gives one field, even while other fields are built on other threads: the
+/// weights come from the caller's generator, not from one the threads share.
+#[test]
+fn a_seed_gives_one_field_while_others_are_built_beside_it() {
+    fn build(seed: u64) -> Vec<Vec<f32>> {
+        let field = tiny_fast()
+            .init(
+                &ladder_prior(),
+                &Device::flex(),
+                &mut WeightRng::seeded(seed),
+            )
+            .unwrap();
+        parameters(&field)
+    }
+    let alone = build(5);
+    let threads: Vec<_> = (0..4u64)
+        .map(|i| std::thread::spawn(move || build(if i % 2 == 0 { 5 } else { 6 + i })))
+        .collect();
+    for (i, thread) in threads.into_iter().enumerate() {
+        let built = thread.join().unwrap();
+        if i % 2 == 0 {
+            assert!(built == alone, "thread {i}: seed 5 gave another field");
+        } else {
+            assert!(
+                built != alone,
+                "thread {i}: another seed gave seed 5's field"
+            );
+        }
+    }
+}
