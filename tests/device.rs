@@ -328,8 +328,8 @@ fn kernel_census() {
     }
     assert!(total(&per_run[0].1) > 0, "the profiling log is empty");
     // The composed hash encoding and rendering weights made a step 1820 kernels; with the
-    // device kernels it is 464 (docs/results.md). A step past 1000 means a hot path fell
-    // back to composed ops.
+    // device kernels it is 464 (docs/design.md, "Devices"). A step past 1000 means a hot
+    // path fell back to composed ops.
     assert!(step < 1000, "a training step launches {step} kernels");
     for (what, kernels) in [("training", &per_run[1].1), ("render", &render)] {
         let found = serial(kernels);
