@@ -449,7 +449,16 @@ pub fn npy_bytes(array: &NdArray) -> std::io::Result<Vec<u8>> {
 /// The `.npy` bytes numpy writes for a 0-d object array holding `pickle` (e.g. the SMPL-X
 /// model's `joint2num`): for fixtures of files with members that must be skipped.
 pub fn object_npy_bytes(pickle: &[u8]) -> Vec<u8> {
-    let mut header = "{'descr': '|O', 'fortran_order': False, 'shape': (), }".to_string();
+    raw_npy_bytes(
+        "{'descr': '|O', 'fortran_order': False, 'shape': (), }",
+        pickle,
+    )
+}
+
+/// A version 1.0 `.npy` file: magic, the header dict `dict` padded with spaces and a
+/// newline to a multiple of 64 bytes, then `data` as is.
+pub(crate) fn raw_npy_bytes(dict: &str, data: &[u8]) -> Vec<u8> {
+    let mut header = dict.to_string();
     while !(10 + header.len() + 1).is_multiple_of(64) {
         header.push(' ');
     }
@@ -457,7 +466,7 @@ pub fn object_npy_bytes(pickle: &[u8]) -> Vec<u8> {
     let mut out = b"\x93NUMPY\x01\x00".to_vec();
     out.extend((header.len() as u16).to_le_bytes());
     out.extend(header.as_bytes());
-    out.extend(pickle);
+    out.extend(data);
     out
 }
 

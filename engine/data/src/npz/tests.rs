@@ -7,18 +7,6 @@ fn temp(name: &str) -> PathBuf {
 }
 
 /// A hand-made v1 `.npy` with header text `dict` and raw `data`.
-fn raw_npy(dict: &str, data: &[u8]) -> Vec<u8> {
-    let mut header = dict.to_string();
-    while !(10 + header.len() + 1).is_multiple_of(64) {
-        header.push(' ');
-    }
-    header.push('\n');
-    let mut b = b"\x93NUMPY\x01\x00".to_vec();
-    b.extend((header.len() as u16).to_le_bytes());
-    b.extend(header.as_bytes());
-    b.extend(data);
-    b
-}
 
 fn parse(b: &[u8]) -> Result<NdArray, NpzError> {
     parse_npy(b, Path::new("x.npz"), "a")
@@ -49,14 +37,14 @@ fn fortran_big_endian_and_scalars() {
         .iter()
         .flat_map(|v| v.to_be_bytes())
         .collect();
-    let b = raw_npy(
+    let b = raw_npy_bytes(
         "{'descr': '>i4', 'fortran_order': True, 'shape': (2, 3), }",
         &data,
     );
     let a = parse(&b).unwrap();
     assert_eq!(a.to_i64().unwrap(), vec![0, 1, 2, 3, 4, 5]);
     assert_eq!(a.shape(), &[2, 3]);
-    let b = raw_npy(
+    let b = raw_npy_bytes(
         "{'descr': '<f8', 'fortran_order': False, 'shape': (), }",
         &120.0f64.to_le_bytes(),
     );
@@ -78,16 +66,16 @@ fn corrupt_input_is_an_error_naming_the_array() {
             .to_string()
             .contains("needs 32 bytes")
     );
-    let huge = raw_npy(
+    let huge = raw_npy_bytes(
         "{'descr': '<f8', 'fortran_order': False, 'shape': (4294967296, 4294967296, 4294967296), }",
         &[],
     );
     assert!(parse(&huge).unwrap_err().to_string().contains("too large"));
-    let nested = raw_npy(&format!("{}{}", "(".repeat(5000), ")".repeat(5000)), &[]);
+    let nested = raw_npy_bytes(&format!("{}{}", "(".repeat(5000), ")".repeat(5000)), &[]);
     assert!(parse(&nested).is_err());
     let obj = object_npy_bytes(b"\x80\x04N.");
     assert!(matches!(parse(&obj), Err(NpzError::Pickled { .. })));
-    let record = raw_npy(
+    let record = raw_npy_bytes(
         "{'descr': [('a', '<f4'), ('b', '<i4')], 'fortran_order': False, 'shape': (1,), }",
         &[0; 8],
     );
