@@ -6,8 +6,6 @@ fn temp(name: &str) -> PathBuf {
     dir
 }
 
-/// A hand-made v1 `.npy` with header text `dict` and raw `data`.
-
 fn parse(b: &[u8]) -> Result<NdArray, NpzError> {
     parse_npy(b, Path::new("x.npz"), "a")
 }
