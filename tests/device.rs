@@ -328,7 +328,7 @@ fn kernel_census() {
     }
     assert!(total(&per_run[0].1) > 0, "the profiling log is empty");
     // The composed hash encoding and rendering weights made a step 1820 kernels; with the
-    // device kernels it is 464 (docs/design.md, "Devices"). A step past 1000 means a hot
+    // device kernels it is 465 (docs/results.md, "Devices"). A step past 1000 means a hot
     // path fell back to composed ops.
     assert!(step < 1000, "a training step launches {step} kernels");
     for (what, kernels) in [("training", &per_run[1].1), ("render", &render)] {

@@ -5,6 +5,7 @@
 use std::path::PathBuf;
 use std::str::FromStr;
 
+use clap::builder::{PossibleValuesParser, TypedValueParser};
 use clap::{Arg, ArgMatches, Args, FromArgMatches, ValueEnum};
 use serde::{Deserialize, Serialize};
 use talkin_data::dataset::{Dataset, Matting};
@@ -290,7 +291,7 @@ pub struct Ablation {
     /// D_hands, the paper's offset for hand samples from the hand pose: `on` or `off`.
     /// With `--skin-fingers bones` the finger bones already undo the fingers' motion, and
     /// on the demo `off` scored higher in the same minutes (docs/results.md).
-    #[arg(long = "hand-deform", value_name = "on|off", default_value = "on", value_parser = on_off, action = clap::ArgAction::Set, help_heading = "Model and device")]
+    #[arg(long = "hand-deform", value_name = "on|off", default_value = "on", value_parser = PossibleValuesParser::new(["on", "off"]).map(|s| s == "on"), action = clap::ArgAction::Set, help_heading = "Model and device")]
     pub use_d_hands: bool,
     /// The body's rendered colour is the hands' background (off: "w/o background").
     #[arg(skip = true)]
@@ -298,15 +299,6 @@ pub struct Ablation {
     /// F_face is conditioned on [psi; jaw] (off: psi only).
     #[arg(skip = true)]
     pub face_uses_jaw: bool,
-}
-
-/// `on` or `off` as a switch.
-fn on_off(s: &str) -> Result<bool, String> {
-    match s {
-        "on" => Ok(true),
-        "off" => Ok(false),
-        _ => Err(format!("expected `on` or `off`, found `{s}`")),
-    }
 }
 
 impl Default for Ablation {
