@@ -102,6 +102,9 @@ fn eval_json_has_the_keys_and_renders_that_rescore_the_same() {
         "psnr_hands",
         "ssim_hands",
         "lpips_hands",
+        "person_inside",
+        "person_outline",
+        "person_around",
         "frames_evaluated",
         "split",
         "frames",
@@ -144,6 +147,37 @@ fn eval_json_has_the_keys_and_renders_that_rescore_the_same() {
             "frame {index}: {again} vs {recorded}"
         );
     }
+    // The person box split by the mask: its regions tile the box, their errors add up
+    // to the box's, and the shares to 1.
+    for f in frames {
+        let person = f["crops"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|c| c["kind"] == "person")
+            .expect("a person box");
+        let rect = &person["rect"];
+        let area = rect["width"].as_f64().unwrap() * rect["height"].as_f64().unwrap();
+        let regions = &f["person_regions"];
+        let (mut pixels, mut share, mut se) = (0.0, 0.0, 0.0);
+        for name in ["inside", "outline", "around"] {
+            let r = &regions[name];
+            let (n, p) = (r["pixels"].as_f64().unwrap(), r["psnr"].as_f64().unwrap());
+            assert!(p < PSNR_CAP_DB, "{regions}");
+            pixels += n;
+            share += r["error_share"].as_f64().unwrap();
+            se += n * 10f64.powf(-p / 10.0);
+        }
+        assert_eq!(pixels, area, "{regions}");
+        assert!((share - 1.0).abs() < 1e-9, "{regions}");
+        let box_psnr = -10.0 * (se / area).log10();
+        let recorded = person["psnr"].as_f64().unwrap();
+        assert!(
+            (box_psnr - recorded).abs() < 1e-6,
+            "{box_psnr} vs {recorded}"
+        );
+    }
+    assert!(table.contains("outline"), "{table}");
     let mean: f64 = frames
         .iter()
         .map(|f| f["psnr"].as_f64().unwrap())

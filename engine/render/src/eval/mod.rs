@@ -1,5 +1,7 @@
 //! Evaluation of an avatar against a dataset's frames: PSNR, SSIM and LPIPS (x1000, the
-//! paper's LPIPS*) on the full frame, the person box, the face crop and the two hand crops.
+//! paper's LPIPS*) on the full frame, the person box, the face crop and the two hand crops;
+//! the person box also split by the target's mask into inside, outline and around
+//! ([`person_regions`]).
 //!
 //! What is scored is the 8-bit render exactly as written to PNG, so re-scoring a written
 //! PNG gives the same numbers. Crops come from the ground-truth pose projected through the
@@ -7,6 +9,7 @@
 //! never faked, and without LPIPS weights every LPIPS value is `null` with a note.
 
 pub mod lpips;
+mod regions;
 mod report;
 
 use std::path::{Path, PathBuf};
@@ -17,7 +20,8 @@ use image::RgbImage;
 pub use crate::crops::{CropKind, MIN_CROP, frame_crops};
 pub use crate::metrics::{PSNR_CAP_DB, Rect, psnr, ssim};
 pub use lpips::LpipsScorer;
-pub use report::{CropScore, EvalReport, FrameScore, LPIPS_SCALE, SkippedCrop};
+pub use regions::{PersonRegions, RegionScore, outline_px, person_regions};
+pub use report::{CropScore, EvalReport, FrameScore, LPIPS_SCALE, RegionMeans, SkippedCrop};
 
 use crate::avatar::{Avatar, AvatarError};
 use crate::sequence::{
@@ -151,7 +155,8 @@ fn score_shot(
     let frame = &dataset.frames[index];
     let rendered = avatar.render(shot.identity, &shot.params, &shot.camera, None)?;
     let render = rendered.to_image();
-    let truth = dataset.images(index)?.rgb;
+    let images = dataset.images(index)?;
+    let truth = images.rgb;
     if truth.dimensions() != render.dimensions() {
         return Err(EvalError::SizeMismatch {
             dir: dataset.root.clone(),
@@ -180,6 +185,7 @@ fn score_shot(
     let mut crops = Vec::new();
     let mut skipped = Vec::new();
     let mut hand_rows = Vec::new();
+    let mut regions = None;
     // The shot's pose: a training frame's refined fit, when the run refined it.
     for (kind, crop) in frame_crops(skeleton, &shot.params, &frame.camera) {
         match crop {
@@ -190,6 +196,11 @@ fn score_shot(
                         render: crop_tile(&render, rect),
                         outlines: Vec::new(),
                     });
+                }
+                if matches!(kind, CropKind::Person)
+                    && images.mask.dimensions() == render.dimensions()
+                {
+                    regions = Some(person_regions(&truth, &render, &images.mask, rect));
                 }
                 let (p, s, l) = score_rect(rect);
                 crops.push(CropScore {
@@ -213,6 +224,7 @@ fn score_shot(
         ssim: ssim_full,
         lpips: lpips_full,
         crops,
+        person_regions: regions,
         skipped_crops: skipped,
         samples: rendered.samples,
         seconds: rendered.seconds,

@@ -7,6 +7,7 @@ use serde::Serialize;
 
 use super::EvalError;
 use super::lpips::BACKBONE;
+use super::regions::{PersonRegions, RegionScore};
 use crate::crops::CropKind;
 use crate::metrics::{PSNR_CAP_DB, Rect};
 use talkin_data::dataset::Dataset;
@@ -62,6 +63,8 @@ pub struct FrameScore {
     pub ssim: Option<f64>,
     pub lpips: Option<f64>,
     pub crops: Vec<CropScore>,
+    /// The person box split by the target's mask (`None` where the box was skipped).
+    pub person_regions: Option<PersonRegions>,
     pub skipped_crops: Vec<SkippedCrop>,
     /// Field samples evaluated for the render.
     pub samples: usize,
@@ -92,6 +95,11 @@ pub struct EvalReport {
     pub psnr_person: Option<f64>,
     pub ssim_person: Option<f64>,
     pub lpips_person: Option<f64>,
+    /// The person boxes split by the targets' masks: means over frames of each region's
+    /// PSNR and share of the box's squared error.
+    pub person_inside: Option<RegionMeans>,
+    pub person_outline: Option<RegionMeans>,
+    pub person_around: Option<RegionMeans>,
     /// Means over the face crops that were scored.
     pub psnr_face: Option<f64>,
     pub ssim_face: Option<f64>,
@@ -113,6 +121,24 @@ pub struct EvalReport {
     pub notes: Vec<String>,
     pub seconds: f64,
     pub frames: Vec<FrameScore>,
+}
+
+/// A person-box region ([`PersonRegions`]) averaged over the frames that have it.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct RegionMeans {
+    pub psnr: f64,
+    pub error_share: f64,
+    pub frames: usize,
+}
+
+impl RegionMeans {
+    fn over(scores: &[RegionScore]) -> Option<RegionMeans> {
+        Some(RegionMeans {
+            psnr: mean(scores.iter().map(|r| r.psnr))?,
+            error_share: mean(scores.iter().map(|r| r.error_share))?,
+            frames: scores.len(),
+        })
+    }
 }
 
 fn mean(values: impl Iterator<Item = f64>) -> Option<f64> {
@@ -173,6 +199,16 @@ impl EvalReport {
             )
         };
         let (psnr_person, ssim_person, lpips_person) = crop_means(&person);
+        let region = |f: fn(&PersonRegions) -> Option<RegionScore>| {
+            let scores: Vec<RegionScore> = frames
+                .iter()
+                .filter_map(|fr| fr.person_regions.as_ref().and_then(f))
+                .collect();
+            RegionMeans::over(&scores)
+        };
+        let person_inside = region(|r| r.inside);
+        let person_outline = region(|r| r.outline);
+        let person_around = region(|r| r.around);
         let (psnr_face, ssim_face, lpips_face) = crop_means(&face);
         let (psnr_hands, ssim_hands, lpips_hands) = crop_means(&hands);
         EvalReport {
@@ -187,6 +223,9 @@ impl EvalReport {
             psnr_person,
             ssim_person,
             lpips_person,
+            person_inside,
+            person_outline,
+            person_around,
             psnr_face,
             ssim_face,
             lpips_face,
@@ -276,6 +315,25 @@ impl EvalReport {
                 num(q, 4),
                 num(l, 1)
             );
+        }
+        let regions = [
+            ("inside", self.person_inside),
+            ("outline", self.person_outline),
+            ("around", self.person_around),
+        ];
+        if regions.iter().any(|(_, r)| r.is_some()) {
+            let _ = writeln!(s, "person box by the mask: PSNR dB (share of its error)");
+            for (name, r) in regions {
+                let _ = match r {
+                    Some(r) => writeln!(
+                        s,
+                        "  {name:<12}{:>9.2}  ({:.0}%)",
+                        r.psnr,
+                        100.0 * r.error_share
+                    ),
+                    None => writeln!(s, "  {name:<12}{:>9}", "-"),
+                };
+            }
         }
         for note in &self.notes {
             let _ = writeln!(s, "note: {note}");

@@ -1,0 +1,166 @@
+//! Where in the person box the error sits: inside the mask, on its outline, or around
+//! the person. A person box on a real capture is mostly background, and a soft
+//! silhouette, a mottled texture and floaters score alike in its one PSNR; split by the
+//! target's mask, they do not.
+
+use image::{GrayImage, RgbImage};
+use serde::Serialize;
+use talkin_data::dataset::mask_edge_band;
+
+use crate::metrics::{PSNR_CAP_DB, Rect};
+
+/// Width of the outline band on each side of the mask's cut: 1 px per whole 256 px of
+/// the frame's longer side, at least 1 (the band `train` leaves out of camera frames by
+/// default, where it leaves any).
+pub fn outline_px(width: u32, height: u32) -> u32 {
+    (width.max(height) / 256).max(1)
+}
+
+/// One region of the person box.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct RegionScore {
+    pub psnr: f64,
+    /// Pixels of the box in the region.
+    pub pixels: usize,
+    /// The region's share of the box's squared error (0 where the box has none).
+    pub error_share: f64,
+}
+
+/// The person box split by the target's mask (its 128 cut).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct PersonRegions {
+    /// Inside the mask, off the outline: the person's texture.
+    pub inside: Option<RegionScore>,
+    /// Within `outline_px` of the cut, on either side: the silhouette.
+    pub outline: Option<RegionScore>,
+    /// Outside the mask, off the outline: floaters and fog around the person.
+    pub around: Option<RegionScore>,
+    pub outline_px: u32,
+}
+
+/// Scores `rect` of `render` against `truth` region by region of `mask` (all three the
+/// same size; the caller checks). A region with no pixel in the box is `None`.
+pub fn person_regions(
+    truth: &RgbImage,
+    render: &RgbImage,
+    mask: &GrayImage,
+    rect: Rect,
+) -> PersonRegions {
+    let (w, h) = mask.dimensions();
+    let band_px = outline_px(w, h);
+    let band = mask_edge_band(mask, band_px);
+    // Squared error sums (per channel, in [0, 1] units) and pixel counts.
+    let mut sums = [0.0f64; 3];
+    let mut counts = [0usize; 3];
+    for y in rect.y..(rect.y + rect.height).min(h) {
+        for x in rect.x..(rect.x + rect.width).min(w) {
+            let i = (y * w + x) as usize;
+            let region = if band[i] {
+                1
+            } else if mask.as_raw()[i] >= 128 {
+                0
+            } else {
+                2
+            };
+            let (a, b) = (truth.get_pixel(x, y).0, render.get_pixel(x, y).0);
+            let se: f64 = (0..3)
+                .map(|c| ((a[c] as f64 - b[c] as f64) / 255.0).powi(2))
+                .sum();
+            sums[region] += se;
+            counts[region] += 1;
+        }
+    }
+    let total: f64 = sums.iter().sum();
+    let score = |k: usize| -> Option<RegionScore> {
+        (counts[k] > 0).then(|| {
+            let mse = sums[k] / (3 * counts[k]) as f64;
+            RegionScore {
+                psnr: if mse > 0.0 {
+                    (-10.0 * mse.log10()).min(PSNR_CAP_DB)
+                } else {
+                    PSNR_CAP_DB
+                },
+                pixels: counts[k],
+                error_share: if total > 0.0 { sums[k] / total } else { 0.0 },
+            }
+        })
+    };
+    PersonRegions {
+        inside: score(0),
+        outline: score(1),
+        around: score(2),
+        outline_px: band_px,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use image::{Luma, Rgb};
+
+    /// A 40x40 frame with a 20x20 person in the middle.
+    fn square_mask() -> GrayImage {
+        GrayImage::from_fn(40, 40, |x, y| {
+            Luma([if (10..30).contains(&x) && (10..30).contains(&y) {
+                255
+            } else {
+                0
+            }])
+        })
+    }
+
+    #[test]
+    fn an_error_on_the_outline_is_counted_there_alone() {
+        let mask = square_mask();
+        let truth = RgbImage::from_pixel(40, 40, Rgb([200, 100, 50]));
+        let mut render = truth.clone();
+        // The person's left edge, one pixel inside the cut: the outline.
+        for y in 12..28 {
+            render.put_pixel(10, y, Rgb([0, 0, 0]));
+        }
+        let full = Rect {
+            x: 0,
+            y: 0,
+            width: 40,
+            height: 40,
+        };
+        let r = person_regions(&truth, &render, &mask, full);
+        assert_eq!(r.outline_px, 1);
+        let (inside, outline, around) = (r.inside.unwrap(), r.outline.unwrap(), r.around.unwrap());
+        assert_eq!(inside.psnr, PSNR_CAP_DB);
+        assert_eq!(around.psnr, PSNR_CAP_DB);
+        assert!(outline.psnr < 20.0, "{outline:?}");
+        assert_eq!(outline.error_share, 1.0);
+        assert_eq!(inside.error_share + around.error_share, 0.0);
+        // 1 px either side of a 20x20 square's cut: 22^2 - 18^2 pixels.
+        assert_eq!(outline.pixels, 22 * 22 - 18 * 18);
+        assert_eq!(inside.pixels + outline.pixels + around.pixels, 40 * 40);
+    }
+
+    #[test]
+    fn a_box_inside_the_person_has_no_outline_or_surroundings() {
+        let mask = square_mask();
+        let truth = RgbImage::from_pixel(40, 40, Rgb([10, 20, 30]));
+        let render = RgbImage::from_pixel(40, 40, Rgb([20, 20, 30]));
+        let inner = Rect {
+            x: 15,
+            y: 15,
+            width: 10,
+            height: 10,
+        };
+        let r = person_regions(&truth, &render, &mask, inner);
+        assert!(r.outline.is_none() && r.around.is_none());
+        let inside = r.inside.unwrap();
+        assert_eq!(inside.error_share, 1.0);
+        // One channel off by 10/255: MSE = (10/255)^2 / 3.
+        let want = -10.0 * ((10.0f64 / 255.0).powi(2) / 3.0).log10();
+        assert!((inside.psnr - want).abs() < 1e-9);
+    }
+
+    #[test]
+    fn the_band_grows_with_the_frame() {
+        assert_eq!(outline_px(96, 72), 1);
+        assert_eq!(outline_px(512, 512), 2);
+        assert_eq!(outline_px(768, 1024), 4);
+    }
+}
