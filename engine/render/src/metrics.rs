@@ -94,7 +94,11 @@ pub fn mse(a: &RgbImage, b: &RgbImage, r: Rect) -> f64 {
 ///
 /// Panics if the images differ in size or `r` is not inside them (callers check).
 pub fn psnr(a: &RgbImage, b: &RgbImage, r: Rect) -> f64 {
-    let m = mse(a, b, r);
+    psnr_of_mse(mse(a, b, r))
+}
+
+/// PSNR in dB of a mean squared error (data range 1), capped at [`PSNR_CAP_DB`].
+pub fn psnr_of_mse(m: f64) -> f64 {
     if m <= 0.0 {
         return PSNR_CAP_DB;
     }

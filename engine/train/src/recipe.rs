@@ -8,7 +8,7 @@ use std::str::FromStr;
 use clap::builder::{PossibleValuesParser, TypedValueParser};
 use clap::{Arg, ArgMatches, Args, FromArgMatches, ValueEnum};
 use serde::{Deserialize, Serialize};
-use talkin_data::dataset::{Dataset, Matting};
+use talkin_data::dataset::{Dataset, Matting, mask_edge_px};
 use talkin_grids::SamplerKind;
 use talkin_nets::ComputeDevice;
 
@@ -356,7 +356,7 @@ impl TrainOptions {
             Matting::Matted => 0,
             Matting::ByMask => {
                 let camera = &dataset.frames[i].camera;
-                camera.width.max(camera.height) / 256
+                mask_edge_px(camera.width, camera.height)
             }
         })
     }

@@ -112,6 +112,13 @@ pub fn composite(rgb: &RgbImage, mask: &GrayImage, background: [f32; 3]) -> RgbI
     })
 }
 
+/// The mask-edge width of a camera frame `width` x `height`: 1 px per whole 256 px of its
+/// longer side (0 below 256 px, where a pixel is a limb's edge). What `train` leaves out
+/// of a `by_mask` frame's random rays by default, and `eval`'s outline (at least 1 px).
+pub fn mask_edge_px(width: u32, height: u32) -> u32 {
+    width.max(height) / 256
+}
+
 /// The mask's uncertain edge (row-major): pixels within `r` px (Chebyshev) of a pixel
 /// on the other side of the mask's 128 cut, on either side. A matting tool's mask is
 /// off by a pixel or two along its edge, so a target there may be the room or the

@@ -197,9 +197,7 @@ fn score_shot(
                         outlines: Vec::new(),
                     });
                 }
-                if matches!(kind, CropKind::Person)
-                    && images.mask.dimensions() == render.dimensions()
-                {
+                if matches!(kind, CropKind::Person) {
                     regions = Some(person_regions(&truth, &render, &images.mask, rect));
                 }
                 let (p, s, l) = score_rect(rect);

@@ -5,15 +5,14 @@
 
 use image::{GrayImage, RgbImage};
 use serde::Serialize;
-use talkin_data::dataset::mask_edge_band;
+use talkin_data::dataset::{mask_edge_band, mask_edge_px};
 
-use crate::metrics::{PSNR_CAP_DB, Rect};
+use crate::metrics::{Rect, psnr_of_mse};
 
-/// Width of the outline band on each side of the mask's cut: 1 px per whole 256 px of
-/// the frame's longer side, at least 1 (the band `train` leaves out of camera frames by
-/// default, where it leaves any).
+/// Width of the outline band on each side of the mask's cut: the band `train` leaves out
+/// of camera frames by default ([`mask_edge_px`]), at least 1 px.
 pub fn outline_px(width: u32, height: u32) -> u32 {
-    (width.max(height) / 256).max(1)
+    mask_edge_px(width, height).max(1)
 }
 
 /// One region of the person box.
@@ -38,8 +37,9 @@ pub struct PersonRegions {
     pub outline_px: u32,
 }
 
-/// Scores `rect` of `render` against `truth` region by region of `mask` (all three the
-/// same size; the caller checks). A region with no pixel in the box is `None`.
+/// Scores `rect` of `render` against `truth` region by region of `mask`: all three the
+/// same size (the dataset decodes masks at the frame's size) and `rect` inside them, as
+/// for every crop. A region with no pixel in the box is `None`.
 pub fn person_regions(
     truth: &RgbImage,
     render: &RgbImage,
@@ -47,13 +47,15 @@ pub fn person_regions(
     rect: Rect,
 ) -> PersonRegions {
     let (w, h) = mask.dimensions();
+    debug_assert!(truth.dimensions() == (w, h) && render.dimensions() == (w, h));
+    debug_assert!(rect.x + rect.width <= w && rect.y + rect.height <= h);
     let band_px = outline_px(w, h);
     let band = mask_edge_band(mask, band_px);
     // Squared error sums (per channel, in [0, 1] units) and pixel counts.
     let mut sums = [0.0f64; 3];
     let mut counts = [0usize; 3];
-    for y in rect.y..(rect.y + rect.height).min(h) {
-        for x in rect.x..(rect.x + rect.width).min(w) {
+    for y in rect.y..rect.y + rect.height {
+        for x in rect.x..rect.x + rect.width {
             let i = (y * w + x) as usize;
             let region = if band[i] {
                 1
@@ -72,17 +74,10 @@ pub fn person_regions(
     }
     let total: f64 = sums.iter().sum();
     let score = |k: usize| -> Option<RegionScore> {
-        (counts[k] > 0).then(|| {
-            let mse = sums[k] / (3 * counts[k]) as f64;
-            RegionScore {
-                psnr: if mse > 0.0 {
-                    (-10.0 * mse.log10()).min(PSNR_CAP_DB)
-                } else {
-                    PSNR_CAP_DB
-                },
-                pixels: counts[k],
-                error_share: if total > 0.0 { sums[k] / total } else { 0.0 },
-            }
+        (counts[k] > 0).then(|| RegionScore {
+            psnr: psnr_of_mse(sums[k] / (3 * counts[k]) as f64),
+            pixels: counts[k],
+            error_share: if total > 0.0 { sums[k] / total } else { 0.0 },
         })
     };
     PersonRegions {
@@ -96,6 +91,7 @@ pub fn person_regions(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::metrics::PSNR_CAP_DB;
     use image::{Luma, Rgb};
 
     /// A 40x40 frame with a 20x20 person in the middle.
@@ -118,13 +114,7 @@ mod tests {
         for y in 12..28 {
             render.put_pixel(10, y, Rgb([0, 0, 0]));
         }
-        let full = Rect {
-            x: 0,
-            y: 0,
-            width: 40,
-            height: 40,
-        };
-        let r = person_regions(&truth, &render, &mask, full);
+        let r = person_regions(&truth, &render, &mask, Rect::full(&truth));
         assert_eq!(r.outline_px, 1);
         let (inside, outline, around) = (r.inside.unwrap(), r.outline.unwrap(), r.around.unwrap());
         assert_eq!(inside.psnr, PSNR_CAP_DB);
