@@ -167,7 +167,12 @@ fn eval_json_has_the_keys_and_renders_that_rescore_the_same() {
             pixels += n;
             share += r["error_share"].as_f64().unwrap();
             se += n * 10f64.powf(-p / 10.0);
+            let a = r["opacity"].as_f64().unwrap();
+            assert!((0.0..=1.0).contains(&a), "{regions}");
         }
+        // Even a briefly trained person is more solid than what lies around it.
+        let opacity = |name: &str| regions[name]["opacity"].as_f64().unwrap();
+        assert!(opacity("inside") > opacity("around"), "{regions}");
         assert_eq!(pixels, area, "{regions}");
         assert!((share - 1.0).abs() < 1e-9, "{regions}");
         let box_psnr = -10.0 * (se / area).log10();

@@ -198,7 +198,13 @@ fn score_shot(
                     });
                 }
                 if matches!(kind, CropKind::Person) {
-                    regions = Some(person_regions(&truth, &render, &images.mask, rect));
+                    regions = Some(person_regions(
+                        &truth,
+                        &render,
+                        &rendered.opacity,
+                        &images.mask,
+                        rect,
+                    ));
                 }
                 let (p, s, l) = score_rect(rect);
                 crops.push(CropScore {

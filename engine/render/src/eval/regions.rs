@@ -1,7 +1,9 @@
 //! Where in the person box the error sits: inside the mask, on its outline, or around
 //! the person. A person box on a real capture is mostly background, and a soft
 //! silhouette, a mottled texture and floaters score alike in its one PSNR; split by the
-//! target's mask, they do not.
+//! target's mask, they do not. Each region also gets the render's mean opacity: a
+//! field that paints the background's colour around the person scores as well against
+//! a plain background as one that leaves it empty, and shows its fog over any other.
 
 use image::{GrayImage, RgbImage};
 use serde::Serialize;
@@ -23,6 +25,9 @@ pub struct RegionScore {
     pub pixels: usize,
     /// The region's share of the box's squared error (0 where the box has none).
     pub error_share: f64,
+    /// The render's mean opacity over the region: 1 inside a solid person, 0 around one
+    /// with no fog.
+    pub opacity: f64,
 }
 
 /// The person box split by the target's mask (its 128 cut).
@@ -39,20 +44,24 @@ pub struct PersonRegions {
 
 /// Scores `rect` of `render` against `truth` region by region of `mask`: all three the
 /// same size (the dataset decodes masks at the frame's size) and `rect` inside them, as
-/// for every crop. A region with no pixel in the box is `None`.
+/// for every crop, and `opacity` the render's, row-major (`[w * h]`). A region with no
+/// pixel in the box is `None`.
 pub fn person_regions(
     truth: &RgbImage,
     render: &RgbImage,
+    opacity: &[f32],
     mask: &GrayImage,
     rect: Rect,
 ) -> PersonRegions {
     let (w, h) = mask.dimensions();
     debug_assert!(truth.dimensions() == (w, h) && render.dimensions() == (w, h));
+    debug_assert!(opacity.len() == (w * h) as usize);
     debug_assert!(rect.x + rect.width <= w && rect.y + rect.height <= h);
     let band_px = outline_px(w, h);
     let band = mask_edge_band(mask, band_px);
     // Squared error sums (per channel, in [0, 1] units) and pixel counts.
     let mut sums = [0.0f64; 3];
+    let mut opacities = [0.0f64; 3];
     let mut counts = [0usize; 3];
     for y in rect.y..rect.y + rect.height {
         for x in rect.x..rect.x + rect.width {
@@ -69,6 +78,7 @@ pub fn person_regions(
                 .map(|c| ((a[c] as f64 - b[c] as f64) / 255.0).powi(2))
                 .sum();
             sums[region] += se;
+            opacities[region] += opacity[i].clamp(0.0, 1.0) as f64;
             counts[region] += 1;
         }
     }
@@ -78,6 +88,7 @@ pub fn person_regions(
             psnr: psnr_of_mse(sums[k] / (3 * counts[k]) as f64),
             pixels: counts[k],
             error_share: if total > 0.0 { sums[k] / total } else { 0.0 },
+            opacity: opacities[k] / counts[k] as f64,
         })
     };
     PersonRegions {
@@ -105,6 +116,31 @@ mod tests {
         })
     }
 
+    /// A render's opacity that is the mask's: solid person, nothing around.
+    fn person_opacity(mask: &GrayImage) -> Vec<f32> {
+        mask.as_raw().iter().map(|&m| f32::from(m) / 255.0).collect()
+    }
+
+    #[test]
+    fn fog_the_colour_of_the_background_shows_in_the_opacity_alone() {
+        // A white fog of opacity 0.6 around the person, rendered over white: not one
+        // pixel differs from the truth, yet the render is not the person alone.
+        let mask = square_mask();
+        let truth = RgbImage::from_pixel(40, 40, Rgb([255, 255, 255]));
+        let fog: Vec<f32> = person_opacity(&mask)
+            .iter()
+            .map(|&a| if a > 0.5 { 1.0 } else { 0.6 })
+            .collect();
+        let r = person_regions(&truth, &truth, &fog, &mask, Rect::full(&truth));
+        let (inside, around) = (r.inside.unwrap(), r.around.unwrap());
+        assert_eq!(around.psnr, PSNR_CAP_DB);
+        assert!((around.opacity - 0.6).abs() < 1e-6, "{around:?}");
+        assert_eq!(inside.opacity, 1.0);
+        // The outline straddles the cut: half its pixels solid, half fog.
+        let outline = r.outline.unwrap();
+        assert!(outline.opacity > 0.6 && outline.opacity < 1.0, "{outline:?}");
+    }
+
     #[test]
     fn an_error_on_the_outline_is_counted_there_alone() {
         let mask = square_mask();
@@ -114,7 +150,8 @@ mod tests {
         for y in 12..28 {
             render.put_pixel(10, y, Rgb([0, 0, 0]));
         }
-        let r = person_regions(&truth, &render, &mask, Rect::full(&truth));
+        let solid = person_opacity(&mask);
+        let r = person_regions(&truth, &render, &solid, &mask, Rect::full(&truth));
         assert_eq!(r.outline_px, 1);
         let (inside, outline, around) = (r.inside.unwrap(), r.outline.unwrap(), r.around.unwrap());
         assert_eq!(inside.psnr, PSNR_CAP_DB);
@@ -122,6 +159,7 @@ mod tests {
         assert!(outline.psnr < 20.0, "{outline:?}");
         assert_eq!(outline.error_share, 1.0);
         assert_eq!(inside.error_share + around.error_share, 0.0);
+        assert_eq!((inside.opacity, around.opacity), (1.0, 0.0));
         // 1 px either side of a 20x20 square's cut: 22^2 - 18^2 pixels.
         assert_eq!(outline.pixels, 22 * 22 - 18 * 18);
         assert_eq!(inside.pixels + outline.pixels + around.pixels, 40 * 40);
@@ -138,7 +176,7 @@ mod tests {
             width: 10,
             height: 10,
         };
-        let r = person_regions(&truth, &render, &mask, inner);
+        let r = person_regions(&truth, &render, &person_opacity(&mask), &mask, inner);
         assert!(r.outline.is_none() && r.around.is_none());
         let inside = r.inside.unwrap();
         assert_eq!(inside.error_share, 1.0);

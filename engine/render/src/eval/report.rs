@@ -128,6 +128,8 @@ pub struct EvalReport {
 pub struct RegionMeans {
     pub psnr: f64,
     pub error_share: f64,
+    /// The render's mean opacity over the region.
+    pub opacity: f64,
     pub frames: usize,
 }
 
@@ -136,6 +138,7 @@ impl RegionMeans {
         Some(RegionMeans {
             psnr: mean(scores.iter().map(|r| r.psnr))?,
             error_share: mean(scores.iter().map(|r| r.error_share))?,
+            opacity: mean(scores.iter().map(|r| r.opacity))?,
             frames: scores.len(),
         })
     }
@@ -322,14 +325,18 @@ impl EvalReport {
             ("around", self.person_around),
         ];
         if regions.iter().any(|(_, r)| r.is_some()) {
-            let _ = writeln!(s, "person box by the mask: PSNR dB (share of its error)");
+            let _ = writeln!(
+                s,
+                "person box by the mask: PSNR dB (share of its error), the render's opacity"
+            );
             for (name, r) in regions {
                 let _ = match r {
                     Some(r) => writeln!(
                         s,
-                        "  {name:<12}{:>9.2}  ({:.0}%)",
+                        "  {name:<12}{:>9.2}  ({:>3.0}%)  {:.3}",
                         r.psnr,
-                        100.0 * r.error_share
+                        100.0 * r.error_share,
+                        r.opacity
                     ),
                     None => writeln!(s, "  {name:<12}{:>9}", "-"),
                 };
