@@ -118,7 +118,10 @@ mod tests {
 
     /// A render's opacity that is the mask's: solid person, nothing around.
     fn person_opacity(mask: &GrayImage) -> Vec<f32> {
-        mask.as_raw().iter().map(|&m| f32::from(m) / 255.0).collect()
+        mask.as_raw()
+            .iter()
+            .map(|&m| f32::from(m) / 255.0)
+            .collect()
     }
 
     #[test]
@@ -138,7 +141,10 @@ mod tests {
         assert_eq!(inside.opacity, 1.0);
         // The outline straddles the cut: half its pixels solid, half fog.
         let outline = r.outline.unwrap();
-        assert!(outline.opacity > 0.6 && outline.opacity < 1.0, "{outline:?}");
+        assert!(
+            outline.opacity > 0.6 && outline.opacity < 1.0,
+            "{outline:?}"
+        );
     }
 
     #[test]
