@@ -410,6 +410,26 @@ fn render_writes_frames_and_a_contact_sheet() {
         assert_eq!((img.width(), img.height()), (40, 48));
     }
     assert!(!out.join(format!("frame_{n:04}.png")).exists());
+    // Over black: the same frame, its corner (no capsule reaches it) black, not white.
+    let black = common::temp_dir("render_eval_render_black");
+    let res = talkin(&[
+        "render",
+        "--run",
+        s(run),
+        "--data",
+        s(data),
+        "--split",
+        "test_ood",
+        "--out",
+        s(&black),
+        "--smooth",
+        "--background",
+        "0,0,0",
+    ]);
+    assert_eq!(res.status.code(), Some(0), "{}", stderr(&res));
+    let corner = |dir: &Path| image::open(dir.join("frame_0000.png")).unwrap().to_rgb8()[(0, 0)].0;
+    assert_eq!(corner(&out), [255; 3]);
+    assert_eq!(corner(&black), [0; 3]);
     let sheet = image::open(out.join("contact_sheet.png")).unwrap();
     // Three tiles a frame (two triplets a row beyond four frames), 2 px gaps.
     let (cols, rows) = if n > 4 { (6, n.div_ceil(2)) } else { (3, n) };
@@ -475,6 +495,26 @@ fn bad_input_exits_1_naming_the_file_and_field() {
             assert!(err.contains(n), "{args:?}: `{n}` not in: {err}");
         }
     };
+    // A background that is not three numbers in [0, 1].
+    for bad in ["1,2", "0,0,2", "0,nan,0", "white"] {
+        check(
+            &[
+                "render",
+                "--run",
+                s(run),
+                "--data",
+                s(data),
+                "--split",
+                "test_ood",
+                "--out",
+                s(&dir.join("never")),
+                "--background",
+                bad,
+            ],
+            &["--background", "R,G,B", bad],
+        );
+    }
+    assert!(!dir.join("never").exists());
     // Unknown split.
     check(
         &[

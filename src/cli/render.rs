@@ -70,6 +70,12 @@ pub struct RenderArgs {
     /// Motions with the default camera: image height in pixels (width is 3/4 of it).
     #[arg(long, default_value_t = 192)]
     pub size: u32,
+    /// Render over this colour instead of the training background: three numbers in
+    /// [0, 1] (`0,0,0` is black). Whatever the field draws around the person shows over
+    /// it; a contact sheet's ground truth keeps the dataset's background, so its error
+    /// column shows it too.
+    #[arg(long, value_name = "R,G,B")]
+    pub background: Option<String>,
     #[command(flatten)]
     pub device: super::DeviceArg,
 }
@@ -106,7 +112,11 @@ pub fn run(args: RenderArgs) -> anyhow::Result<()> {
         Some(m) => Some(SmplxModel::load(m)?),
         None => None,
     };
-    let avatar = args.device.load_avatar(&args.run)?;
+    let background = args.background.as_deref().map(parse_rgb).transpose()?;
+    let mut avatar = args.device.load_avatar(&args.run)?;
+    if let Some(rgb) = background {
+        avatar.background = rgb;
+    }
     let subject = args.subject.as_deref();
     let (dataset, mut shots) = match (&args.data, &args.split, source) {
         (Some(dir), Some(split), _) => {
@@ -271,4 +281,21 @@ fn publish(staging: &Path, out: &Path) -> anyhow::Result<()> {
         std::fs::rename(entry.path(), out.join(entry.file_name())).map_err(io)?;
     }
     std::fs::remove_dir(staging).map_err(io)
+}
+
+/// `--background`'s `R,G,B`, each in [0, 1].
+fn parse_rgb(text: &str) -> anyhow::Result<[f32; 3]> {
+    let bad = || {
+        anyhow::anyhow!(
+            "--background: expected three numbers in [0, 1] separated by commas (R,G,B), got `{text}`"
+        )
+    };
+    let values: Vec<f32> = text
+        .split(',')
+        .map(|v| v.trim().parse::<f32>().map_err(|_| bad()))
+        .collect::<anyhow::Result<_>>()?;
+    match values[..] {
+        [r, g, b] if values.iter().all(|v| (0.0..=1.0).contains(v)) => Ok([r, g, b]),
+        _ => Err(bad()),
+    }
 }
