@@ -556,6 +556,10 @@ fn training_on_an_imported_dataset_matches_its_source() {
     let mut psnr = Vec::new();
     for (name, dir) in [("source", &data), ("imported", &imported)] {
         let run = root.join(format!("run_{name}"));
+        // The paper's loss, without the silhouette term: this compares the data. The
+        // term sharpens the source's face and fingers, whose expression, jaw and finger
+        // poses SMPL's fits do not carry, and so widens a gap the import cannot close
+        // (docs/results.md gives both).
         let o = talkin(&[
             "train",
             "--data",
@@ -568,6 +572,8 @@ fn training_on_an_imported_dataset_matches_its_source() {
             "0",
             "--batch",
             "512",
+            "--mask-weight",
+            "0",
         ]);
         assert!(o.status.success(), "{}", stderr(&o));
         let json = root.join(format!("eval_{name}.json"));

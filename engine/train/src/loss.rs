@@ -34,6 +34,8 @@ pub(crate) struct StepBatch<'a> {
     /// `[rays * 3]` in [0, 1].
     pub rgb: &'a [f32],
     pub labels: &'a [i32],
+    /// Per ray, the weight of its silhouette term (0 on the mask's cut). `[rays]`
+    pub silhouette: &'a [f32],
     /// Row-major 32x32 LPIPS patches at the start of the rays (0 without the term).
     pub patches: usize,
     pub patch_side: usize,
@@ -164,8 +166,13 @@ fn half(
     let mut pixel = l_seg.mul_scalar(SEG_WEIGHT) + l_mse.clone().mul_scalar(mse_weight);
     if batch.mask_weight > 0.0 {
         // Label 0 is the background; every other label is the person.
-        let person = labels.greater_elem(0).float();
-        pixel = pixel + mse(rendered.opacity, person).mul_scalar(batch.mask_weight);
+        let person = labels.clone().greater_elem(0).float();
+        let sure = Tensor::<1>::from_data(
+            TensorData::new(batch.silhouette[range.clone()].to_vec(), [n_rays]),
+            &device,
+        );
+        let off = (rendered.opacity.clone() - person) * sure;
+        pixel = pixel + off.powi_scalar(2).mean().mul_scalar(batch.mask_weight);
     }
     let pixel = pixel.mul_scalar(weight);
     let loss = match perceptual {
@@ -309,11 +316,14 @@ mod tests {
             assert_eq!(samples.ray_offsets[4] == 0, first_half_empty);
             let rgb: Vec<f32> = (0..27).map(|i| (i * 7 % 10) as f32 / 10.0).collect();
             let labels: Vec<i32> = (0..9).map(|i| i % 5).collect();
+            // One ray on the mask's cut: its silhouette term is left out.
+            let silhouette: Vec<f32> = (0..9).map(|i| if i == 6 { 0.0 } else { 1.0 }).collect();
             let batch = || StepBatch {
                 rays: &rays,
                 samples: samples.clone(),
                 rgb: &rgb,
                 labels: &labels,
+                silhouette: &silhouette,
                 patches: 0,
                 patch_side: 32,
                 frame: &frame,
@@ -324,6 +334,19 @@ mod tests {
             };
             let whole_batch = batch();
             let whole = half(&field, false, None, &whole_batch, 0..9, &samples).unwrap();
+            // On the mask's cut the silhouette term has no target: a batch all on it
+            // scores as without the term, and off it the term counts.
+            let cut = vec![0.0f32; 9];
+            let loss_with = |silhouette: &[f32], mask_weight: f32| {
+                let b = StepBatch {
+                    silhouette,
+                    mask_weight,
+                    ..batch()
+                };
+                half(&field, false, None, &b, 0..9, &samples).unwrap().loss
+            };
+            assert_eq!(loss_with(&cut, 1.0), loss_with(&cut, 0.0));
+            assert!(loss_with(&silhouette, 1.0) > loss_with(&silhouette, 0.0));
             let split = loss_and_grads(&field, None, batch()).unwrap();
             assert!(
                 (whole.loss - split.loss).abs() <= 1e-5 * whole.loss.abs(),

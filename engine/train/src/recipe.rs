@@ -67,8 +67,10 @@ pub struct TrainOptions {
     /// Fraction of random rays drawn inside the person's bounding box (the paper: 80%).
     #[arg(long, default_value_t = TrainOptions::default().bbox_fraction, help_heading = "Rays")]
     pub bbox_fraction: f32,
-    /// Weight of the silhouette term (rendered opacity against the mask, mean squared
-    /// error); 0: off, the paper's loss.
+    /// Weight of the silhouette term: the rendered opacity against the mask (mean squared
+    /// error), on every ray off the pixel either side of the mask's cut. Without it the
+    /// field paints the background's colour around the person and in front of it (over
+    /// any other background a sheath); 0: off, the paper's loss.
     #[arg(long, default_value_t = TrainOptions::default().mask_weight, help_heading = "Loss")]
     // Runs recorded before the term existed read as 0.
     #[serde(default)]
@@ -325,7 +327,7 @@ impl Default for TrainOptions {
             patches: 1,
             lr: None,
             bbox_fraction: 0.8,
-            mask_weight: 0.0,
+            mask_weight: 1.0,
             mask_edge_px: None,
             non_rigid_lr_scale: 0.1,
             occ_every: 64,

@@ -225,6 +225,7 @@ impl Trainer<'_> {
                 samples,
                 rgb: &batch.rgb,
                 labels: &batch.labels,
+                silhouette: &batch.silhouette,
                 patches: batch.patches,
                 patch_side: PATCH as usize,
                 frame: &self.cache[&frame].conditions,

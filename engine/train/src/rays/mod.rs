@@ -104,6 +104,9 @@ pub(crate) struct Batch {
     /// `[r * 3]` in [0, 1].
     pub rgb: Vec<f32>,
     pub labels: Vec<i32>,
+    /// 1 where the mask is sure of the pixel (off its cut), 0 on the cut: the weight of
+    /// the ray's silhouette term. `[r]`
+    pub silhouette: Vec<f32>,
     /// The first `patches * PATCH * PATCH` rays are row-major patches.
     pub patches: usize,
 }
@@ -156,6 +159,7 @@ pub(crate) fn draw_batch(
         rays: Vec::with_capacity(pixels.len()),
         rgb: Vec::with_capacity(3 * pixels.len()),
         labels: Vec::with_capacity(pixels.len()),
+        silhouette: Vec::with_capacity(pixels.len()),
         patches,
     };
     for (x, y) in pixels {
@@ -172,6 +176,9 @@ pub(crate) fn draw_batch(
         let label = if person { label.max(1) } else { 0 };
         debug_assert!((label as usize) < N_LABELS);
         batch.labels.push(i32::from(label));
+        batch
+            .silhouette
+            .push(if fc.pixels.on_cut(x, y) { 0.0 } else { 1.0 });
     }
     Ok(batch)
 }
