@@ -14,7 +14,10 @@ use talkin::grids::SamplerKind;
 use talkin::render::avatar::Avatar;
 use talkin::train::{LOG_FILE, StepLog, TrainOptions, train};
 
-const STEPS: usize = 15;
+/// Steps of each smoke run. The dense sampler fills the whole box at the start, so its
+/// opacity saturates and the silhouette term leaves it at the first 15 steps' loss; 30
+/// show progress.
+const STEPS: usize = 30;
 
 fn mean(logs: &[StepLog], f: impl Fn(&StepLog) -> f32) -> f32 {
     logs.iter().map(f).sum::<f32>() / logs.len() as f32
