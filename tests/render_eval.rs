@@ -389,20 +389,26 @@ fn crops_lie_inside_and_contain_the_head_and_wrists() {
 #[test]
 fn render_writes_frames_and_a_contact_sheet() {
     let (data, run) = scene();
+    // test_ood of the scene, smoothed, into `out`, with `extra` flags.
+    let render_ood = |out: &Path, extra: &[&str]| {
+        let mut args = vec![
+            "render",
+            "--run",
+            s(run),
+            "--data",
+            s(data),
+            "--split",
+            "test_ood",
+            "--out",
+            s(out),
+            "--smooth",
+        ];
+        args.extend_from_slice(extra);
+        let res = talkin(&args);
+        assert_eq!(res.status.code(), Some(0), "{}", stderr(&res));
+    };
     let out = common::temp_dir("render_eval_render");
-    let res = talkin(&[
-        "render",
-        "--run",
-        s(run),
-        "--data",
-        s(data),
-        "--split",
-        "test_ood",
-        "--out",
-        s(&out),
-        "--smooth",
-    ]);
-    assert_eq!(res.status.code(), Some(0), "{}", stderr(&res));
+    render_ood(&out, &[]);
     let dataset = Dataset::load(data).unwrap();
     let n = dataset.split_indices(Split::TestOod).len();
     for k in 0..n {
@@ -412,21 +418,7 @@ fn render_writes_frames_and_a_contact_sheet() {
     assert!(!out.join(format!("frame_{n:04}.png")).exists());
     // Over black: the same frame, its corner (no capsule reaches it) black, not white.
     let black = common::temp_dir("render_eval_render_black");
-    let res = talkin(&[
-        "render",
-        "--run",
-        s(run),
-        "--data",
-        s(data),
-        "--split",
-        "test_ood",
-        "--out",
-        s(&black),
-        "--smooth",
-        "--background",
-        "0,0,0",
-    ]);
-    assert_eq!(res.status.code(), Some(0), "{}", stderr(&res));
+    render_ood(&black, &["--background", "0,0,0"]);
     let corner = |dir: &Path| image::open(dir.join("frame_0000.png")).unwrap().to_rgb8()[(0, 0)].0;
     assert_eq!(corner(&out), [255; 3]);
     assert_eq!(corner(&black), [0; 3]);

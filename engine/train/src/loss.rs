@@ -171,8 +171,8 @@ fn half(
             TensorData::new(batch.silhouette[range.clone()].to_vec(), [n_rays]),
             &device,
         );
-        let off = (rendered.opacity.clone() - person) * sure;
-        pixel = pixel + off.powi_scalar(2).mean().mul_scalar(batch.mask_weight);
+        let l_mask = mse(rendered.opacity.clone() * sure.clone(), person * sure);
+        pixel = pixel + l_mask.mul_scalar(batch.mask_weight);
     }
     let pixel = pixel.mul_scalar(weight);
     let loss = match perceptual {

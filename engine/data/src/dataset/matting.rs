@@ -140,6 +140,16 @@ pub fn mask_edge_band(mask: &GrayImage, r: u32) -> Vec<bool> {
         .collect()
 }
 
+/// Whether pixel (x, y) touches the mask's 128 cut: one of its 8 neighbours lies on the
+/// other side. The 1 px [`mask_edge_band`], read at one pixel without building the band.
+pub fn on_mask_cut(mask: &GrayImage, x: u32, y: u32) -> bool {
+    let (w, h) = mask.dimensions();
+    let person = |x: u32, y: u32| mask.get_pixel(x, y).0[0] >= 128;
+    let here = person(x, y);
+    (y.saturating_sub(1)..=(y + 1).min(h - 1))
+        .any(|yy| (x.saturating_sub(1)..=(x + 1).min(w - 1)).any(|xx| person(xx, yy) != here))
+}
+
 /// `set` (row-major, `w` x `h`) grown by `r` px (Chebyshev): whether each pixel lies
 /// within `r` px of a set pixel.
 pub fn dilate(set: &[bool], w: u32, h: u32, r: u32) -> Vec<bool> {
@@ -182,6 +192,27 @@ mod tests {
         assert!(!mask_edge_band(&GrayImage::new(8, 8), 2).contains(&true));
         let full = GrayImage::from_pixel(8, 8, image::Luma([255]));
         assert!(!mask_edge_band(&full, 2).contains(&true));
+    }
+
+    #[test]
+    fn the_cut_at_one_pixel_is_the_one_pixel_band() {
+        // A ragged mask: a box, a hole, a diagonal, and person on the frame's border.
+        let mask = GrayImage::from_fn(23, 17, |x, y| {
+            let inside = (3..15).contains(&x) && (2..12).contains(&y) && !(x == 8 && y == 6);
+            let diagonal = x + 2 == y || x == 0;
+            image::Luma([if inside || diagonal { 200 } else { 40 }])
+        });
+        let band = mask_edge_band(&mask, 1);
+        for y in 0..17 {
+            for x in 0..23 {
+                assert_eq!(
+                    on_mask_cut(&mask, x, y),
+                    band[(y * 23 + x) as usize],
+                    "({x}, {y})"
+                );
+            }
+        }
+        assert!(band.contains(&true) && band.contains(&false));
     }
 
     /// A 40x40 frame: a 10x10 person at (15, 15) over `bg` (8-bit), its exact mask.

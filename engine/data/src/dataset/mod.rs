@@ -21,7 +21,7 @@ pub use load::camera_field;
 pub use load::parse_camera;
 pub use matting::{
     Composited, EDGE_BAND_PX, MAX_OFF_SHARE, Matting, OFF_BY, Surroundings, composite, dilate,
-    mask_edge_band, mask_edge_px, surroundings,
+    mask_edge_band, mask_edge_px, on_mask_cut, surroundings,
 };
 pub use write::write_atomic;
 

@@ -13,7 +13,7 @@ use crate::schedule::PartFractions;
 use talkin_avatar::field_inputs::frame_conditions;
 use talkin_avatar::scene::{FrameSampler, FrameScene};
 use talkin_avatar::subject::SubjectModel;
-use talkin_data::dataset::{Dataset, DatasetError, FrameImages, N_LABELS};
+use talkin_data::dataset::{Dataset, DatasetError, FrameImages, N_LABELS, on_mask_cut};
 use talkin_human::body::FrameParams;
 
 /// Side of an LPIPS patch (pixels).
@@ -176,9 +176,9 @@ pub(crate) fn draw_batch(
         let label = if person { label.max(1) } else { 0 };
         debug_assert!((label as usize) < N_LABELS);
         batch.labels.push(i32::from(label));
-        batch
-            .silhouette
-            .push(if fc.pixels.on_cut(x, y) { 0.0 } else { 1.0 });
+        // Part person, part background: no silhouette target.
+        let cut = on_mask_cut(&fc.images.mask, x, y);
+        batch.silhouette.push(if cut { 0.0 } else { 1.0 });
     }
     Ok(batch)
 }

@@ -23,9 +23,6 @@ pub(crate) struct PixelPool {
     pub bbox: Option<[u32; 4]>,
     /// The mask's uncertain edge, row-major (empty: none is left out).
     edge: Vec<bool>,
-    /// The pixels either side of the mask's cut (1 px), row-major: where a pixel is part
-    /// person, part background, so the silhouette term has no target there.
-    cut: Vec<bool>,
     /// Pixels labelled hands / arms, off the edge (unless every one of them is on it: a
     /// hand thinner than the edge still gets rays).
     hand_pixels: Vec<(u32, u32)>,
@@ -58,7 +55,6 @@ impl PixelPool {
             height,
             bbox,
             edge: mask_edge_band(mask, mask_edge),
-            cut: mask_edge_band(mask, 1),
             hand_pixels: Vec::new(),
             arm_pixels: Vec::new(),
         };
@@ -70,11 +66,6 @@ impl PixelPool {
     /// Whether pixel (x, y) lies on the mask's uncertain edge.
     pub fn on_edge(&self, x: u32, y: u32) -> bool {
         !self.edge.is_empty() && self.edge[y as usize * self.width as usize + x as usize]
-    }
-
-    /// Whether pixel (x, y) touches the mask's cut (see [`PixelPool::cut`]).
-    pub fn on_cut(&self, x: u32, y: u32) -> bool {
-        self.cut[y as usize * self.width as usize + x as usize]
     }
 
     fn off_edge(&self, list: Vec<(u32, u32)>) -> Vec<(u32, u32)> {
@@ -182,23 +173,6 @@ mod tests {
         let pool = PixelPool::new(&mask, &seg, 1);
         // Columns 21-23 off the edge's inner pixel, rows 11-38.
         assert_eq!(pool.hand_pixels.len(), 3 * 28);
-    }
-
-    #[test]
-    fn the_cut_is_the_pixel_either_side_whatever_edge_is_left_out() {
-        let (mask, seg) = frame();
-        for edge in [0, 3] {
-            let pool = PixelPool::new(&mask, &seg, edge);
-            // The person's first column and the background's column beside it.
-            assert!(pool.on_cut(20, 20) && pool.on_cut(19, 20));
-            assert!(!pool.on_cut(21, 20) && !pool.on_cut(18, 20));
-            let cut = (0..64)
-                .flat_map(|y| (0..64).map(move |x| (x, y)))
-                .filter(|&(x, y)| pool.on_cut(x, y))
-                .count();
-            // 1 px either side of a 20x30 box's cut: 22 x 32 - 18 x 28 pixels.
-            assert_eq!(cut, 22 * 32 - 18 * 28);
-        }
     }
 
     #[test]
