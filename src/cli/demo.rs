@@ -118,6 +118,7 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
             renders: None,
             lpips_dir: DEFAULT_LPIPS_DIR.clone(),
             smooth: false,
+            background: None,
             device: args.device.clone(),
         })?;
         let report: serde_json::Value = serde_json::from_slice(

@@ -1,7 +1,7 @@
 use std::path::PathBuf;
 
 use anyhow::Context;
-use talkin_data::dataset::Split;
+use talkin_data::dataset::{Matting, Split};
 use talkin_render::eval::{EvalOptions, evaluate_with_progress};
 use talkin_render::sequence::split_frames;
 
@@ -32,15 +32,32 @@ pub struct EvalArgs {
     /// Smooth poses and cameras over time (Gaussian, window 5, sigma 1) before rendering.
     #[arg(long)]
     pub smooth: bool,
+    /// Score over this colour instead of the dataset's background: three numbers in
+    /// [0, 1] (`0,0,0` is black, what Neural Body's protocol scores over). Every frame's
+    /// truth is its image composited by its mask over the colour and the field renders
+    /// over it; on a matted dataset the edge pixels inside the mask keep the old
+    /// background's share.
+    #[arg(long, value_name = "R,G,B")]
+    pub background: Option<String>,
     #[command(flatten)]
     pub device: super::DeviceArg,
 }
 
 pub fn run(args: EvalArgs) -> anyhow::Result<()> {
     let split: Split = args.split.parse().map_err(anyhow::Error::msg)?;
+    let background = args
+        .background
+        .as_deref()
+        .map(super::parse_rgb)
+        .transpose()?;
     let device = args.device.open()?;
-    let dataset = super::load_dataset(&args.data)?;
-    let avatar = super::load_avatar(&args.run, &device)?;
+    let mut dataset = super::load_dataset(&args.data)?;
+    let mut avatar = super::load_avatar(&args.run, &device)?;
+    if let Some(rgb) = background {
+        dataset.background = rgb;
+        dataset.matting = Matting::ByMask;
+        avatar.background = rgb;
+    }
     let frames = split_frames(&dataset, split)?;
     let renders = args.renders.clone().unwrap_or_else(|| {
         let stem = args

@@ -134,3 +134,20 @@ pub fn load_avatar(
     talkin_render::avatar::Avatar::load_on(run, device)
         .with_context(|| format!("loading run {}", run.display()))
 }
+
+/// `--background`'s `R,G,B`, each in [0, 1].
+pub fn parse_rgb(text: &str) -> anyhow::Result<[f32; 3]> {
+    let bad = || {
+        anyhow::anyhow!(
+            "--background: expected three numbers in [0, 1] separated by commas (R,G,B), got `{text}`"
+        )
+    };
+    let values: Vec<f32> = text
+        .split(',')
+        .map(|v| v.trim().parse::<f32>().map_err(|_| bad()))
+        .collect::<anyhow::Result<_>>()?;
+    match values[..] {
+        [r, g, b] if values.iter().all(|v| (0.0..=1.0).contains(v)) => Ok([r, g, b]),
+        _ => Err(bad()),
+    }
+}

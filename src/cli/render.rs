@@ -112,7 +112,11 @@ pub fn run(args: RenderArgs) -> anyhow::Result<()> {
         Some(m) => Some(SmplxModel::load(m)?),
         None => None,
     };
-    let background = args.background.as_deref().map(parse_rgb).transpose()?;
+    let background = args
+        .background
+        .as_deref()
+        .map(super::parse_rgb)
+        .transpose()?;
     let mut avatar = args.device.load_avatar(&args.run)?;
     if let Some(rgb) = background {
         avatar.background = rgb;
@@ -281,21 +285,4 @@ fn publish(staging: &Path, out: &Path) -> anyhow::Result<()> {
         std::fs::rename(entry.path(), out.join(entry.file_name())).map_err(io)?;
     }
     std::fs::remove_dir(staging).map_err(io)
-}
-
-/// `--background`'s `R,G,B`, each in [0, 1].
-fn parse_rgb(text: &str) -> anyhow::Result<[f32; 3]> {
-    let bad = || {
-        anyhow::anyhow!(
-            "--background: expected three numbers in [0, 1] separated by commas (R,G,B), got `{text}`"
-        )
-    };
-    let values: Vec<f32> = text
-        .split(',')
-        .map(|v| v.trim().parse::<f32>().map_err(|_| bad()))
-        .collect::<anyhow::Result<_>>()?;
-    match values[..] {
-        [r, g, b] if values.iter().all(|v| (0.0..=1.0).contains(v)) => Ok([r, g, b]),
-        _ => Err(bad()),
-    }
 }

@@ -82,6 +82,8 @@ pub struct EvalReport {
     pub dataset: PathBuf,
     /// The split every evaluated frame belongs to; `None` if they mix splits.
     pub split: Option<String>,
+    /// The colour truth and render were composited over, RGB in [0, 1].
+    pub background: [f32; 3],
     pub smooth: bool,
     pub frames_evaluated: usize,
     /// Means over frames (full frame).
@@ -218,6 +220,7 @@ impl EvalReport {
             run: None,
             dataset: dataset.root.clone(),
             split,
+            background: dataset.background,
             smooth,
             frames_evaluated: frames.len(),
             psnr: mean(frames.iter().map(|f| f.psnr)).unwrap_or(f64::NAN),
@@ -274,10 +277,11 @@ impl EvalReport {
         let mut s = String::new();
         let _ = writeln!(
             s,
-            "{} frames of split {}{}",
+            "{} frames of split {}{}, over RGB {:?}",
             self.frames_evaluated,
             self.split.as_deref().unwrap_or("(mixed)"),
-            if self.smooth { ", smoothed" } else { "" }
+            if self.smooth { ", smoothed" } else { "" },
+            self.background
         );
         let _ = writeln!(
             s,
