@@ -390,7 +390,7 @@ fn train(data: &Path, run: &Path, steps: &str, extra: &[String]) {
 fn score(run: &Path, data: &Path) -> f64 {
     let name = data.file_name().unwrap().to_string_lossy();
     let json = run.join(format!("eval_{name}.json"));
-    let mut args = vec![
+    let o = talkin(&[
         "eval",
         "--run",
         p(run),
@@ -400,12 +400,7 @@ fn score(run: &Path, data: &Path) -> f64 {
         "test_same",
         "--json",
         p(&json),
-    ];
-    let background = std::env::var("TALKIN_CAPTURE_BACKGROUND").ok();
-    if let Some(rgb) = &background {
-        args.extend(["--background", rgb.as_str()]);
-    }
-    let o = talkin(&args);
+    ]);
     assert!(o.status.success(), "{}: {}", run.display(), stderr(&o));
     let report: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
@@ -420,15 +415,7 @@ fn ceiling(run: &Path, own: &Path, truth: &Path) -> f64 {
     let name = own.file_name().unwrap().to_string_lossy();
     let json = std::fs::read_to_string(run.join(format!("eval_{name}.json"))).unwrap();
     let report: serde_json::Value = serde_json::from_str(&json).unwrap();
-    let (mut own, mut truth) = (Dataset::load(own).unwrap(), Dataset::load(truth).unwrap());
-    // Over `TALKIN_CAPTURE_BACKGROUND` as `eval --background` composites: by the masks.
-    if let Ok(rgb) = std::env::var("TALKIN_CAPTURE_BACKGROUND") {
-        let rgb: Vec<f32> = rgb.split(',').map(|v| v.trim().parse().unwrap()).collect();
-        for ds in [&mut own, &mut truth] {
-            ds.background = [rgb[0], rgb[1], rgb[2]];
-            ds.matting = Matting::ByMask;
-        }
-    }
+    let (own, truth) = (Dataset::load(own).unwrap(), Dataset::load(truth).unwrap());
     let psnrs: Vec<f64> = report["frames"]
         .as_array()
         .unwrap()
@@ -554,9 +541,7 @@ fn import_layout(camera: &Clip, layout: &str, name: &str, out: &Path) -> Dataset
 /// per scene pixel (4; 1 puts the phone's flaws at the scene's own pixels),
 /// TALKIN_CAPTURE_FLAWS the flaws (of `FLAWS`, `,` between them; `;` between fixtures,
 /// each trained in every layout; empty for none), to measure what each flaw costs, and
-/// TALKIN_CAPTURE_MASK_EDGE the camera runs' `--mask-edge`, and
-/// TALKIN_CAPTURE_BACKGROUND the colour every score is taken over (`eval --background`;
-/// `0,0,0` is Neural Body's protocol).
+/// TALKIN_CAPTURE_MASK_EDGE the camera runs' `--mask-edge`.
 #[test]
 #[ignore = "trains five times (a few minutes in release)"]
 fn camera_frames_train_within_1_db_of_the_clean_scene() {
