@@ -168,7 +168,7 @@ fn check_camera_import(got: &Dataset, out: &Path, stored: Stored) {
         "{}_matted",
         out.file_name().unwrap().to_string_lossy()
     ));
-    copy_dir(out, &matted);
+    common::copy_dir(out, &matted);
     let mut json = json;
     json["matting"] = "matted".into();
     std::fs::write(
@@ -184,19 +184,6 @@ fn check_camera_import(got: &Dataset, out: &Path, stored: Stored) {
     let err = stderr(&o);
     assert!(err.contains("matting"), "{err}");
     assert!(!err.contains("panicked"), "{err}");
-}
-
-fn copy_dir(from: &Path, to: &Path) {
-    let _ = std::fs::remove_dir_all(to);
-    std::fs::create_dir_all(to).unwrap();
-    for e in std::fs::read_dir(from).unwrap() {
-        let e = e.unwrap();
-        if e.file_type().unwrap().is_dir() {
-            copy_dir(&e.path(), &to.join(e.file_name()));
-        } else {
-            std::fs::copy(e.path(), to.join(e.file_name())).unwrap();
-        }
-    }
 }
 
 fn focal(frame: &Frame) -> String {
@@ -456,7 +443,7 @@ fn truth_of(dir: &Path, got: &Dataset, clean: &Clip, gain: f32) -> std::path::Pa
         "{}_truth",
         dir.file_name().unwrap().to_string_lossy()
     ));
-    copy_dir(dir, &truth);
+    common::copy_dir(dir, &truth);
     for (f, px) in got.frames.iter().zip(&clean.pixels) {
         assert_eq!(
             (f.camera.width, f.camera.height),

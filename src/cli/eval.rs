@@ -34,9 +34,9 @@ pub struct EvalArgs {
     pub smooth: bool,
     /// Score over this colour instead of the dataset's background: three numbers in
     /// [0, 1] (`0,0,0` is black, what Neural Body's protocol scores over). Every frame's
-    /// truth is its image composited by its mask over the colour and the field renders
-    /// over it; on a matted dataset the edge pixels inside the mask keep the old
-    /// background's share.
+    /// truth is its camera frame composited by its mask over the colour and the field
+    /// renders over it. Only for datasets composited by their masks (`"matting":
+    /// "by_mask"`, what `import` writes): a matted frame's edge keeps its old background.
     #[arg(long, value_name = "R,G,B")]
     pub background: Option<String>,
     #[command(flatten)]
@@ -52,10 +52,21 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
         .transpose()?;
     let device = args.device.open()?;
     let mut dataset = super::load_dataset(&args.data)?;
-    let mut avatar = super::load_avatar(&args.run, &device)?;
     if let Some(rgb) = background {
+        if dataset.matting == Matting::Matted {
+            anyhow::bail!(
+                "--background: {}: \"matting\" is \"matted\" (the frames already show the person over {:?}); \
+                 its binary masks cannot take the old background out of the edge pixels, so only a \
+                 dataset composited by its masks (\"by_mask\") is scored over another colour",
+                args.data.join("dataset.json").display(),
+                dataset.background
+            );
+        }
         dataset.background = rgb;
         dataset.matting = Matting::ByMask;
+    }
+    let mut avatar = super::load_avatar(&args.run, &device)?;
+    if let Some(rgb) = background {
         avatar.background = rgb;
     }
     let frames = split_frames(&dataset, split)?;

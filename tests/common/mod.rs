@@ -251,3 +251,17 @@ pub fn skin(
     let x = warp.x_canonical.try_to_vec_as::<f32>().unwrap();
     x.chunks_exact(3).map(glam::Vec3::from_slice).collect()
 }
+
+/// Copies the directory `from` to `to` (removed first), recursively.
+pub fn copy_dir(from: &Path, to: &Path) {
+    let _ = std::fs::remove_dir_all(to);
+    std::fs::create_dir_all(to).unwrap();
+    for e in std::fs::read_dir(from).unwrap() {
+        let e = e.unwrap();
+        if e.file_type().unwrap().is_dir() {
+            copy_dir(&e.path(), &to.join(e.file_name()));
+        } else {
+            std::fs::copy(e.path(), to.join(e.file_name())).unwrap();
+        }
+    }
+}
