@@ -221,8 +221,8 @@ fn eval_json_has_the_keys_and_renders_that_rescore_the_same() {
 
 /// `eval --background`: truth and render both over the colour. Were the truth left on the
 /// dataset's white while the field renders over black, every background pixel would be
-/// off by 1 and the frame would score a few dB. A matted dataset is refused: its binary
-/// masks cannot take the white out of its edge pixels.
+/// off by 1 and the frame would score a few dB (a matted dataset is refused:
+/// `bad_input_exits_1_naming_the_file_and_field`).
 #[test]
 fn eval_over_black_composites_the_truth_and_the_render() {
     let (matted, run) = scene();
@@ -235,23 +235,20 @@ fn eval_over_black_composites_the_truth_and_the_render() {
         serde_json::from_str(&std::fs::read_to_string(&doc).unwrap()).unwrap();
     v["matting"] = "by_mask".into();
     std::fs::write(&doc, v.to_string()).unwrap();
-    let eval = |data: &Path, name: &str, extra: &[&str]| {
+    let report = |name: &str, extra: &[&str]| {
         let json = out.join(format!("{name}.json"));
         let mut args = vec![
             "eval",
             "--run",
             s(run),
             "--data",
-            s(data),
+            s(&data),
             "--split",
             "test_same",
         ];
         args.extend(["--json", s(&json)]);
         args.extend_from_slice(extra);
-        (talkin(&args), json)
-    };
-    let report = |name: &str, extra: &[&str]| {
-        let (res, json) = eval(&data, name, extra);
+        let res = talkin(&args);
         assert_eq!(res.status.code(), Some(0), "{}", stderr(&res));
         serde_json::from_str::<serde_json::Value>(&std::fs::read_to_string(json).unwrap()).unwrap()
     };
@@ -267,16 +264,6 @@ fn eval_over_black_composites_the_truth_and_the_render() {
         .unwrap()
         .to_rgb8();
     assert_eq!(png[(0, 0)].0, [0; 3]);
-
-    for (data, value, expected) in [
-        (&data, "0,0", "--background"),
-        (matted, "0,0,0", "\"matted\""),
-    ] {
-        let (bad, json) = eval(data, "bad", &["--background", value]);
-        assert_eq!(bad.status.code(), Some(1), "{}", stderr(&bad));
-        assert!(stderr(&bad).contains(expected), "{}", stderr(&bad));
-        assert!(!json.exists());
-    }
 }
 
 #[test]
@@ -567,22 +554,27 @@ fn bad_input_exits_1_naming_the_file_and_field() {
         );
     }
     assert!(!dir.join("never").exists());
+    let eval = |split: &str, extra: &[&str], needles: &[&str]| {
+        let mut args = vec!["eval", "--run", s(run), "--data", s(data), "--split", split];
+        args.extend(["--json", s(&json)]);
+        args.extend_from_slice(extra);
+        check(&args, needles);
+        assert!(!json.exists(), "no report for a failed evaluation");
+    };
     // Unknown split.
-    check(
-        &[
-            "eval",
-            "--run",
-            s(run),
-            "--data",
-            s(data),
-            "--split",
-            "test_nope",
-            "--json",
-            s(&json),
-        ],
-        &["test_nope", "test_same"],
+    eval("test_nope", &[], &["test_nope", "test_same"]);
+    // Scored over another colour: a bad colour, and a matted dataset, whose binary masks
+    // cannot take the white out of its edge pixels.
+    eval(
+        "test_same",
+        &["--background", "0,0"],
+        &["--background", "R,G,B"],
     );
-    assert!(!json.exists(), "no report for a failed evaluation");
+    eval(
+        "test_same",
+        &["--background", "0,0,0"],
+        &["dataset.json", "\"matting\" is \"matted\""],
+    );
     // Unknown subject.
     check(
         &[
