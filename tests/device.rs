@@ -321,14 +321,25 @@ fn kernel_census() {
         n_frames,
         total(&render)
     );
-    let mut biggest: Vec<_> = per_run[1].1.iter().collect();
-    biggest.sort_by_key(|(_, n)| std::cmp::Reverse(**n));
-    for (name, n) in biggest.iter().take(12) {
+    // A step's kernels by name: the two-step run's count less the one-step run's.
+    let mut biggest: Vec<(&String, i64)> = per_run[1]
+        .1
+        .iter()
+        .map(|(name, &n)| {
+            (
+                name,
+                n as i64 - *per_run[0].1.get(name).unwrap_or(&0) as i64,
+            )
+        })
+        .filter(|&(_, n)| n != 0)
+        .collect();
+    biggest.sort_by_key(|&(_, n)| std::cmp::Reverse(n));
+    for (name, n) in biggest.iter().take(16) {
         println!("  {n:6} x {name}");
     }
     assert!(total(&per_run[0].1) > 0, "the profiling log is empty");
     // The composed hash encoding and rendering weights made a step 1820 kernels; with the
-    // device kernels it is 465 (docs/results.md, "Devices"). A step past 1000 means a hot
+    // device kernels it is 458 (docs/results.md, "Devices"). A step past 1000 means a hot
     // path fell back to composed ops.
     assert!(step < 1000, "a training step launches {step} kernels");
     for (what, kernels) in [("training", &per_run[1].1), ("render", &render)] {

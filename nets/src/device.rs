@@ -114,6 +114,14 @@ impl ComputeDevice {
     }
 }
 
+/// The first wgpu adapter, for the device kernels' tests (`device_op_*`).
+#[cfg(all(test, feature = "wgpu"))]
+pub(crate) fn test_wgpu() -> Device {
+    ComputeDevice::Wgpu { index: 0 }
+        .open()
+        .expect("a wgpu adapter (lavapipe will do)")
+}
+
 /// Whether `device` (with or without autodiff) is the CPU backend, Flex: where work is
 /// synchronous, the fused CPU kernels apply, and one batch is split over two threads.
 pub fn is_cpu(device: &Device) -> bool {

@@ -5,8 +5,9 @@
 //! tables that was ~14% of a training step (perf). This is the same update, in the same
 //! f32 operation order, as one parallel pass over the parameter, its gradient and both
 //! moments, in place where the buffers are not shared. Its state is burn's `AdamState`, so
-//! checkpoints written with either optimizer load in the other; tensors off the Flex
-//! backend go through burn's Adam.
+//! checkpoints written with either optimizer load in the other. On a CubeCL device (the
+//! `wgpu` feature) the same update is one device kernel per parameter
+//! (`kernels::cube::adam`); other tensors go through burn's Adam.
 
 use burn::backend::Flex;
 use burn::backend::flex::FlexTensor;
@@ -61,6 +62,55 @@ impl FusedAdam {
             })
     }
 
+    /// `[beta_1, beta_2, combined, epsilon, lr]` of step `time` (from 1): burn's
+    /// bias-corrected factors, in f32 as burn computes them.
+    fn factors(&self, lr: LearningRate, time: usize) -> [f32; 5] {
+        let bias_2_sqrt = (1.0 - self.beta_2.powi(time as i32)).sqrt();
+        let combined = bias_2_sqrt / (1.0 - self.beta_1.powi(time as i32));
+        let eps = self.epsilon * bias_2_sqrt;
+        [self.beta_1, self.beta_2, combined, eps, lr as f32]
+    }
+
+    /// Whether the device kernel (`kernels::cube::adam`) takes these tensors: plain f32
+    /// tensors off the CPU, and state without AMSGrad's maximum.
+    #[cfg(feature = "wgpu")]
+    fn on_device<const D: usize>(
+        tensor: &Tensor<D>,
+        grad: &Tensor<D>,
+        state: Option<&AdamState<D>>,
+    ) -> bool {
+        let device = tensor.device();
+        let plain =
+            |t: &Tensor<D>| t.device() == device && !t.is_autodiff() && t.dtype() == DType::F32;
+        !crate::device::is_cpu(&device)
+            && plain(tensor)
+            && plain(grad)
+            && state.is_none_or(|s| {
+                plain(&s.momentum.moment_1)
+                    && plain(&s.momentum.moment_2)
+                    && s.momentum.max_moment_2.is_none()
+            })
+    }
+
+    /// The step on a CubeCL device: one kernel for the parameter and both moments.
+    #[cfg(feature = "wgpu")]
+    fn device_step<const D: usize>(
+        &self,
+        lr: LearningRate,
+        tensor: Tensor<D>,
+        grad: Tensor<D>,
+        state: Option<AdamState<D>>,
+    ) -> (Tensor<D>, AdamState<D>) {
+        let (time, m, v) = match state {
+            Some(s) => (s.momentum.time, s.momentum.moment_1, s.momentum.moment_2),
+            None => (0, tensor.zeros_like(), tensor.zeros_like()),
+        };
+        let time = time + 1;
+        let (tensor, m, v) = super::cube::adam::step(tensor, grad, m, v, self.factors(lr, time));
+        let state = AdamState::new(AdaptiveMomentumState::new(time, m, v));
+        (tensor, state)
+    }
+
     /// The fused step on tensors [`FusedAdam::takes`]. It takes them by value: a buffer
     /// nobody else holds is updated in place, where a shared one would be copied first.
     fn fused<const D: usize>(
@@ -94,13 +144,8 @@ impl FusedAdam {
             None => (0, zeros(), zeros()),
         };
         let time = time + 1;
-        // burn's factors, in f32 as burn computes them.
-        let bias_2_sqrt = (1.0 - self.beta_2.powi(time as i32)).sqrt();
-        let combined = bias_2_sqrt / (1.0 - self.beta_1.powi(time as i32));
-        let eps = self.epsilon * bias_2_sqrt;
-        let (b1, b2) = (self.beta_1, self.beta_2);
+        let [b1, b2, combined, eps, lr] = self.factors(lr, time);
         let (f1, f2) = (1.0 - b1, 1.0 - b2);
-        let lr = lr as f32;
         let g = grad.as_slice::<f32>().expect("a contiguous f32 gradient");
         // Copy-on-write: in place unless another tensor shares the buffer.
         let (p_s, m_s, v_s) = (
@@ -140,6 +185,11 @@ impl Optimizer for FusedAdam {
         grad: Tensor<D>,
         state: Option<Self::State<D>>,
     ) -> (Tensor<D>, Option<Self::State<D>>) {
+        #[cfg(feature = "wgpu")]
+        if Self::on_device(&tensor, &grad, state.as_ref()) {
+            let (tensor, state) = self.device_step(lr, tensor, grad, state);
+            return (tensor, Some(state));
+        }
         if Self::takes(&tensor, &grad, state.as_ref()) {
             let (tensor, state) = self.fused(lr, tensor, grad, state);
             (tensor, Some(state))
@@ -161,12 +211,15 @@ mod tests {
         t.clone().try_to_vec_as::<f32>().unwrap()
     }
 
-    /// Five steps with gradients of every scale (zeros, tiny, huge) give the same
-    /// parameters and moments as burn's Adam, bit for bit or within an ulp.
-    #[test]
-    fn matches_burns_adam() {
-        let device = Device::flex();
-        let n = 3 * CHUNK + 17;
+    /// Five steps of `FusedAdam` and of burn's Adam from one start on `device`, with
+    /// gradients of every scale (zeros, tiny, huge), each step taking the path `takes`
+    /// names; the parameter and both moments agree to `tolerance` relative.
+    fn against_burns_adam(
+        device: &Device,
+        n: usize,
+        takes: fn(&Tensor<2>, &Tensor<2>, Option<&AdamState<2>>) -> bool,
+        tolerance: f32,
+    ) {
         let values = |seed: u32, scale: f32| -> Vec<f32> {
             (0..n as u32)
                 .map(|i| {
@@ -181,7 +234,7 @@ mod tests {
                 })
                 .collect()
         };
-        let tensor = |v: Vec<f32>| Tensor::<2>::from_data(TensorData::new(v, [n, 1]), &device);
+        let tensor = |v: Vec<f32>| Tensor::<2>::from_data(TensorData::new(v, [n, 1]), device);
         let fused = FusedAdam::new(0.9, 0.99, 1e-15);
         let burn = fused.fallback.clone();
         let (mut p_fused, mut p_burn) = (tensor(values(0, 1.0)), tensor(values(0, 1.0)));
@@ -189,11 +242,9 @@ mod tests {
         for step in 0..5u32 {
             let g = tensor(values(step + 1, 0.1));
             let lr = 1e-2 * 0.9f64.powi(step as i32);
-            assert!(FusedAdam::takes(&p_fused, &g, s_fused.as_ref()));
-            let (p, s) = fused.fused(lr, p_fused, g.clone(), s_fused);
-            (p_fused, s_fused) = (p, Some(s));
-            let (p, s) = burn.step(lr, p_burn, g, s_burn);
-            (p_burn, s_burn) = (p, s);
+            assert!(takes(&p_fused, &g, s_fused.as_ref()));
+            (p_fused, s_fused) = fused.step(lr, p_fused, g.clone(), s_fused);
+            (p_burn, s_burn) = burn.step(lr, p_burn, g, s_burn);
         }
         let (sf, sb) = (s_fused.unwrap().momentum, s_burn.unwrap().momentum);
         assert_eq!(sf.time, sb.time);
@@ -204,11 +255,22 @@ mod tests {
         ] {
             for (i, (x, y)) in a.iter().zip(&b).enumerate() {
                 assert!(
-                    x == y || (x - y).abs() <= 2.0 * f32::EPSILON * y.abs(),
+                    x == y || (x - y).abs() <= tolerance * y.abs(),
                     "{what}[{i}]: fused {x}, burn {y}"
                 );
             }
         }
+    }
+
+    /// On the CPU the fused pass gives burn's Adam bit for bit or within an ulp.
+    #[test]
+    fn matches_burns_adam() {
+        against_burns_adam(
+            &Device::flex(),
+            3 * CHUNK + 17,
+            FusedAdam::takes,
+            2.0 * f32::EPSILON,
+        );
     }
 
     /// With nobody else holding them, the parameter and both moments are updated in
@@ -262,6 +324,21 @@ mod tests {
         assert!(
             (v[0] - 0.99).abs() < 1e-6 && (v[1] - 2.01).abs() < 1e-6,
             "{v:?}"
+        );
+    }
+
+    /// The device kernel (`kernels::cube::adam`) against burn's Adam on the same wgpu
+    /// device.
+    #[cfg(feature = "wgpu")]
+    #[test]
+    #[ignore = "needs a Vulkan adapter (lavapipe will do): \
+                cargo test --release --features wgpu -p talkin-nets -- --ignored device_op"]
+    fn device_op_adam_matches_burns() {
+        against_burns_adam(
+            &crate::device::test_wgpu(),
+            1000,
+            FusedAdam::on_device,
+            1e-6,
         );
     }
 }

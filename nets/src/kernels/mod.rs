@@ -1,7 +1,8 @@
 //! The fused CPU kernels, one home: each does what a composed burn reference does, in one
 //! parallel pass on the Flex backend (with its own backward where it is differentiated),
 //! and is tested against that reference. Where a tensor is not a plain f32 Flex tensor
-//! (the wgpu device), the callers fall back to the composed ops.
+//! (the wgpu device), the callers take the device kernels (`cube`, the `wgpu` feature) or
+//! the composed ops.
 //!
 //! - `hash`: the multiresolution hash encoding, all levels at once.
 //! - `frequency`: the windowed sinusoidal encoding.

@@ -232,10 +232,7 @@ fn gradients_match_central_differences() {
 #[ignore = "needs a Vulkan adapter (lavapipe will do): \
             cargo test --release --features wgpu -p talkin-nets -- --ignored device_op"]
 fn device_op_renders_like_the_cpu() {
-    let gpu = crate::ComputeDevice::Wgpu { index: 0 }
-        .open()
-        .expect("a wgpu adapter")
-        .autodiff();
+    let gpu = crate::device::test_wgpu().autodiff();
     let mut seed = 5;
     let (mut s, mut sigma, rgb) = batch(&[0, 5, 1, 0, 37, 128, 2, 0, 9], &mut seed);
     sigma[3] = 1e6;

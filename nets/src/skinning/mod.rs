@@ -47,6 +47,8 @@ use crate::error::{NetsError, check_len};
 use crate::rows::gather_rows;
 use crate::util::{floats, ints};
 
+#[cfg(feature = "wgpu")]
+mod device;
 mod prior;
 
 pub use prior::{BoneCapsule, BoneSegment, ladder_prior};
@@ -261,14 +263,41 @@ impl BlendWeightVolume {
         skinned_candidates(mask, self.finger_bones)
     }
 
+    /// The eight volume rows and trilinear weights where bone `b`'s logit is read at
+    /// canonical point `xc`, onto `p`.
+    fn push_corners(&self, b: usize, xc: [f32; 3], p: &mut Pairs) {
+        let r = self.resolution;
+        let mut cell = [0usize; 3];
+        let mut frac = [0f32; 3];
+        for a in 0..3 {
+            let span = self.aabb[3 + a] - self.aabb[a];
+            let u = ((xc[a] - self.aabb[a]) / span * (r - 1) as f32).clamp(0.0, (r - 1) as f32);
+            let c = (u.floor() as usize).min(r - 2);
+            cell[a] = c;
+            frac[a] = u - c as f32;
+        }
+        for k in 0..8 {
+            let d = [k & 1, (k >> 1) & 1, k >> 2];
+            let mut w = 1.0;
+            for a in 0..3 {
+                w *= if d[a] == 1 { frac[a] } else { 1.0 - frac[a] };
+            }
+            let (x, y, z) = (cell[0] + d[0], cell[1] + d[1], cell[2] + d[2]);
+            p.rows.push((((b * r + z) * r + y) * r + x) as i32);
+            p.weights.push(w);
+        }
+    }
+
+    /// Each sample's (sample, candidate bone) pairs; with `corners`, their volume corners
+    /// too (the device kernel finds those itself).
     pub(crate) fn pairs(
         &self,
         points: &[[f32; 3]],
         bone_masks: &[u64],
         canonical_from_posed: &[[f32; 16]],
         bone_capsules: &[BoneCapsule],
+        corners: bool,
     ) -> Pairs {
-        let r = self.resolution;
         let mut p = Pairs {
             sample: vec![],
             bone: vec![],
@@ -297,25 +326,8 @@ impl BlendWeightVolume {
                         + m[4 * i + 2] as f64 * x[2] as f64
                         + m[4 * i + 3] as f64) as f32
                 });
-                let mut cell = [0usize; 3];
-                let mut frac = [0f32; 3];
-                for a in 0..3 {
-                    let span = self.aabb[3 + a] - self.aabb[a];
-                    let u =
-                        ((xc[a] - self.aabb[a]) / span * (r - 1) as f32).clamp(0.0, (r - 1) as f32);
-                    let c = (u.floor() as usize).min(r - 2);
-                    cell[a] = c;
-                    frac[a] = u - c as f32;
-                }
-                for k in 0..8 {
-                    let d = [k & 1, (k >> 1) & 1, k >> 2];
-                    let mut w = 1.0;
-                    for a in 0..3 {
-                        w *= if d[a] == 1 { frac[a] } else { 1.0 - frac[a] };
-                    }
-                    let (x, y, z) = (cell[0] + d[0], cell[1] + d[1], cell[2] + d[2]);
-                    p.rows.push((((b * r + z) * r + y) * r + x) as i32);
-                    p.weights.push(w);
+                if corners {
+                    self.push_corners(b, xc, &mut p);
                 }
                 p.sample.push(s as i32);
                 p.bone.push(b);
@@ -403,10 +415,19 @@ impl BlendWeightVolume {
                 limit: N_SMPLX_JOINTS,
             });
         }
-        let p = self.pairs(points, bone_masks, canonical_from_posed, bone_capsules);
+        let on_cube = cfg!(feature = "wgpu") && !is_cpu(device);
+        let mut p = self.pairs(
+            points,
+            bone_masks,
+            canonical_from_posed,
+            bone_capsules,
+            !on_cube,
+        );
         let m = p.sample.len();
         let xb = match transforms {
-            None => floats(p.x, [m, 3], device), // [m, 3]
+            // The device blend still reads the pairs' host points.
+            None if on_cube => floats(p.x.clone(), [m, 3], device), // [m, 3]
+            None => floats(std::mem::take(&mut p.x), [m, 3], device),
             Some(rows) => {
                 // [m, 3, 4] transforms times [m, 1, 4] homogeneous points, summed.
                 let bones = ints(p.bone.iter().map(|&b| b as i32).collect::<Vec<_>>(), device);
@@ -423,19 +444,21 @@ impl BlendWeightVolume {
                 (mats * xh).sum_dim(2).reshape([m, 3])
             }
         };
+        #[cfg(feature = "wgpu")]
+        if on_cube {
+            return Ok(RigidWarp {
+                x_canonical: self.blend_on_device(&p, n, xb, device),
+                n_pairs: m,
+            });
+        }
         let corner_w = floats(p.weights, [m, 8], device);
         let logits = (gather_rows(self.logits.val(), ints(p.rows, device)).reshape([m, 8])
             * corner_w)
             .sum_dim(1)
             .reshape([m])
             + floats(p.posed, [m], device); // [m]
-        let x_canonical = if is_cpu(device) {
-            blend_scattered(p.sample, n, logits, xb)
-        } else {
-            blend_padded(&p.sample, n, logits, xb)
-        };
         Ok(RigidWarp {
-            x_canonical,
+            x_canonical: blend_scattered(p.sample, n, logits, xb),
             n_pairs: m,
         })
     }
@@ -443,7 +466,7 @@ impl BlendWeightVolume {
 
 /// The softmax blend `x_canonical = sum_b w_b x_b` over each sample's candidates, as sums
 /// of the pairs into their samples' rows (`select_assign`): parallel on the CPU, one GPU
-/// thread for the batch (the GPU takes [`blend_padded`]).
+/// thread for the batch (a GPU takes the device kernel, `device.rs`).
 ///
 /// # Shapes
 /// - `sample`: `[m]` each pair's sample, ascending; every sample has at least one pair
@@ -473,45 +496,6 @@ fn blend_scattered(sample: Vec<i32>, n: usize, logits: Tensor<1>, xb: Tensor<2>)
         xb * w.unsqueeze_dim(1),
         IndexingUpdateOp::Add,
     )
-}
-
-/// The softmax blend `x_canonical = sum_b w_b x_b` in a padded `[n, K]` layout: slot
-/// `(s, j)` holds sample `s`'s `j`-th candidate (pairs are sorted by sample), the rest a
-/// pad whose logit is `PAD_LOGIT` (weight exactly 0). Every reduction is along the `K`
-/// axis of one row, so it is parallel over samples on a GPU, where the per-sample sums
-/// into `[n]` (`select_assign`) ran one thread for the whole batch.
-///
-/// # Shapes
-/// - `sample`: `[m]` each pair's sample, ascending; every sample has at least one pair
-/// - `logits`: `[m]`; `xb`: `[m, 3]`; output `[n, 3]`
-fn blend_padded(sample: &[i32], n: usize, logits: Tensor<1>, xb: Tensor<2>) -> Tensor<2> {
-    /// exp(PAD_LOGIT - max) is 0 for any logit a volume holds, and finite arithmetic.
-    const PAD_LOGIT: f32 = -1e30;
-    let device = logits.device();
-    let m = sample.len();
-    let mut count = vec![0usize; n];
-    for &s in sample {
-        count[s as usize] += 1;
-    }
-    let k = count.iter().copied().max().unwrap_or(1).max(1);
-    // Slot (s, j) -> pair index, or the pad (index m).
-    let mut slot = vec![m as i32; n * k];
-    let mut start = 0;
-    for (s, &c) in count.iter().enumerate() {
-        for j in 0..c {
-            slot[s * k + j] = (start + j) as i32;
-        }
-        start += c;
-    }
-    let slot = ints(slot, &device);
-    let logits = Tensor::cat(vec![logits, Tensor::full([1], PAD_LOGIT, &device)], 0);
-    let xb = Tensor::cat(vec![xb, Tensor::zeros([1, 3], &device)], 0);
-    let logits = gather_rows(logits, slot.clone()).reshape([n, k]);
-    let max = logits.clone().detach().max_dim(1); // [n, 1]
-    let e = (logits - max).exp(); // [n, K], 1 at each row's max
-    let w = e.clone() / e.sum_dim(1); // [n, K]
-    let xb = gather_rows(xb, slot).reshape([n, k, 3]);
-    (xb * w.unsqueeze_dim(2)).sum_dim(1).reshape([n, 3])
 }
 
 #[cfg(test)]

@@ -295,7 +295,7 @@ fn gradient_check(posed_tau: Option<f64>, capsules: &[BoneCapsule]) {
     let grads = (warp.x_canonical * c).sum().backward();
     let g = host(&vol.logits.grad(&grads).unwrap());
     let logits: Vec<f64> = host(&vol.logits.val()).iter().map(|&v| v as f64).collect();
-    let pairs = vol.pairs(&pts, &masks, &t, capsules);
+    let pairs = vol.pairs(&pts, &masks, &t, capsules, true);
     assert_eq!(
         pairs.posed.iter().any(|&l| l != 0.0),
         posed_tau.is_some(),
@@ -348,55 +348,99 @@ fn gradient_check(posed_tau: Option<f64>, capsules: &[BoneCapsule]) {
     assert!(nonzero > 8);
 }
 
-/// The padded blend (the GPU's) gives the scattered blend's (the CPU's) canonical points
-/// and gradients, for samples with one, several and many candidates and logits far apart.
+/// The device op (`kernels::cube::skin`) skins and differentiates as the CPU's scattered
+/// blend does, with finger bones and the posed prior on: one candidate, several, every
+/// bone (the body fallback), fingers, logits far apart, points on a cell's face and
+/// outside the box; the volume's and the transforms' gradients both.
+#[cfg(feature = "wgpu")]
 #[test]
-fn padded_blend_matches_scattered_blend() {
-    let device = Device::flex().autodiff();
-    let counts = [1usize, 3, 22, 2, 1, 5];
-    let n = counts.len();
-    let sample: Vec<i32> = counts
-        .iter()
-        .enumerate()
-        .flat_map(|(s, &c)| std::iter::repeat_n(s as i32, c))
-        .collect();
-    let m = sample.len();
-    let logits: Vec<f32> = (0..m)
-        .map(|i| ((i as f32 * 1.7).sin() * 3.0) + if i == 7 { 80.0 } else { 0.0 })
-        .collect();
-    let xb: Vec<f32> = (0..m * 3).map(|k| (k as f32 * 0.37).cos()).collect();
-    let coeff = Tensor::<2>::from_data(
-        TensorData::new((0..n * 3).map(|k| 1.0 + k as f32 * 0.1).collect(), [n, 3]),
-        &device,
-    );
-    let run = |padded: bool| {
-        let l =
-            Tensor::<1>::from_data(TensorData::new(logits.clone(), [m]), &device).require_grad();
-        let x = Tensor::<2>::from_data(TensorData::new(xb.clone(), [m, 3]), &device).require_grad();
-        let out = if padded {
-            blend_padded(&sample, n, l.clone(), x.clone())
-        } else {
-            blend_scattered(sample.clone(), n, l.clone(), x.clone())
-        };
-        let grads = (out.clone() * coeff.clone()).sum().backward();
-        (
-            host(&out),
-            host(&l.grad(&grads).unwrap()),
-            host(&x.grad(&grads).unwrap()),
-        )
+#[ignore = "needs a Vulkan adapter (lavapipe will do): \
+            cargo test --release --features wgpu -p talkin-nets -- --ignored device_op"]
+fn device_op_skins_like_the_cpu() {
+    let gpu = crate::device::test_wgpu().autodiff();
+    let t = identity_transforms();
+    let capsules = [
+        BoneCapsule {
+            bone: 9,
+            a: [0.0, -0.2, 0.0],
+            b: [0.0, 0.2, 0.0],
+            radius: 0.12,
+        },
+        BoneCapsule {
+            bone: 27,
+            a: [0.3, 0.1, 0.0],
+            b: [0.35, 0.1, 0.0],
+            radius: 0.01,
+        },
+    ];
+    let pts = [
+        [0.13f32, -0.31, 0.22],
+        [-0.4, 0.05, 0.61],
+        [0.7, 0.7, -0.2],
+        [0.32, 0.1, 0.01],
+        // On a cell's face (resolution 6 over [-1, 1]: faces every 0.4), and outside.
+        [0.2, -0.6, 0.2],
+        [1.7, -2.0, 0.0],
+        [0.0, 0.0, 0.0],
+    ];
+    let masks = [
+        (1 << 3) | (1 << 6) | (1 << 9),
+        (1 << 12) | (1 << 22) | (1 << 41),
+        1 << 0,
+        (1 << 20) | (1 << 26) | (1 << 27) | (1 << 28),
+        (1 << 9) | (1 << 18),
+        (1 << 1) | (1 << 2),
+        0,
+    ];
+    let n = pts.len();
+    let run = |device: &Device| {
+        let mut vol = SkinningConfig::new()
+            .with_resolution(6)
+            .with_posed_tau(Some(0.05))
+            .with_finger_bones(Some(true))
+            .init([-1.0; 3], [1.0; 3], &ladder_prior(), device)
+            .unwrap();
+        let len = vol.logits.val().dims()[0];
+        let v: Vec<f32> = (0..len)
+            .map(|i| ((i * 37 % 101) as f32 / 25.0) - 2.0 + if i % 97 == 5 { 40.0 } else { 0.0 })
+            .collect();
+        vol.logits = Param::from_tensor(floats(v, [len], device));
+        let rows: Vec<f32> = t.iter().flat_map(|m| m[..12].to_vec()).collect();
+        let transforms = floats(rows, [N_SMPLX_JOINTS, 12], device).require_grad();
+        let warp = vol
+            .inverse_lbs_with(&pts, &masks, &t, &capsules, device, Some(&transforms))
+            .unwrap();
+        let plain = vol
+            .inverse_lbs(&pts, &masks, &t, &capsules, device)
+            .unwrap();
+        let coeff: Vec<f32> = (0..n * 3)
+            .map(|k| ((k * 5 % 7) as f32 - 3.0) / 3.0)
+            .collect();
+        let coeff = floats(coeff, [n, 3], device);
+        let grads = ((warp.x_canonical.clone() + plain.x_canonical.clone()) * coeff)
+            .sum()
+            .backward();
+        [
+            host(&warp.x_canonical),
+            host(&plain.x_canonical),
+            host(&vol.logits.grad(&grads).unwrap()),
+            host(&transforms.grad(&grads).unwrap()),
+        ]
     };
-    let (a, b) = (run(false), run(true));
-    for (what, u, v) in [
-        ("x", &a.0, &b.0),
-        ("dlogits", &a.1, &b.1),
-        ("dxb", &a.2, &b.2),
+    let (cpu, dev) = (run(&Device::flex().autodiff()), run(&gpu));
+    for (what, a, b) in [
+        ("x_canonical (transforms)", &dev[0], &cpu[0]),
+        ("x_canonical", &dev[1], &cpu[1]),
+        ("volume gradient", &dev[2], &cpu[2]),
+        ("transforms gradient", &dev[3], &cpu[3]),
     ] {
-        assert_eq!(u.len(), v.len(), "{what}");
-        for (p, q) in u.iter().zip(v) {
-            assert!(p.is_finite() && q.is_finite(), "{what}: {p} {q}");
+        assert_eq!(a.len(), b.len(), "{what}");
+        assert!(b.iter().any(|&v| v != 0.0), "{what}: all zero");
+        for (i, (u, v)) in a.iter().zip(b).enumerate() {
+            assert!(u.is_finite(), "{what}[{i}]: {u}");
             assert!(
-                (p - q).abs() <= 1e-5 * (1.0 + p.abs()),
-                "{what}: {u:?} vs {v:?}"
+                (u - v).abs() <= 1e-4 * (1.0 + v.abs()),
+                "{what}[{i}]: device {u}, cpu {v}"
             );
         }
     }

@@ -281,10 +281,7 @@ fn op_matches_composed(
 #[ignore = "needs a Vulkan adapter (lavapipe will do): \
             cargo test --release --features wgpu -p talkin-nets -- --ignored device_op"]
 fn device_op_matches_composed_ops() {
-    let device = crate::ComputeDevice::Wgpu { index: 0 }
-        .open()
-        .expect("a wgpu adapter")
-        .autodiff();
+    let device = crate::device::test_wgpu().autodiff();
     for features in [2, 3] {
         op_matches_composed(&device, features, &|grid, x, id| {
             // Else `forward` would take the composed ops and compare them with themselves.

@@ -4,13 +4,19 @@
 //!
 //! - `hash`: the multiresolution hash encoding, all levels in one launch.
 //! - `render`: volume rendering's weights, one unit per ray.
+//! - `skin`: inverse skinning's softmax blend over each sample's candidate bones.
+//! - `adam`: Adam, one elementwise kernel per parameter.
 
 use cubecl::{CubeCount, CubeDim, calculate_cube_count_elemwise, client::Client};
 
+pub(crate) mod adam;
+mod adam_kernels;
 pub(crate) mod hash;
 mod hash_kernels;
 pub(crate) mod render;
 mod render_kernels;
+pub(crate) mod skin;
+mod skin_kernels;
 
 /// The launch grid for `units` work items, one unit each.
 fn launch_shape(client: &Client, units: usize) -> (CubeCount, CubeDim) {
