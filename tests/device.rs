@@ -4,7 +4,7 @@
 //!
 //! The equivalence test is ignored by `cargo test` (it needs the `wgpu` feature and an
 //! adapter); run it with
-//! `cargo test --release --features wgpu --test device -- --ignored`.
+//! `cargo test --release --features wgpu -p talkin-nets -p talkin --lib --test device -- --ignored`.
 
 mod common;
 
@@ -90,7 +90,7 @@ mod wgpu {
     /// ground truth, and to 35 dB against each other.
     #[test]
     #[ignore = "needs the wgpu feature and a Vulkan adapter (lavapipe will do): \
-                cargo test --release --features wgpu --test device -- --ignored"]
+                cargo test --release --features wgpu -p talkin-nets -p talkin --lib --test device -- --ignored"]
     fn wgpu_matches_cpu() {
         let dataset = common::synthetic_scene("device_scene", 1, 48, 1);
         let (cpu_logs, cpu) = train(&dataset, "device_run_cpu", ComputeDevice::Cpu);
@@ -182,7 +182,7 @@ mod wgpu {
 #[cfg(feature = "wgpu")]
 #[test]
 #[ignore = "needs the wgpu feature and a Vulkan adapter (lavapipe will do): \
-            cargo test --release --features wgpu --test device -- --ignored"]
+            cargo test --release --features wgpu -p talkin-nets -p talkin --lib --test device -- --ignored"]
 fn kernel_census() {
     use std::collections::BTreeMap;
     use std::path::Path;

@@ -332,7 +332,7 @@ mod tests {
     #[cfg(feature = "wgpu")]
     #[test]
     #[ignore = "needs a Vulkan adapter (lavapipe will do): \
-                cargo test --release --features wgpu -p talkin-nets -- --ignored device_op"]
+                cargo test --release --features wgpu -p talkin-nets -p talkin --lib --test device -- --ignored"]
     fn device_op_adam_matches_burns() {
         against_burns_adam(
             &crate::device::test_wgpu(),

@@ -230,7 +230,7 @@ fn gradients_match_central_differences() {
 #[cfg(feature = "wgpu")]
 #[test]
 #[ignore = "needs a Vulkan adapter (lavapipe will do): \
-            cargo test --release --features wgpu -p talkin-nets -- --ignored device_op"]
+            cargo test --release --features wgpu -p talkin-nets -p talkin --lib --test device -- --ignored"]
 fn device_op_renders_like_the_cpu() {
     let gpu = crate::device::test_wgpu().autodiff();
     let mut seed = 5;

@@ -355,7 +355,7 @@ fn gradient_check(posed_tau: Option<f64>, capsules: &[BoneCapsule]) {
 #[cfg(feature = "wgpu")]
 #[test]
 #[ignore = "needs a Vulkan adapter (lavapipe will do): \
-            cargo test --release --features wgpu -p talkin-nets -- --ignored device_op"]
+            cargo test --release --features wgpu -p talkin-nets -p talkin --lib --test device -- --ignored"]
 fn device_op_skins_like_the_cpu() {
     let gpu = crate::device::test_wgpu().autodiff();
     let t = identity_transforms();

@@ -279,7 +279,7 @@ fn op_matches_composed(
 #[cfg(feature = "wgpu")]
 #[test]
 #[ignore = "needs a Vulkan adapter (lavapipe will do): \
-            cargo test --release --features wgpu -p talkin-nets -- --ignored device_op"]
+            cargo test --release --features wgpu -p talkin-nets -p talkin --lib --test device -- --ignored"]
 fn device_op_matches_composed_ops() {
     let device = crate::device::test_wgpu().autodiff();
     for features in [2, 3] {
