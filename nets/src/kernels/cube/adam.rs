@@ -1,7 +1,7 @@
 //! Adam as one elementwise device kernel per parameter tensor: the parameter, both
 //! moments and the gradient read once, the three written once, in burn's f32 operation
 //! order (`kernels::adam` on the CPU). burn's Adam is a dozen tensor ops a parameter,
-//! which fusion runs as a few kernels each, with the moments' intermediates in between.
+//! each with an intermediate tensor for fusion to join or not.
 
 use super::adam_kernels::adam_kernel;
 use super::launch_shape;

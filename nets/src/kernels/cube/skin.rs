@@ -1,10 +1,10 @@
 //! Inverse skinning's softmax blend as one device op with its own backward: per sample,
 //! the logits of its candidate bones (a trilinear read of the weight volume plus the
 //! posed-space prior), their softmax and the blended canonical point. Composed of burn
-//! ops this was a gather of eight volume rows per pair, a padded `[n, K]` softmax and a
-//! gather of the points, about a dozen kernels forward and twenty back, with two index
-//! uploads; here forward is one launch and backward one (the volume's gradient by atomic
-//! adds) after a fill.
+//! ops this was a gather of eight volume rows a pair (their rows and weights laid out and
+//! uploaded by the host), a padded `[n, K]` softmax and a gather of the points, forward
+//! and back; here forward is one launch and backward one (the volume's gradient by
+//! atomic adds) after a fill.
 
 use burn::backend::AutodiffBackend;
 use burn::backend::autodiff::Autodiff;
