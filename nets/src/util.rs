@@ -27,6 +27,19 @@ pub(crate) fn host<const D: usize>(tensor: &Tensor<D>) -> Vec<f32> {
         .expect("reading a float tensor back to the host")
 }
 
+/// Asserts that `tested` holds `reference`'s values to `tolerance` relative (absolute
+/// below 1), every one finite; `what` names them in a failure.
+#[cfg(test)]
+pub(crate) fn assert_close_to(what: &str, tested: &[f32], reference: &[f32], tolerance: f32) {
+    assert_eq!(tested.len(), reference.len(), "{what}: lengths");
+    for (i, (u, v)) in tested.iter().zip(reference).enumerate() {
+        assert!(
+            u.is_finite() && (u - v).abs() <= tolerance * (1.0 + v.abs()),
+            "{what}[{i}]: tested {u}, reference {v}"
+        );
+    }
+}
+
 /// Numerically stable softplus, `max(x, 0) + ln(1 + exp(-|x|))`: never overflows, and its
 /// gradient (a sigmoid) is exact for large |x|.
 pub(crate) fn softplus<const D: usize>(x: Tensor<D>) -> Tensor<D> {

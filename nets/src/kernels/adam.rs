@@ -43,23 +43,32 @@ impl FusedAdam {
         }
     }
 
-    /// Whether the fused pass takes these tensors: plain (not autodiff) f32 tensors on the
-    /// Flex backend, and state without AMSGrad's maximum.
+    /// Whether the parameter, its gradient and its state are plain (not autodiff) f32
+    /// tensors on `device`, and the state has no AMSGrad maximum: what either kernel takes.
+    fn plain_on<const D: usize>(
+        device: &Device,
+        tensor: &Tensor<D>,
+        grad: &Tensor<D>,
+        state: Option<&AdamState<D>>,
+    ) -> bool {
+        let plain =
+            |t: &Tensor<D>| t.device() == *device && !t.is_autodiff() && t.dtype() == DType::F32;
+        plain(tensor)
+            && plain(grad)
+            && state.is_none_or(|s| {
+                plain(&s.momentum.moment_1)
+                    && plain(&s.momentum.moment_2)
+                    && s.momentum.max_moment_2.is_none()
+            })
+    }
+
+    /// Whether the fused CPU pass takes these tensors: plain ones on the Flex backend.
     fn takes<const D: usize>(
         tensor: &Tensor<D>,
         grad: &Tensor<D>,
         state: Option<&AdamState<D>>,
     ) -> bool {
-        let flex = Device::flex();
-        let on_flex =
-            |t: &Tensor<D>| t.device() == flex && !t.is_autodiff() && t.dtype() == DType::F32;
-        on_flex(tensor)
-            && on_flex(grad)
-            && state.is_none_or(|s| {
-                on_flex(&s.momentum.moment_1)
-                    && on_flex(&s.momentum.moment_2)
-                    && s.momentum.max_moment_2.is_none()
-            })
+        Self::plain_on(&Device::flex(), tensor, grad, state)
     }
 
     /// `[beta_1, beta_2, combined, epsilon, lr]` of step `time` (from 1): burn's
@@ -71,8 +80,8 @@ impl FusedAdam {
         [self.beta_1, self.beta_2, combined, eps, lr as f32]
     }
 
-    /// Whether the device kernel (`kernels::cube::adam`) takes these tensors: plain f32
-    /// tensors off the CPU, and state without AMSGrad's maximum.
+    /// Whether the device kernel (`kernels::cube::adam`) takes these tensors: plain
+    /// ones off the CPU.
     #[cfg(feature = "wgpu")]
     fn on_device<const D: usize>(
         tensor: &Tensor<D>,
@@ -80,16 +89,7 @@ impl FusedAdam {
         state: Option<&AdamState<D>>,
     ) -> bool {
         let device = tensor.device();
-        let plain =
-            |t: &Tensor<D>| t.device() == device && !t.is_autodiff() && t.dtype() == DType::F32;
-        !crate::device::is_cpu(&device)
-            && plain(tensor)
-            && plain(grad)
-            && state.is_none_or(|s| {
-                plain(&s.momentum.moment_1)
-                    && plain(&s.momentum.moment_2)
-                    && s.momentum.max_moment_2.is_none()
-            })
+        !crate::device::is_cpu(&device) && Self::plain_on(&device, tensor, grad, state)
     }
 
     /// The step on a CubeCL device: one kernel for the parameter and both moments.

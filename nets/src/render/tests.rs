@@ -275,14 +275,7 @@ fn device_op_renders_like_the_cpu() {
         ("rgb gradient", &dev[2], &cpu[2]),
         ("front sigma gradient", &dev[3], &cpu[3]),
     ] {
-        assert_eq!(a.len(), b.len(), "{what}");
-        for (i, (u, v)) in a.iter().zip(b).enumerate() {
-            assert!(u.is_finite(), "{what}[{i}]: {u}");
-            assert!(
-                (u - v).abs() <= 1e-4 * (1.0 + v.abs()),
-                "{what}[{i}]: device {u}, cpu {v}"
-            );
-        }
+        crate::util::assert_close_to(what, a, b, 1e-4);
     }
 }
 

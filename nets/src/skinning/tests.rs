@@ -434,14 +434,7 @@ fn device_op_skins_like_the_cpu() {
         ("volume gradient", &dev[2], &cpu[2]),
         ("transforms gradient", &dev[3], &cpu[3]),
     ] {
-        assert_eq!(a.len(), b.len(), "{what}");
         assert!(b.iter().any(|&v| v != 0.0), "{what}: all zero");
-        for (i, (u, v)) in a.iter().zip(b).enumerate() {
-            assert!(u.is_finite(), "{what}[{i}]: {u}");
-            assert!(
-                (u - v).abs() <= 1e-4 * (1.0 + v.abs()),
-                "{what}[{i}]: device {u}, cpu {v}"
-            );
-        }
+        crate::util::assert_close_to(what, a, b, 1e-4);
     }
 }

@@ -260,13 +260,8 @@ fn op_matches_composed(
             ("table gradient", &tested.1, &composed.1),
             ("point gradient", &tested.2, &composed.2),
         ] {
-            assert_eq!(a.len(), b.len(), "{what}");
-            for (i, (u, v)) in a.iter().zip(b.iter()).enumerate() {
-                assert!(
-                    (u - v).abs() <= 1e-4 * (1.0 + v.abs()),
-                    "{features} features, identity {id}, {what}[{i}]: op {u}, composed {v}"
-                );
-            }
+            let what = format!("{features} features, identity {id}, {what}");
+            crate::util::assert_close_to(&what, a, b, 1e-4);
         }
         // Clamped coordinates carry no point gradient.
         assert_eq!(tested.2[3 * 3], 0.0);
