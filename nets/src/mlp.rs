@@ -4,6 +4,7 @@ use burn::nn::Linear;
 use burn::prelude::*;
 use burn::tensor::activation::relu;
 
+use crate::device::is_cpu;
 use crate::init::WeightRng;
 
 /// Width and depth of one MLP (the input and output widths come from where it is used).
@@ -86,13 +87,23 @@ impl Mlp {
         }
     }
 
-    /// [`Mlp::forward_with_row`] as burn tensor ops (every backend, skips).
+    /// [`Mlp::forward_with_row`] as burn tensor ops (every backend, skips). Off the CPU,
+    /// a batch of at least two slices goes through [`Mlp::sliced`].
     fn composed(&self, x: Tensor<2>, row: Option<Tensor<2>>) -> Tensor<2> {
+        let rows = split_rows();
+        if rows > 0 && x.dims()[0] >= 2 * rows && !is_cpu(&x.device()) {
+            return self.sliced(x, row, rows);
+        }
+        self.layers(x, row)
+    }
+
+    /// The layers on `[..., d]` inputs: each leading index a row.
+    fn layers<const D: usize>(&self, x: Tensor<D>, row: Option<Tensor<2>>) -> Tensor<D> {
         let mut h = x.clone();
         for (i, layer) in self.hidden.iter().enumerate() {
             let first = i == 0;
             if self.skips.contains(&i) && !first {
-                h = Tensor::cat(vec![h, x.clone()], 1);
+                h = Tensor::cat(vec![h, x.clone()], D - 1);
             }
             let row = if first || self.skips.contains(&i) {
                 row.clone()
@@ -101,7 +112,28 @@ impl Mlp {
             };
             h = relu(linear_with_row(layer, h, row));
         }
-        self.output.forward(h)
+        linear_with_row(&self.output, h, None)
+    }
+
+    /// The layers on the batch cut into `[slices, rows, d]` (zero rows padding the last
+    /// slice, cut off the output), so that each weight's gradient `x^T dy`, whose
+    /// reduction runs over the whole batch, is a batched product of one slice each and
+    /// a sum over slices: spread over the GPU rather than a few workgroups walking
+    /// every sample. The padding rows' outputs are dropped, so their gradient is zero
+    /// and they add nothing to any weight's.
+    fn sliced(&self, x: Tensor<2>, row: Option<Tensor<2>>, rows: usize) -> Tensor<2> {
+        let [n, d_x] = x.dims();
+        let slices = n.div_ceil(rows);
+        let pad = slices * rows - n;
+        let x = if pad > 0 {
+            let zeros = Tensor::zeros([pad, d_x], &x.device());
+            Tensor::cat(vec![x, zeros], 0)
+        } else {
+            x
+        };
+        let out = self.layers(x.reshape([slices, rows, d_x]), row); // [slices, rows, d_out]
+        let d_out = out.dims()[2];
+        out.reshape([slices * rows, d_out]).narrow(0, 0, n)
     }
 }
 
@@ -133,23 +165,57 @@ impl Mlp {
     }
 }
 
-/// `layer.forward(cat([x, row repeated], 1))` with the row's product computed once.
-fn linear_with_row(layer: &Linear, x: Tensor<2>, row: Option<Tensor<2>>) -> Tensor<2> {
-    let [n, d_x] = x.dims();
+/// `layer.forward(cat([x, row repeated], -1))` with the row's product computed once,
+/// on `[..., d_x]` inputs. The weight goes in as a `[1, .., d_in, d_out]` matrix product
+/// rather than burn's `linear`, whose weight gradient flattens the leading dimensions
+/// back into one `[d_in, rows] x [rows, d_out]` product (what [`Mlp::sliced`] avoids);
+/// for a 2-D input the two are the same product.
+fn linear_with_row<const D: usize>(
+    layer: &Linear,
+    x: Tensor<D>,
+    row: Option<Tensor<2>>,
+) -> Tensor<D> {
+    let dims = x.dims();
+    let d_x = dims[D - 1];
+    let w = layer.weight.val(); // [d_in, d_out]
+    let [d_in, d_out] = w.dims();
+    let bias = layer.bias.as_ref().map(|b| b.val().unsqueeze_dim::<2>(0)); // [1, d_out]
     match row {
-        // An empty batch: the plain path keeps its shape `[0, d_out]`.
-        Some(row) if n == 0 => layer.forward(Tensor::cat(vec![x, row.repeat_dim(0, 0)], 1)),
-        Some(row) => {
-            let w = layer.weight.val();
-            let [d_in, _] = w.dims();
-            let mut c = row.matmul(w.clone().narrow(0, d_x, d_in - d_x)); // [1, d_out]
-            if let Some(b) = &layer.bias {
-                c = c + b.val().unsqueeze_dim(0);
-            }
-            x.matmul(w.narrow(0, 0, d_x)) + c
+        // An empty batch: the plain path keeps its shape `[.., 0, d_out]`.
+        Some(row) if x.shape().num_elements() == 0 => {
+            let out = layer.forward(Tensor::cat(vec![x.reshape([0, d_x]), row.repeat_dim(0, 0)], 1));
+            let mut out_dims = dims;
+            out_dims[D - 1] = d_out;
+            out.reshape(out_dims)
         }
-        None => layer.forward(x),
+        Some(row) => {
+            let mut c = row.matmul(w.clone().narrow(0, d_x, d_in - d_x)); // [1, d_out]
+            if let Some(b) = bias {
+                c = c + b;
+            }
+            x.matmul(w.narrow(0, 0, d_x).unsqueeze::<D>()) + c.unsqueeze::<D>()
+        }
+        None if D == 2 => layer.forward(x),
+        None => {
+            let out = x.matmul(w.unsqueeze::<D>());
+            match bias {
+                Some(b) => out + b.unsqueeze::<D>(),
+                None => out,
+            }
+        }
     }
+}
+
+/// Rows a slice of [`Mlp::sliced`]: 256, or `TALKIN_MLP_SLICE_ROWS` (0 turns slicing
+/// off; read once), a knob for measuring the split against the plain products on a GPU.
+fn split_rows() -> usize {
+    static ROWS: std::sync::OnceLock<usize> = std::sync::OnceLock::new();
+    *ROWS.get_or_init(|| {
+        std::env::var("TALKIN_MLP_SLICE_ROWS")
+            .ok()
+            .and_then(|v| v.parse().ok())
+            .unwrap_or(256)
+    })
 }
 
 #[cfg(test)]
@@ -212,6 +278,70 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// The sliced layers ([`Mlp::sliced`]) against the plain ones on `device`: values and
+    /// the gradients of the input, the shared row and every layer's weight and bias,
+    /// for a batch with a ragged last slice (zero padding), one that fills its slices,
+    /// with a shared row and a skip layer and without.
+    fn sliced_against_plain(device: &Device, tol: f32) {
+        let host = |t: Tensor<2>| t.try_to_vec_as::<f32>().unwrap();
+        for (n, skips, with_row) in [(37, vec![], true), (32, vec![2], false), (45, vec![2], true)]
+        {
+            let d_row = if with_row { 3 } else { 0 };
+            let mlp = MlpConfig::new(3, 16).with_skips(skips.clone()).init(
+                5 + d_row,
+                4,
+                None,
+                device,
+                &mut WeightRng::seeded(3),
+            );
+            let x = tensor(n, 5, 2, device).require_grad();
+            let row = with_row.then(|| tensor(1, d_row, 7, device).require_grad());
+            let plain = mlp.layers(x.clone(), row.clone());
+            let sliced = mlp.sliced(x.clone(), row.clone(), 8);
+            let what = format!("n {n}, skips {skips:?}, row {with_row}");
+            assert_close(&host(plain.clone()), &host(sliced.clone()), tol, &what);
+            let grads = |out: Tensor<2>| {
+                let g = out.powi_scalar(2).sum().backward();
+                let mut all = vec![host(x.grad(&g).unwrap())];
+                if let Some(row) = &row {
+                    all.push(host(row.grad(&g).unwrap()));
+                }
+                for layer in mlp.hidden.iter().chain([&mlp.output]) {
+                    all.push(host(layer.weight.val().grad(&g).unwrap()));
+                    let b = layer.bias.as_ref().unwrap().val();
+                    all.push(b.grad(&g).unwrap().try_to_vec_as::<f32>().unwrap());
+                }
+                all
+            };
+            for (i, (u, v)) in grads(plain).iter().zip(grads(sliced)).enumerate() {
+                assert_close(u, &v, tol, &format!("{what}, gradient {i}"));
+            }
+        }
+    }
+
+    fn assert_close(u: &[f32], v: &[f32], tol: f32, what: &str) {
+        assert_eq!(u.len(), v.len(), "{what}");
+        let scale = u.iter().fold(1e-6f32, |m, e| m.max(e.abs()));
+        for (p, q) in u.iter().zip(v) {
+            assert!((p - q).abs() <= tol * scale, "{what}: {p} vs {q}");
+        }
+    }
+
+    #[test]
+    fn the_sliced_layers_match_the_plain_ones() {
+        sliced_against_plain(&Device::flex().autodiff(), 1e-5);
+    }
+
+    /// [`sliced_against_plain`] on the wgpu device, where [`Mlp::forward`] takes the
+    /// sliced path.
+    #[cfg(feature = "wgpu")]
+    #[test]
+    #[ignore = "needs a Vulkan adapter (lavapipe will do): \
+                cargo test --release --features wgpu -p talkin-nets -p talkin --lib --test device -- --ignored"]
+    fn device_op_sliced_mlp_matches_the_plain_one() {
+        sliced_against_plain(&crate::device::test_wgpu().autodiff(), 1e-5);
     }
 
     /// The fused op gives the composed ops' values and gradients (every parameter and the
