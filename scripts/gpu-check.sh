@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The GPU check: what a user's GPU does with the default scene, in one JSON.
 #
-#   scripts/gpu-check.sh [BIN] [OUT]
+#   scripts/gpu-check.sh [BIN] [OUT]      (BIN may be gzipped: BIN.gz)
 #
 # Runs on a bare GPU machine with no Rust toolchain and no network: BIN is a prebuilt
 # `--features wgpu` release binary (default target/release/talkin; strip it to carry it),
@@ -35,9 +35,19 @@ GL_DEBS=${GL_DEBS:-.gl}
 MINUTES=${GPU_CHECK_MINUTES:-1}
 DEVICE=${GPU_CHECK_DEVICE:-wgpu}
 # cubecl's autotune at its lightest unless the caller chose a level: at the default level
-# a fresh machine spent over 2 minutes in the first 30 steps (docs/design.md, "Devices").
+# a fresh H200 did not get through the first 30 steps in 2 minutes (docs/design.md,
+# "Devices").
 export CUBECL_AUTOTUNE_LEVEL=${CUBECL_AUTOTUNE_LEVEL:-minimal}
 
+# A gzipped binary is unpacked first: stripped, the wgpu build is about 110 MB, gzipped 32.
+if [[ "$BIN" == *.gz ]] && [ -f "$BIN" ]; then
+  unpacked=$(mktemp -d)/talkin
+  if ! { gunzip -c "$BIN" >"$unpacked" && chmod +x "$unpacked"; }; then
+    echo "gpu-check: cannot unpack $BIN" >&2
+    exit 2
+  fi
+  BIN=$unpacked
+fi
 if [ ! -x "$BIN" ]; then
   echo "gpu-check: $BIN is not an executable talkin binary (build one with" \
     "cargo build --release --features wgpu)" >&2
