@@ -183,7 +183,10 @@ fn linear_with_row<const D: usize>(
     match row {
         // An empty batch: the plain path keeps its shape `[.., 0, d_out]`.
         Some(row) if x.shape().num_elements() == 0 => {
-            let out = layer.forward(Tensor::cat(vec![x.reshape([0, d_x]), row.repeat_dim(0, 0)], 1));
+            let out = layer.forward(Tensor::cat(
+                vec![x.reshape([0, d_x]), row.repeat_dim(0, 0)],
+                1,
+            ));
             let mut out_dims = dims;
             out_dims[D - 1] = d_out;
             out.reshape(out_dims)
@@ -286,8 +289,11 @@ mod tests {
     /// with a shared row and a skip layer and without.
     fn sliced_against_plain(device: &Device, tol: f32) {
         let host = |t: Tensor<2>| t.try_to_vec_as::<f32>().unwrap();
-        for (n, skips, with_row) in [(37, vec![], true), (32, vec![2], false), (45, vec![2], true)]
-        {
+        for (n, skips, with_row) in [
+            (37, vec![], true),
+            (32, vec![2], false),
+            (45, vec![2], true),
+        ] {
             let d_row = if with_row { 3 } else { 0 };
             let mlp = MlpConfig::new(3, 16).with_skips(skips.clone()).init(
                 5 + d_row,
