@@ -288,7 +288,7 @@ mod tests {
     /// for a batch with a ragged last slice (zero padding), one that fills its slices,
     /// with a shared row and a skip layer and without.
     fn sliced_against_plain(device: &Device, tol: f32) {
-        let host = |t: Tensor<2>| t.try_to_vec_as::<f32>().unwrap();
+        use crate::util::{assert_close_to, host};
         for (n, skips, with_row) in [
             (37, vec![], true),
             (32, vec![2], false),
@@ -307,31 +307,22 @@ mod tests {
             let plain = mlp.layers(x.clone(), row.clone());
             let sliced = mlp.sliced(x.clone(), row.clone(), 8);
             let what = format!("n {n}, skips {skips:?}, row {with_row}");
-            assert_close(&host(plain.clone()), &host(sliced.clone()), tol, &what);
+            assert_close_to(&what, &host(&sliced), &host(&plain), tol);
             let grads = |out: Tensor<2>| {
                 let g = out.powi_scalar(2).sum().backward();
-                let mut all = vec![host(x.grad(&g).unwrap())];
+                let mut all = vec![host(&x.grad(&g).unwrap())];
                 if let Some(row) = &row {
-                    all.push(host(row.grad(&g).unwrap()));
+                    all.push(host(&row.grad(&g).unwrap()));
                 }
                 for layer in mlp.hidden.iter().chain([&mlp.output]) {
-                    all.push(host(layer.weight.val().grad(&g).unwrap()));
-                    let b = layer.bias.as_ref().unwrap().val();
-                    all.push(b.grad(&g).unwrap().try_to_vec_as::<f32>().unwrap());
+                    all.push(host(&layer.weight.val().grad(&g).unwrap()));
+                    all.push(host(&layer.bias.as_ref().unwrap().val().grad(&g).unwrap()));
                 }
                 all
             };
             for (i, (u, v)) in grads(plain).iter().zip(grads(sliced)).enumerate() {
-                assert_close(u, &v, tol, &format!("{what}, gradient {i}"));
+                assert_close_to(&format!("{what}, gradient {i}"), &v, u, tol);
             }
-        }
-    }
-
-    fn assert_close(u: &[f32], v: &[f32], tol: f32, what: &str) {
-        assert_eq!(u.len(), v.len(), "{what}");
-        let scale = u.iter().fold(1e-6f32, |m, e| m.max(e.abs()));
-        for (p, q) in u.iter().zip(v) {
-            assert!((p - q).abs() <= tol * scale, "{what}: {p} vs {q}");
         }
     }
 
