@@ -177,12 +177,13 @@ fn linear_with_row<const D: usize>(
 ) -> Tensor<D> {
     let dims = x.dims();
     let d_x = dims[D - 1];
+    let rows: usize = dims[..D - 1].iter().product();
     let w = layer.weight.val(); // [d_in, d_out]
     let [d_in, d_out] = w.dims();
-    let bias = layer.bias.as_ref().map(|b| b.val().unsqueeze_dim::<2>(0)); // [1, d_out]
+    let bias = || layer.bias.as_ref().map(|b| b.val().unsqueeze_dim::<2>(0)); // [1, d_out]
     match row {
         // An empty batch: the plain path keeps its shape `[.., 0, d_out]`.
-        Some(row) if x.shape().num_elements() == 0 => {
+        Some(row) if rows == 0 => {
             let out = layer.forward(Tensor::cat(
                 vec![x.reshape([0, d_x]), row.repeat_dim(0, 0)],
                 1,
@@ -193,7 +194,7 @@ fn linear_with_row<const D: usize>(
         }
         Some(row) => {
             let mut c = row.matmul(w.clone().narrow(0, d_x, d_in - d_x)); // [1, d_out]
-            if let Some(b) = bias {
+            if let Some(b) = bias() {
                 c = c + b;
             }
             x.matmul(w.narrow(0, 0, d_x).unsqueeze::<D>()) + c.unsqueeze::<D>()
@@ -201,7 +202,7 @@ fn linear_with_row<const D: usize>(
         None if D == 2 => layer.forward(x),
         None => {
             let out = x.matmul(w.unsqueeze::<D>());
-            match bias {
+            match bias() {
                 Some(b) => out + b.unsqueeze::<D>(),
                 None => out,
             }
