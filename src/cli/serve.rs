@@ -115,6 +115,14 @@ pub fn run(args: ServeArgs) -> anyhow::Result<()> {
         config.shutdown_grace.as_secs_f64(),
     );
     let device = args.device.device;
+    // SIGINT/SIGTERM are handled from before the server starts: one that comes while it
+    // loads or before `run_until_signal` listens is kept here, not left to kill the
+    // process mid-request.
+    let caught_early = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    for sig in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
+        signal_hook::flag::register(sig, caught_early.clone())
+            .map_err(|e| anyhow::anyhow!("installing the SIGINT/SIGTERM handlers: {e}"))?;
+    }
     let server = Server::load_and_start(
         &args.run,
         args.body_model.as_deref(),
@@ -127,7 +135,7 @@ pub fn run(args: ServeArgs) -> anyhow::Result<()> {
         args.run.display(),
         server.addr()
     );
-    let report = server.run_until_signal()?;
+    let report = server.run_until_signal(&caught_early)?;
     if report.dropped_connections == 0 {
         tracing::info!("stopped: in-flight requests finished");
     } else {

@@ -33,6 +33,7 @@ mod subjects;
 use std::net::{SocketAddr, TcpListener};
 use std::path::Path;
 use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::thread::JoinHandle;
 use std::time::Instant;
 
@@ -202,12 +203,15 @@ impl Server {
     }
 
     /// Serves until SIGINT or SIGTERM, then shuts down as [`Server::shutdown`] does.
-    pub fn run_until_signal(self) -> Result<ShutdownReport, ServeError> {
+    /// `caught_early` is a flag the caller's own handler set for a signal that came
+    /// before this call (between the server's start and here): it stops at once. Without
+    /// such a handler, that signal would have ended the process unhandled.
+    pub fn run_until_signal(self, caught_early: &AtomicBool) -> Result<ShutdownReport, ServeError> {
         let runtime = tokio::runtime::Builder::new_current_thread()
             .enable_io()
             .build()
             .map_err(ServeError::Runtime)?;
-        runtime.block_on(termination_signal())?;
+        runtime.block_on(termination_signal(caught_early))?;
         self.shutdown()
     }
 
@@ -230,8 +234,9 @@ impl Drop for Server {
     }
 }
 
-/// Waits for SIGINT (Ctrl-C) or SIGTERM (what `kill` and container runtimes send).
-async fn termination_signal() -> Result<(), ServeError> {
+/// Waits for SIGINT (Ctrl-C) or SIGTERM (what `kill` and container runtimes send), or
+/// returns at once when `caught_early` says one came before the listeners were set.
+async fn termination_signal(caught_early: &AtomicBool) -> Result<(), ServeError> {
     let caught = Arc::new(Notify::new());
     #[cfg(unix)]
     {
@@ -253,6 +258,9 @@ async fn termination_signal() -> Result<(), ServeError> {
             caught.notify_one();
         });
     }
-    caught.notified().await;
+    // Checked after the listeners are set: a signal from here on reaches them.
+    if !caught_early.load(Ordering::SeqCst) {
+        caught.notified().await;
+    }
     Ok(())
 }
