@@ -30,7 +30,10 @@ fn main() -> std::process::ExitCode {
     keep_freed_memory_mapped();
     let args = cli::Cli::parse();
     verbosity::init(args.quiet, args.verbose);
-    match cli::run(args) {
+    let result = cli::run(args);
+    // Each read of a GPU tensor waits for the device's queued work (`-v` shows the count).
+    tracing::debug!("device readbacks: {}", talkin::nets::device_readbacks());
+    match result {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("error: {}", report(&e));

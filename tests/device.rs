@@ -78,7 +78,9 @@ mod wgpu {
         let mut opts = common::small_train_opts(SamplerKind::Accelerated, STEPS);
         opts.device = device;
         let mut t = Trainer::new(dataset, &out, &opts).unwrap();
-        let logs = (0..STEPS).map(|_| t.step().unwrap()).collect();
+        let mut logs: Vec<StepLog> = (0..STEPS).flat_map(|_| t.step().unwrap()).collect();
+        logs.extend(t.settle().unwrap());
+        assert_eq!(logs.len(), STEPS);
         (logs, t)
     }
 
@@ -171,8 +173,10 @@ mod wgpu {
 /// The kernel census of the GPU path, from cubecl's profiling log of `talkin` runs on
 /// wgpu: no `select_assign` kernel (`SelectAssignKernel`: burn-cubecl runs it with one
 /// thread per column, each looping over every index, so the whole batch on one thread)
-/// in a training step of at least 64k samples or in a render, and how many kernels one
-/// step and one frame launch.
+/// in a training step of at least 64k samples or in a render, how many kernels one
+/// step and one frame launch, and how many times each reads the GPU back (`talkin -v`
+/// counts the engine's reads: none in a step, whose losses are read a few steps at a
+/// time, one per frame, and one when a checkpoint is loaded).
 /// A step's kernels are the difference between a 2-step and a 1-step run (the same
 /// setup and final checkpoint in both); a frame's, a render's kernels over its frames.
 /// Autotune tries candidate kernels the first time a process meets a shape, how many
@@ -189,7 +193,7 @@ fn kernel_census() {
 
     let bin = env!("CARGO_BIN_EXE_talkin");
     // The kernels a command ran, by name (generics cut), from its profiling log.
-    let census_once = |args: &[&str], log: &Path| -> (BTreeMap<String, usize>, bool) {
+    let census_once = |args: &[&str], log: &Path| -> (BTreeMap<String, usize>, bool, usize) {
         let _ = std::fs::remove_file(log);
         let out = Command::new(bin)
             .args(args)
@@ -203,6 +207,12 @@ fn kernel_census() {
             "talkin {args:?}: {}",
             String::from_utf8_lossy(&out.stderr)
         );
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        let readbacks = stderr
+            .lines()
+            .find_map(|l| l.strip_prefix("debug: device readbacks: "))
+            .and_then(|n| n.trim().parse().ok())
+            .unwrap_or_else(|| panic!("talkin {args:?} did not count its readbacks: {stderr}"));
         let text = std::fs::read_to_string(log).unwrap_or_default();
         let mut kernels = BTreeMap::new();
         // A kernel's line is `| <duration> | <name>`; the summary's rows start with a
@@ -218,13 +228,13 @@ fn kernel_census() {
             }
             *kernels.entry(name.trim().to_string()).or_insert(0) += 1;
         }
-        (kernels, text.contains("Fastest result"))
+        (kernels, text.contains("Fastest result"), readbacks)
     };
-    let census = |args: &[&str], log: &Path| -> BTreeMap<String, usize> {
+    let census = |args: &[&str], log: &Path| -> (BTreeMap<String, usize>, usize) {
         for _ in 0..5 {
-            let (kernels, tuned) = census_once(args, log);
+            let (kernels, tuned, readbacks) = census_once(args, log);
             if !tuned {
-                return kernels;
+                return (kernels, readbacks);
             }
         }
         panic!(
@@ -256,7 +266,7 @@ fn kernel_census() {
     for steps in [1, 2] {
         let run = common::temp_dir(&format!("census_run_{steps}"));
         let args = [
-            "-q",
+            "-v",
             "train",
             "--data",
             data.to_str().unwrap(),
@@ -274,7 +284,7 @@ fn kernel_census() {
             "1000",
             "--force",
         ];
-        let kernels = census(&args, &logs.join(format!("train_{steps}.log")));
+        let (kernels, readbacks) = census(&args, &logs.join(format!("train_{steps}.log")));
         let csv = std::fs::read_to_string(run.join("train_log.csv")).unwrap();
         let samples: usize = csv
             .lines()
@@ -283,13 +293,14 @@ fn kernel_census() {
             .and_then(|s| s.parse().ok())
             .unwrap();
         assert!(samples >= 65536, "step {steps}: only {samples} samples");
-        per_run.push((run, kernels, samples));
+        per_run.push((run, kernels, samples, readbacks));
     }
     let step = total(&per_run[1].1) as i64 - total(&per_run[0].1) as i64;
+    let step_readbacks = per_run[1].3 as i64 - per_run[0].3 as i64;
     let frames = common::temp_dir("census_frames");
-    let render = census(
+    let (render, render_readbacks) = census(
         &[
-            "-q",
+            "-v",
             "render",
             "--run",
             per_run[1].0.to_str().unwrap(),
@@ -314,8 +325,9 @@ fn kernel_census() {
         .count();
     assert!(n_frames > 0);
     println!(
-        "kernel census: a training step of {} samples launches {step} kernels; \
-         a 256 px frame {} ({} frames, {} in all)",
+        "kernel census: a training step of {} samples launches {step} kernels and reads \
+         the GPU back {step_readbacks} times; a 256 px frame {} kernels ({} frames, {} in \
+         all) and {render_readbacks} readbacks in all",
         per_run[1].2,
         total(&render) / n_frames,
         n_frames,
@@ -342,6 +354,13 @@ fn kernel_census() {
     // device kernels it is 458 (docs/results.md, "Devices"). A step past 1000 means a hot
     // path fell back to composed ops.
     assert!(step < 1000, "a training step launches {step} kernels");
+    assert_eq!(step_readbacks, 0, "a training step waits on the GPU");
+    // One a frame, and one to check the loaded checkpoint's parameters are finite.
+    assert_eq!(
+        render_readbacks,
+        n_frames + 1,
+        "readbacks of {n_frames} frames"
+    );
     for (what, kernels) in [("training", &per_run[1].1), ("render", &render)] {
         let found = serial(kernels);
         assert!(found.is_empty(), "{what} ran serial kernels: {found:?}");

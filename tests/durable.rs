@@ -321,6 +321,82 @@ fn non_finite_weights_are_refused_naming_the_file() {
     assert!(e.contains("model.bpk") && e.contains("not finite"), "{e}");
 }
 
+/// Puts `value` into the last element of the `target`-th float tensor (in visiting order).
+struct PoisonOne {
+    seen: usize,
+    target: usize,
+    value: f32,
+}
+
+impl ModuleMapper for PoisonOne {
+    fn map_float<const D: usize>(&mut self, param: Param<Tensor<D>>) -> Param<Tensor<D>> {
+        self.seen += 1;
+        if self.seen != self.target + 1 {
+            return param;
+        }
+        let value = self.value;
+        param.map(|t| {
+            let shape = t.shape();
+            let device = t.device();
+            let mut v = t.try_to_vec_as::<f32>().unwrap();
+            *v.last_mut().unwrap() = value;
+            Tensor::from_data(TensorData::new(v, shape), &device)
+        })
+    }
+}
+
+/// The module paths of `field`'s float tensors, in visiting order.
+struct Paths {
+    path: Vec<String>,
+    all: Vec<String>,
+}
+
+impl burn::module::ModuleVisitor for Paths {
+    fn enter_module(&mut self, name: &str, _container_type: &str) {
+        self.path.push(name.to_string());
+    }
+    fn exit_module(&mut self, _name: &str, _container_type: &str) {
+        self.path.pop();
+    }
+    fn visit_float<const D: usize>(&mut self, _param: &Param<Tensor<D>>) {
+        self.all.push(self.path.join("."));
+    }
+}
+
+#[test]
+fn the_first_non_finite_tensor_is_named() {
+    let dataset = scene("durable_scene_inf", 1);
+    let run = common::temp_dir("durable_inf");
+    train(&dataset, &run, &small_opts(2), &mut |_| {}).unwrap();
+    let field = Checkpoint::load(&run)
+        .unwrap()
+        .field(&Device::flex())
+        .unwrap();
+    assert_eq!(checkpoint::first_non_finite(&field), None);
+    let mut paths = Paths {
+        path: Vec::new(),
+        all: Vec::new(),
+    };
+    field.visit(&mut paths);
+    assert!(paths.all.len() > 4);
+    for (target, value) in [
+        (3, f32::INFINITY),
+        (paths.all.len() - 1, f32::NAN),
+        (0, f32::NEG_INFINITY),
+    ] {
+        let poisoned = field.clone().map(&mut PoisonOne {
+            seen: 0,
+            target,
+            value,
+        });
+        assert_eq!(
+            checkpoint::first_non_finite(&poisoned).as_deref(),
+            Some(paths.all[target].as_str()),
+            "{value} in tensor {target}"
+        );
+    }
+}
+
 #[test]
 fn resume_refuses_another_dataset() {
     let trained_on = scene("durable_scene_a", 1);

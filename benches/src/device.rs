@@ -3,10 +3,11 @@
 //! peak memory.
 //!
 //! Each row trains a fresh field from the same seed for `warmup + steps` steps on the
-//! same frames and times the last `steps` (the median step); then it renders `renders`
-//! frames at 540x540 from that field and times them (the median render). Every timed
-//! call ends with a readback (the step's loss, the render's pixels), so a GPU's queued
-//! work is inside the time. Memory: the process's peak resident set (reset before each
+//! same frames and times the last `steps` as one block (the mean step); then it renders
+//! `renders` frames at 540x540 from that field and times them (the median render). The
+//! block starts after the warm-up's losses are read and ends once its own are (a GPU
+//! reads a step's loss only with later steps', so a step's own time is its queueing),
+//! and a render ends with its pixels read back: a GPU's queued work is inside the time. Memory: the process's peak resident set (reset before each
 //! row where Linux allows it) and, on a GPU, the most the device's allocator reserved.
 
 use std::path::Path;
@@ -46,11 +47,12 @@ pub struct DeviceRow {
     pub adapter: String,
     pub preset: String,
     pub batch_rays: usize,
-    pub step_ms_median: f64,
+    /// The timed steps' mean.
+    pub step_ms: f64,
     pub steps_per_s: f64,
     pub samples_per_step: f64,
     pub samples_per_s: f64,
-    /// The host sampler's share of a step's wall time (the median over the timed steps).
+    /// The host sampler's share of the timed steps' wall time.
     pub sampling_share: f64,
     pub render_ms_median: f64,
     pub render_fps: f64,
@@ -106,7 +108,7 @@ pub fn run(
             progress(&format!(
                 "{device} {}: step {:.1} ms, {:.0} samples/s, render {:.0} ms",
                 preset.name(),
-                row.step_ms_median,
+                row.step_ms,
                 row.samples_per_s,
                 row.render_ms_median
             ));
@@ -145,19 +147,22 @@ fn measure(
     reset_peak_rss();
     let mut peak_device = 0u64;
     let mut trainer = Trainer::new(dataset, run, &train)?;
-    let mut steps = Vec::with_capacity(opts.steps);
-    for k in 0..opts.warmup + opts.steps {
-        let start = Instant::now();
-        let log = trainer.step()?;
-        let wall = start.elapsed().as_secs_f64();
+    for _ in 0..opts.warmup {
+        trainer.step()?;
         peak_device = peak_device.max(reserved());
-        if k >= opts.warmup {
-            steps.push((wall, log.samples as f64, log.sampling_s));
-        }
     }
-    let step_ms = median(steps.iter().map(|s| s.0).collect()) * 1e3;
-    let samples = median(steps.iter().map(|s| s.1).collect());
-    let sampling = median(steps.iter().map(|s| s.2 / s.0.max(1e-12)).collect());
+    trainer.settle()?;
+    let start = Instant::now();
+    let mut logs = Vec::with_capacity(opts.steps);
+    for _ in 0..opts.steps {
+        logs.extend(trainer.step()?);
+        peak_device = peak_device.max(reserved());
+    }
+    logs.extend(trainer.settle()?);
+    let wall = start.elapsed().as_secs_f64().max(1e-12);
+    let step_ms = wall * 1e3 / opts.steps as f64;
+    let samples = logs.iter().map(|l| l.samples as f64).sum::<f64>() / opts.steps as f64;
+    let sampling = logs.iter().map(|l| l.sampling_s).sum::<f64>() / wall;
 
     let avatar = avatar_of(&trainer);
     let mut render_samples = 0;
@@ -178,7 +183,7 @@ fn measure(
         adapter: device.describe(opened),
         preset: preset.name().to_string(),
         batch_rays: train.batch_rays,
-        step_ms_median: step_ms,
+        step_ms,
         steps_per_s: 1e3 / step_ms,
         samples_per_step: samples,
         samples_per_s: samples / (step_ms / 1e3),
@@ -252,7 +257,7 @@ fn peak_rss_bytes() -> Option<u64> {
 /// The report as a Markdown table.
 pub fn table(r: &DeviceReport) -> String {
     let mut s = format!(
-        "{} timed steps after {} warm-up, {} renders at {}x{}; medians.\n\n\
+        "{} timed steps after {} warm-up (their mean), {} renders at {}x{} (the median).\n\n\
          | device | preset | batch | step ms | steps/s | samples/s | sampler share | \
          render ms | fps | peak RSS MiB | peak device MiB |\n\
          |---|---|---|---|---|---|---|---|---|---|---|\n",
@@ -265,7 +270,7 @@ pub fn table(r: &DeviceReport) -> String {
             row.adapter,
             row.preset,
             row.batch_rays,
-            row.step_ms_median,
+            row.step_ms,
             row.steps_per_s,
             row.samples_per_s,
             100.0 * row.sampling_share,

@@ -9,8 +9,10 @@
 
 use std::fmt;
 use std::str::FromStr;
+use std::sync::atomic::{AtomicUsize, Ordering};
 
 use burn::prelude::*;
+use burn::tensor::TensorReadError;
 use serde::{Deserialize, Serialize};
 
 /// A device named on the command line.
@@ -126,6 +128,48 @@ pub(crate) fn test_wgpu() -> Device {
 /// synchronous, the fused CPU kernels apply, and one batch is split over two threads.
 pub fn is_cpu(device: &Device) -> bool {
     *device == Device::flex()
+}
+
+/// Reads on a GPU so far, by [`read_floats`].
+static DEVICE_READBACKS: AtomicUsize = AtomicUsize::new(0);
+
+/// Reads a float tensor back to the host. On a GPU that waits for all the work queued
+/// before it, so every read there is counted ([`device_readbacks`]); the engine reads
+/// device tensors only through here.
+pub fn read_floats<const D: usize>(tensor: Tensor<D>) -> Result<Vec<f32>, TensorReadError> {
+    if !is_cpu(&tensor.device()) {
+        DEVICE_READBACKS.fetch_add(1, Ordering::Relaxed);
+    }
+    tensor.try_to_vec_as::<f32>()
+}
+
+/// How many times this process read a GPU tensor back ([`read_floats`]).
+pub fn device_readbacks() -> usize {
+    DEVICE_READBACKS.load(Ordering::Relaxed)
+}
+
+/// The most bytes one tensor may hold on `device`: on wgpu, a storage binding's limit
+/// (the adapter's: 128 MiB on lavapipe, 4 GiB on NVIDIA's Vulkan driver). `None` on the
+/// CPU, where only memory bounds a tensor.
+pub fn max_tensor_bytes(device: &Device) -> Option<u64> {
+    if is_cpu(device) {
+        return None;
+    }
+    max_binding_bytes(device)
+}
+
+#[cfg(feature = "wgpu")]
+fn max_binding_bytes(device: &Device) -> Option<u64> {
+    use burn::backend::DispatchDevice;
+    match device.clone().without_autodiff().as_dispatch() {
+        DispatchDevice::Cube(cube) => Some(cube.client().properties().memory.max_page_size),
+        _ => None,
+    }
+}
+
+#[cfg(not(feature = "wgpu"))]
+fn max_binding_bytes(_device: &Device) -> Option<u64> {
+    None
 }
 
 #[cfg(feature = "wgpu")]

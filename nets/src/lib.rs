@@ -40,7 +40,9 @@ pub mod skinning;
 mod util;
 
 pub use burn::prelude::Device;
-pub use device::{ComputeDevice, DeviceError, is_cpu};
+pub use device::{
+    ComputeDevice, DeviceError, device_readbacks, is_cpu, max_tensor_bytes, read_floats,
+};
 pub use error::NetsError;
 pub use field::{
     FieldConfig, FieldInput, FieldOutput, FrameConditions, PoseGrads, PoseLeaves, TalkinField,

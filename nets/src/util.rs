@@ -22,9 +22,7 @@ pub(crate) fn ints<E: burn::tensor::Element>(values: Vec<E>, device: &Device) ->
 
 /// Reads a float tensor back to the host (a sync point on GPU backends).
 pub(crate) fn host<const D: usize>(tensor: &Tensor<D>) -> Vec<f32> {
-    tensor
-        .try_to_vec_as::<f32>()
-        .expect("reading a float tensor back to the host")
+    crate::device::read_floats(tensor.clone()).expect("reading a float tensor back to the host")
 }
 
 /// Asserts that `tested` holds `reference`'s values to `tolerance` relative (absolute

@@ -229,7 +229,12 @@ pub(crate) fn train_and_score(
             continue;
         }
         while trainer.elapsed_seconds() < mark && !trainer.done() {
-            meter.add(&trainer.step()?);
+            for log in trainer.step()? {
+                meter.add(&log);
+            }
+        }
+        for log in trainer.settle()? {
+            meter.add(&log);
         }
         let start = Instant::now();
         // The run's own sampler renders it (the avatar keeps the trainer's).

@@ -60,6 +60,14 @@ pub enum TrainError {
     },
     #[error("step {step}: the loss is not finite ({loss}); lower --lr?")]
     NonFinite { step: usize, loss: f32 },
+    #[error("step {step}: handing its work to the device failed: {problem}")]
+    Flush { step: usize, problem: String },
+    #[error("steps {first}-{last}: reading their losses back from the device failed: {problem}")]
+    Readback {
+        first: usize,
+        last: usize,
+        problem: String,
+    },
     #[error("{}: {problem}", file.display())]
     Resume { file: PathBuf, problem: String },
     #[error("{}: cannot record the run: {problem}", file.display())]

@@ -107,7 +107,7 @@ fn canonical_density(
         0,
         Tensor::<1, Int>::from_data(TensorData::new(vec![subject as i32], [1]), &device),
     ); // [1, id]
-    let host = |t: Tensor<2>| t.try_to_vec_as::<f32>().ok();
+    let host = |t: Tensor<2>| talkin_nets::read_floats(t).ok();
     let body = field
         .body
         .forward(unit.clone(), subject, id.clone(), usize::MAX);

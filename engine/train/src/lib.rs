@@ -14,6 +14,7 @@ pub mod error;
 pub mod grid_update;
 pub mod log;
 pub mod loss;
+mod pending;
 pub mod preset;
 pub mod rays;
 pub mod recipe;

@@ -50,11 +50,50 @@ pub(crate) struct StepBatch<'a> {
 
 /// The summed loss, its MSE part and the gradients of the whole batch.
 pub(crate) struct StepLoss {
-    pub loss: f32,
-    pub mse: f32,
+    pub values: LossValues,
     pub grads: GradientsParams,
     /// With [`StepBatch::pose_grads`]: the gradients w.r.t. the frame's conditions.
     pub pose: Option<PoseGrads>,
+}
+
+/// A step's loss and its MSE part: read on the CPU, where a read is a copy; on a GPU
+/// left on the device, so that no step waits for its own work (the trainer reads a few
+/// steps' values in one transfer).
+pub(crate) enum LossValues {
+    Read {
+        loss: f32,
+        mse: f32,
+    },
+    /// `[loss, mse]`.
+    Queued(Box<Tensor<1>>),
+}
+
+impl LossValues {
+    /// `[loss, mse]` of `values` (a `[2]` tensor): read now on the CPU, queued elsewhere.
+    fn of(values: Tensor<1>) -> LossValues {
+        if is_cpu(&values.device()) {
+            let v = values.try_to_vec_as::<f32>().unwrap_or_default();
+            let value = |i: usize| v.get(i).copied().unwrap_or(f32::NAN);
+            LossValues::Read {
+                loss: value(0),
+                mse: value(1),
+            }
+        } else {
+            LossValues::Queued(Box::new(values))
+        }
+    }
+
+    /// The loss and MSE, read back now if they are still on the device.
+    #[cfg(test)]
+    pub fn read(&self) -> (f32, f32) {
+        match self {
+            LossValues::Read { loss, mse } => (*loss, *mse),
+            LossValues::Queued(t) => {
+                let v = t.as_ref().clone().try_to_vec_as::<f32>().unwrap();
+                (v[0], v[1])
+            }
+        }
+    }
 }
 
 /// Where the batch is split: halfway, but never inside the LPIPS patches (they stay in
@@ -94,9 +133,22 @@ pub(crate) fn loss_and_grads(
         }
         (a, b) => a.or(b),
     };
+    let values = match (a.values, b.values) {
+        (LossValues::Read { loss: la, mse: ma }, LossValues::Read { loss: lb, mse: mb }) => {
+            LossValues::Read {
+                loss: la + lb,
+                mse: ma + mb,
+            }
+        }
+        (LossValues::Queued(a), LossValues::Queued(b)) => LossValues::Queued(Box::new(*a + *b)),
+        (LossValues::Read { loss, mse }, LossValues::Queued(t))
+        | (LossValues::Queued(t), LossValues::Read { loss, mse }) => {
+            let read = Tensor::<1>::from_floats([loss, mse], &t.device());
+            LossValues::Queued(Box::new(*t + read))
+        }
+    };
     Ok(StepLoss {
-        loss: a.loss + b.loss,
-        mse: a.mse + b.mse,
+        values,
         grads: sum_grads(field, a.grads, b.grads),
         pose,
     })
@@ -187,9 +239,12 @@ fn half(
         }
         _ => pixel,
     };
-    // The loss and its MSE, read back together once the backward is recorded (on a GPU
-    // one wait, after the step's work is queued).
-    let values = Tensor::cat(vec![loss.clone().detach(), l_mse.detach()], 0);
+    // The loss and its weighted MSE, together (read once the backward is recorded, on
+    // the CPU; left queued on a GPU).
+    let values = Tensor::cat(
+        vec![loss.clone().detach(), l_mse.detach().mul_scalar(weight)],
+        0,
+    );
     // A half whose rays all missed every capsule (e.g. an LPIPS patch beside the person)
     // has no samples: its loss is a constant, with no gradient to take.
     let (grads, pose) = if loss.is_tracked() {
@@ -200,11 +255,8 @@ fn half(
         let pose = batch.pose_grads.then(|| zero_grads(field.pose_dim()));
         (GradientsParams::new(), pose)
     };
-    let values = values.try_to_vec_as::<f32>().unwrap_or_default();
-    let value = |i: usize| values.get(i).copied().unwrap_or(f32::NAN);
     Ok(StepLoss {
-        loss: value(0),
-        mse: weight * value(1),
+        values: LossValues::of(values),
         grads,
         pose,
     })
@@ -343,18 +395,22 @@ mod tests {
                     mask_weight,
                     ..batch()
                 };
-                half(&field, false, None, &b, 0..9, &samples).unwrap().loss
+                half(&field, false, None, &b, 0..9, &samples)
+                    .unwrap()
+                    .values
+                    .read()
+                    .0
             };
             assert_eq!(loss_with(&cut, 1.0), loss_with(&cut, 0.0));
             assert!(loss_with(&silhouette, 1.0) > loss_with(&silhouette, 0.0));
             let split = loss_and_grads(&field, None, batch()).unwrap();
+            let ((whole_loss, whole_mse), (split_loss, split_mse)) =
+                (whole.values.read(), split.values.read());
             assert!(
-                (whole.loss - split.loss).abs() <= 1e-5 * whole.loss.abs(),
-                "{} vs {}",
-                whole.loss,
-                split.loss
+                (whole_loss - split_loss).abs() <= 1e-5 * whole_loss.abs(),
+                "{whole_loss} vs {split_loss}"
             );
-            assert!((whole.mse - split.mse).abs() <= 1e-5 * whole.mse.abs());
+            assert!((whole_mse - split_mse).abs() <= 1e-5 * whole_mse.abs());
             let mut same = SameGrads {
                 a: &whole.grads,
                 b: &split.grads,

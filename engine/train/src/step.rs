@@ -10,7 +10,8 @@ use talkin_grids::{GridError, PackedSamples, SamplerKind};
 
 use crate::error::TrainError;
 use crate::log::StepLog;
-use crate::loss::{StepBatch, StepLoss, loss_and_grads};
+use crate::loss::{LossValues, StepBatch, StepLoss, loss_and_grads};
+use crate::pending::{READ_EVERY, psnr};
 use crate::rays::{Batch, BatchSpec, CacheError, FrameCache, PATCH, draw_batch};
 use crate::refine::chain::correction_gradient;
 use crate::schedule;
@@ -19,8 +20,11 @@ use talkin_nets::PoseGrads;
 use talkin_nets::skinning::skinned_candidates;
 
 impl Trainer<'_> {
-    /// One optimizer step (and, when due, an occupancy-grid update).
-    pub fn step(&mut self) -> Result<StepLog, TrainError> {
+    /// One optimizer step (and, when due, an occupancy-grid update). Returns the log
+    /// entries completed by it: on the CPU this step's; on a GPU, where the losses stay
+    /// on the device, none, or every queued step's once [`READ_EVERY`] are queued (and
+    /// any that a checkpoint read since the last call).
+    pub fn step(&mut self) -> Result<Vec<StepLog>, TrainError> {
         let t0 = Instant::now();
         let vstep = self.field_step();
         let lr = schedule::learning_rate(self.opts.initial_lr(), vstep);
@@ -45,12 +49,13 @@ impl Trainer<'_> {
 
         // Field and loss: forward, render, loss and backward.
         let StepLoss {
-            loss,
-            mse,
+            values,
             grads,
             pose,
         } = self.field_loss(frame, &batch, samples, vstep, refining)?;
-        if !loss.is_finite() {
+        if let LossValues::Read { loss, .. } = values
+            && !loss.is_finite()
+        {
             return Err(TrainError::NonFinite {
                 step: self.step + 1,
                 loss,
@@ -65,15 +70,30 @@ impl Trainer<'_> {
         // Grid update, when due.
         self.update_grids_if_due()?;
 
+        // On a GPU the step's queued ops go to the device now, without waiting for them:
+        // fusion then cuts every step's ops at the same places and the same fused kernels
+        // serve every step (left to fill its queue across steps, it cut them anywhere and
+        // compiled new kernels for a minute: design.md, "Devices").
+        if let LossValues::Queued(values) = &values {
+            values.device().flush().map_err(|e| TrainError::Flush {
+                step: self.step,
+                problem: format!("{e:?}"),
+            })?;
+        }
+
         let secs = t0.elapsed().as_secs_f64().max(1e-9);
         self.elapsed += secs;
         self.since_checkpoint += secs;
+        let (loss, mse) = match values {
+            LossValues::Read { loss, mse } => (loss, mse),
+            LossValues::Queued(_) => (f32::NAN, f32::NAN),
+        };
         let entry = StepLog {
             step: self.step,
             seconds: self.elapsed,
             loss,
             mse,
-            psnr: -10.0 * mse.max(1e-10).log10(),
+            psnr: psnr(mse),
             rays: n_rays,
             samples: n_samples,
             rays_per_s: n_rays as f64 / secs,
@@ -84,8 +104,41 @@ impl Trainer<'_> {
             sampling_s,
             bones_per_sample,
         };
-        self.log.write(&entry)?;
-        Ok(entry)
+        let mut done = std::mem::take(&mut self.unreported);
+        match values {
+            LossValues::Read { .. } => {
+                self.log.write(&entry)?;
+                done.push(entry);
+            }
+            LossValues::Queued(values) => {
+                self.pending.push(entry, *values);
+                if self.pending.len() >= READ_EVERY {
+                    done.extend(self.read_losses()?);
+                }
+            }
+        }
+        Ok(done)
+    }
+
+    /// Reads the losses of every step still queued on the device (one wait for the
+    /// device's work), logs those steps and returns their entries; its wait counts as
+    /// training time.
+    pub(crate) fn read_losses(&mut self) -> Result<Vec<StepLog>, TrainError> {
+        let (entries, waited) = self.pending.read()?;
+        self.elapsed += waited;
+        self.since_checkpoint += waited;
+        for entry in &entries {
+            self.log.write(entry)?;
+        }
+        Ok(entries)
+    }
+
+    /// The log entries of every step taken and not yet returned by [`Trainer::step`]: the
+    /// losses still on the device are read first.
+    pub fn settle(&mut self) -> Result<Vec<StepLog>, TrainError> {
+        let mut done = std::mem::take(&mut self.unreported);
+        done.extend(self.read_losses()?);
+        Ok(done)
     }
 
     /// A seeded training frame, cached with its decoded images and sampler on first use.

@@ -256,13 +256,16 @@ pub fn save(run: &Path, c: &CheckpointContents) -> Result<PathBuf, CheckpointErr
 }
 
 /// The module path of the first float tensor of `field` holding a NaN or an infinity.
+/// Each tensor's flag is `sum(x - x)` (0 when every value is finite, NaN otherwise), and
+/// the flags are read back together: on a GPU one wait, not one a tensor.
 pub fn first_non_finite(field: &TalkinField) -> Option<String> {
     #[derive(Default)]
-    struct Check {
+    struct Flags {
         path: Vec<String>,
-        bad: Option<String>,
+        names: Vec<String>,
+        flags: Vec<Tensor<1>>,
     }
-    impl ModuleVisitor for Check {
+    impl ModuleVisitor for Flags {
         fn enter_module(&mut self, name: &str, _container_type: &str) {
             self.path.push(name.to_string());
         }
@@ -270,14 +273,23 @@ pub fn first_non_finite(field: &TalkinField) -> Option<String> {
             self.path.pop();
         }
         fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
-            if self.bad.is_none() && !param.val().into_data().iter::<f32>().all(|v| v.is_finite()) {
-                self.bad = Some(self.path.join("."));
-            }
+            let t = param.val();
+            self.names.push(self.path.join("."));
+            self.flags.push((t.clone() - t).sum());
         }
     }
-    let mut check = Check::default();
-    field.visit(&mut check);
-    check.bad
+    let mut flags = Flags::default();
+    field.visit(&mut flags);
+    if flags.flags.is_empty() {
+        return None;
+    }
+    match talkin_nets::read_floats(Tensor::cat(flags.flags, 0)) {
+        Ok(values) => values
+            .iter()
+            .position(|v| *v != 0.0)
+            .map(|i| flags.names[i].clone()),
+        Err(e) => Some(format!("(the parameters could not be read back: {e:?})")),
+    }
 }
 
 /// The directory `LATEST` names in `run`.

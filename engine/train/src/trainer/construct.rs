@@ -15,6 +15,7 @@ use talkin_nets::{ComputeDevice, FieldConfig, TalkinField};
 
 use crate::error::TrainError;
 use crate::log::{LOG_FILE, TrainLog};
+use crate::pending::PendingLosses;
 use crate::preset::Preset;
 use crate::recipe::TrainOptions;
 use crate::refine::{PoseRefiner, RefineMode};
@@ -236,6 +237,8 @@ impl<'a> Trainer<'a> {
             anchor: None,
             last_checkpoint: None,
             notes: Vec::new(),
+            pending: PendingLosses::default(),
+            unreported: Vec::new(),
         })
     }
 }

@@ -25,6 +25,7 @@ use talkin_nets::{FieldConfig, TalkinField};
 
 use crate::error::TrainError;
 use crate::log::{LOG_FILE, StepLog, TrainLog};
+use crate::pending::PendingLosses;
 use crate::rays::FrameCache;
 use crate::recipe::TrainOptions;
 use crate::refine::PoseRefiner;
@@ -122,6 +123,10 @@ pub struct Trainer<'a> {
     pub(crate) notes: Vec<String>,
     /// The training fits' corrections (`None`: the fits are trusted).
     pub(crate) refiner: Option<PoseRefiner>,
+    /// Steps whose losses are still on the device.
+    pub(crate) pending: PendingLosses,
+    /// Log entries a checkpoint read that [`Trainer::step`] has not returned yet.
+    pub(crate) unreported: Vec<StepLog>,
 }
 
 impl<'a> Trainer<'a> {}
@@ -225,10 +230,15 @@ impl Trainer<'_> {
                 interrupted = true;
                 break;
             }
-            let entry = self.step()?;
+            for entry in self.step()? {
+                progress(&entry);
+                logs.push(entry);
+            }
+            self.maybe_save()?;
+        }
+        for entry in self.settle()? {
             progress(&entry);
             logs.push(entry);
-            self.maybe_save()?;
         }
         let checkpoint = self.save()?;
         Ok(TrainReport {

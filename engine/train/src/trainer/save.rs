@@ -13,6 +13,10 @@ impl Trainer<'_> {
     /// previous one as a fallback. Without a step since the last checkpoint, returns
     /// that one.
     pub fn save(&mut self) -> Result<PathBuf, TrainError> {
+        // The log reaches the checkpoint's step: the losses still on the device first
+        // (their entries go to the next `step` or `settle`).
+        let read = self.read_losses()?;
+        self.unreported.extend(read);
         self.log.sync()?;
         if let Some((step, dir)) = &self.last_checkpoint
             && *step == self.step
