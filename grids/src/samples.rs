@@ -137,6 +137,20 @@ impl PackedSamples {
         (head, tail)
     }
 
+    /// Appends `next`'s rays after these (the inverse of [`PackedSamples::split_at_ray`]).
+    pub fn append(&mut self, next: PackedSamples) {
+        let base = self.num_samples() as u32;
+        if self.ray_offsets.is_empty() {
+            self.ray_offsets.push(0);
+        }
+        self.ray_offsets
+            .extend(next.ray_offsets.iter().skip(1).map(|o| o + base));
+        self.t_start.extend(next.t_start);
+        self.t_end.extend(next.t_end);
+        self.part_mask.extend(next.part_mask);
+        self.bone_mask.extend(next.bone_mask);
+    }
+
     /// Checks the packed layout: offsets start at 0, never decrease and end at the
     /// sample count; every array has that length; every sample has
     /// `t_start <= t_end`, and a ray's samples are sorted and do not overlap.
@@ -227,6 +241,25 @@ pub(crate) fn stratified_bins(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn append_undoes_a_split_at_every_ray() {
+        let all = PackedSamples {
+            ray_offsets: vec![0, 2, 2, 5],
+            t_start: vec![0.0, 1.0, 0.0, 1.0, 2.0],
+            t_end: vec![0.5, 1.5, 0.5, 1.5, 2.5],
+            part_mask: vec![1, 2, 3, 4, 5],
+            bone_mask: vec![1, 2, 3, 4, 5],
+        };
+        for k in 0..=all.num_rays() {
+            let (mut head, tail) = all.split_at_ray(k);
+            head.append(tail);
+            assert_eq!(head, all, "split at ray {k}");
+        }
+        let mut empty = PackedSamples::default();
+        empty.append(all.clone());
+        assert_eq!(empty, all);
+    }
 
     #[test]
     fn split_at_ray_gives_both_halves_with_their_own_offsets() {

@@ -3,6 +3,7 @@
 //! eval, the server) or wrapped around a field still in training (the benchmarks'
 //! evaluations, `talkin_benches::shared::avatar_of`).
 
+mod forwards;
 mod render;
 
 use std::path::{Path, PathBuf};
@@ -14,7 +15,10 @@ use talkin_avatar::subject::{SubjectModel, SubjectSlot};
 use talkin_grids::SamplerKind;
 use talkin_nets::{FieldConfig, TalkinField};
 
-pub use render::{MAX_RENDER_PIXELS, RENDER_CHUNK_RAYS, RENDER_CHUNK_SAMPLES, RenderedFrame};
+pub use render::{
+    DEVICE_FORWARD_SAMPLES_MAX, MAX_RENDER_PIXELS, RENDER_CHUNK_RAYS, RENDER_CHUNK_SAMPLES,
+    RenderedFrame, forward_samples_on,
+};
 
 /// Why an avatar could not be loaded or could not render.
 #[derive(Debug, thiserror::Error)]

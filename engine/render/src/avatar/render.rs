@@ -1,66 +1,44 @@
 //! Rendering one frame: every pixel's ray through the frame's sampler, the field in
 //! chunks, volume rendering over the background.
 
+use std::ops::Range;
 use std::time::Instant;
 
 use burn::prelude::*;
 use image::{GrayImage, RgbImage};
 use rayon::prelude::*;
 use talkin_avatar::field_inputs::{frame_conditions, packed_layout};
-use talkin_avatar::scene::{DilatedGrids, FrameSampler, FrameScene};
-use talkin_grids::{Ray, SamplerKind};
+use talkin_avatar::scene::{FrameSampler, FrameScene};
+use talkin_grids::{PackedSamples, Ray, SamplerKind};
 use talkin_human::body::FrameParams;
 use talkin_human::camera::Camera;
-use talkin_nets::FieldInput;
+use talkin_nets::{FieldConfig, FieldInput, is_cpu, max_tensor_bytes};
 
+use super::forwards::plan_forwards;
 use super::{Avatar, AvatarError};
 
-/// Rays per field evaluation when rendering.
+/// Rays the host samples at once when rendering (chunks run in parallel).
 pub const RENDER_CHUNK_RAYS: usize = 8192;
-/// Field samples per evaluation at most when rendering: a chunk of rays with more is
-/// halved until it fits. This bounds the memory of one forward; a whole chunk of dense
-/// rays (8192 x 128 samples) held several GB of activations, and two chunks in parallel
-/// took about 14 GB.
+/// Field samples per evaluation at most when rendering on the CPU: a chunk of rays with
+/// more is halved until it fits. This bounds the memory of one forward; a whole chunk of
+/// dense rays (8192 x 128 samples) held several GB of activations, and two chunks in
+/// parallel took about 14 GB. A GPU's own cap comes from its binding limit
+/// ([`forward_samples_on`]).
 pub const RENDER_CHUNK_SAMPLES: usize = 1 << 17;
+/// The most samples one forward takes on a GPU, whatever its binding limit allows: a
+/// 540x540 frame of the default scene (3.9M samples) is then eight forwards, which lay
+/// out their inputs on eight host threads at once.
+pub const DEVICE_FORWARD_SAMPLES_MAX: usize = 1 << 19;
 /// Largest image a render accepts (pixels): 4096 x 4096.
 pub const MAX_RENDER_PIXELS: u64 = 4096 * 4096;
 
-/// One chunk of a frame's rays, rendered: per piece (a chunk halved to fit the sample
-/// cap is two pieces), its values still on the device, or the rays' count where no ray
-/// met the body. The frame reads every piece back at once.
-struct ChunkOut {
-    pieces: Vec<Piece>,
-    samples: usize,
-    /// The most samples one field forward of this chunk saw.
-    largest_forward: usize,
-}
-
+/// One forward's rendered rays (its values still on the device), or the count of its
+/// rays where no ray met the body. The frame reads every piece back at once.
 enum Piece {
     /// `[rays, 4 + classes]`: colour over the background, opacity, segmentation logits.
     Rendered(Box<Tensor<2>>),
     /// This many rays without a sample: the background.
     Empty(usize),
-}
-
-impl ChunkOut {
-    /// `next`'s rays after these.
-    fn append(&mut self, next: ChunkOut) {
-        self.pieces.extend(next.pieces);
-        self.samples += next.samples;
-        self.largest_forward = self.largest_forward.max(next.largest_forward);
-    }
-}
-
-/// What every chunk of one frame's render shares.
-#[derive(Clone, Copy)]
-struct ChunkContext<'a> {
-    frame_sampler: &'a FrameSampler,
-    kind: SamplerKind,
-    grid: &'a talkin_grids::OccupancyGrid,
-    dilated: &'a DilatedGrids,
-    conditions: &'a talkin_nets::FrameConditions,
-    /// Field samples per evaluation at most (a single ray may exceed it).
-    max_samples: usize,
 }
 
 /// A rendered image.
@@ -105,6 +83,26 @@ impl RenderedFrame {
     }
 }
 
+/// The most field samples one render forward takes on `device`: on the CPU
+/// [`RENDER_CHUNK_SAMPLES`]; on a GPU as many as keep the widest activation within the
+/// device's binding limit ([`max_tensor_bytes`]), at least [`RENDER_CHUNK_SAMPLES`] and
+/// at most [`DEVICE_FORWARD_SAMPLES_MAX`]. The widest activation is bounded by twice the
+/// widest MLP (a skip layer's input is its width and the encoding's) and at least 512
+/// floats (inverse skinning's rows for a sample with every body bone a candidate).
+pub fn forward_samples_on(device: &Device, config: &FieldConfig) -> usize {
+    let Some(limit) = max_tensor_bytes(device) else {
+        return RENDER_CHUNK_SAMPLES;
+    };
+    let widest = [&config.body, &config.face, &config.hands, &config.deform]
+        .iter()
+        .map(|m| 2 * m.width)
+        .max()
+        .unwrap_or(0)
+        .max(512);
+    let fits = limit / (4 * widest as u64);
+    (fits as usize).clamp(RENDER_CHUNK_SAMPLES, DEVICE_FORWARD_SAMPLES_MAX)
+}
+
 /// Pixel rays of `camera`, row-major.
 pub(crate) fn pixel_rays(camera: &Camera) -> Result<Vec<Ray>, talkin_grids::GridError> {
     let mut rays = Vec::with_capacity((camera.width * camera.height) as usize);
@@ -127,7 +125,7 @@ impl Avatar {
         camera: &Camera,
         sampler: Option<SamplerKind>,
     ) -> Result<RenderedFrame, AvatarError> {
-        self.render_chunked(subject, params, camera, sampler, RENDER_CHUNK_SAMPLES)
+        self.render_chunked(subject, params, camera, sampler, self.forward_samples())
     }
 
     /// [`Avatar::render`] with at most `max_chunk_samples` field samples evaluated at
@@ -165,30 +163,32 @@ impl Avatar {
         let rays = pixel_rays(camera)?;
         let frame_sampler = FrameSampler::new(scene, &model.shells, &rays, fingers)?;
 
-        // Chunks render in parallel (the field's inference runs on about one core); the
-        // samples sit at their bins' regular places (no jitter), so the image is the same
-        // on any number of threads.
-        let chunks: Vec<ChunkOut> = rays
+        // The host samples chunks of rays in parallel; the samples sit at their bins'
+        // regular places (no jitter), so the image is the same on any number of threads.
+        let sampled: Vec<(Range<usize>, PackedSamples)> = rays
             .par_chunks(RENDER_CHUNK_RAYS)
-            .map(|chunk| {
-                let ctx = ChunkContext {
-                    frame_sampler: &frame_sampler,
-                    kind,
-                    grid: &model.grid,
-                    dilated: &model.dilated,
-                    conditions: &conditions,
-                    max_samples: max_chunk_samples,
-                };
-                self.render_chunk(&ctx, chunk)
+            .enumerate()
+            .map(|(i, chunk)| {
+                let first = i * RENDER_CHUNK_RAYS;
+                frame_sampler
+                    .sample(kind, chunk, &model.grid, &model.dilated, None)
+                    .map(|samples| (first..first + chunk.len(), samples))
             })
             .collect::<Result<_, _>>()?;
-        let (mut total_samples, mut largest_forward) = (0, 0);
-        let mut pieces = Vec::new();
-        for c in chunks {
-            largest_forward = largest_forward.max(c.largest_forward);
-            total_samples += c.samples;
-            pieces.extend(c.pieces);
-        }
+        // On a GPU the forwards are joined up to the cap (each costs its launches); on
+        // the CPU they run in parallel (the field's inference runs on about one core).
+        let join = !is_cpu(&self.field.identity.val().device());
+        let forwards = plan_forwards(sampled, max_chunk_samples, join);
+        let total_samples = forwards.iter().map(|f| f.samples.num_samples()).sum();
+        let largest_forward = forwards
+            .iter()
+            .map(|f| f.samples.num_samples())
+            .max()
+            .unwrap_or(0);
+        let pieces: Vec<Piece> = forwards
+            .into_par_iter()
+            .map(|f| self.render_forward(&conditions, &rays[f.rays], &f.samples))
+            .collect::<Result<_, _>>()?;
         let (rgb, opacity, labels) = self.read_back(pieces, rays.len())?;
         Ok(RenderedFrame {
             width: camera.width,
@@ -202,33 +202,24 @@ impl Avatar {
         })
     }
 
-    /// One chunk of a frame's rays, halved while it has more than `ctx.max_samples`
-    /// samples.
-    fn render_chunk(&self, ctx: &ChunkContext, chunk: &[Ray]) -> Result<ChunkOut, AvatarError> {
-        let ChunkContext {
-            frame_sampler,
-            kind,
-            grid,
-            dilated,
-            conditions,
-            max_samples,
-        } = *ctx;
-        let samples = frame_sampler.sample(kind, chunk, grid, dilated, None)?;
-        if samples.num_samples() > max_samples && chunk.len() > 1 {
-            let (first, second) = chunk.split_at(chunk.len() / 2);
-            let mut out = self.render_chunk(ctx, first)?;
-            out.append(self.render_chunk(ctx, second)?);
-            return Ok(out);
-        }
+    /// The most field samples one forward of a render takes on this avatar's device:
+    /// [`forward_samples_on`].
+    pub fn forward_samples(&self) -> usize {
+        forward_samples_on(&self.field.identity.val().device(), &self.config)
+    }
+
+    /// One forward: the field at `samples` of `rays`, rendered over the background.
+    fn render_forward(
+        &self,
+        conditions: &talkin_nets::FrameConditions,
+        rays: &[Ray],
+        samples: &PackedSamples,
+    ) -> Result<Piece, AvatarError> {
         if samples.num_samples() == 0 {
-            return Ok(ChunkOut {
-                pieces: vec![Piece::Empty(chunk.len())],
-                samples: 0,
-                largest_forward: 0,
-            });
+            return Ok(Piece::Empty(rays.len()));
         }
         let points: Vec<[f32; 3]> = samples
-            .midpoints_in_world(chunk)
+            .midpoints_in_world(rays)
             .into_iter()
             .map(|p| p.to_array())
             .collect();
@@ -240,7 +231,7 @@ impl Avatar {
             step: self.field_step,
         };
         let output = self.field.forward(&input)?;
-        let layout = packed_layout(&samples);
+        let layout = packed_layout(samples);
         let rendered = output.render(&layout.view())?;
         let values = Tensor::cat(
             vec![
@@ -250,11 +241,7 @@ impl Avatar {
             ],
             1,
         );
-        Ok(ChunkOut {
-            pieces: vec![Piece::Rendered(Box::new(values))],
-            samples: samples.num_samples(),
-            largest_forward: samples.num_samples(),
-        })
+        Ok(Piece::Rendered(Box::new(values)))
     }
 
     /// The frame's colour, opacity and labels from its pieces (`n` rays in all), read back
@@ -280,9 +267,8 @@ impl Avatar {
             None => (Vec::new(), 0),
             Some(first) => {
                 let width = first.dims()[1];
-                let values = Tensor::cat(rendered, 0)
-                    .try_to_vec_as::<f32>()
-                    .map_err(|_| wrong())?;
+                let values =
+                    talkin_nets::read_floats(Tensor::cat(rendered, 0)).map_err(|_| wrong())?;
                 (values, width)
             }
         };
