@@ -15,7 +15,9 @@
 #      later processes start warm); its time is the one-off cost a user pays once;
 #   3. the demo recipe trained on the GPU for 60 s (InstantAvatar's budget), test_same
 #      scored; then, with GPU_CHECK_MINUTES above 1, resumed to that many minutes in all
-#      and scored again;
+#      and scored again; then the same 60 s at each larger batch in GPU_CHECK_BATCHES
+#      (rays a step, e.g. "4096 16384": a GPU step costs about the same host time at any
+#      batch), each scored;
 #   4. a warm start: 30 steps in another fresh process, every autotune choice cached,
 #      so what any later process pays to compile its kernels;
 #   5. `bench device`, fast preset at the demo's 512 rays a step: step time, samples/s,
@@ -33,6 +35,7 @@ BIN=${1:-target/release/talkin}
 OUT=${2:-out/gpu-check}
 GL_DEBS=${GL_DEBS:-.gl}
 MINUTES=${GPU_CHECK_MINUTES:-1}
+BATCHES=${GPU_CHECK_BATCHES:-}
 DEVICE=${GPU_CHECK_DEVICE:-wgpu}
 # cubecl's autotune at its lightest unless the caller chose a level: at the default level
 # a fresh H200 did not get through the first 30 steps in 2 minutes (docs/design.md,
@@ -110,6 +113,14 @@ if [ "$MINUTES" -gt 1 ]; then
   stage eval-more 120 "$BIN" -q eval --run "$OUT/run" --data "$data" --split test_same \
     --json "$OUT/eval_more.json" --device "$DEVICE"
 fi
+batch_evals=()
+for b in $BATCHES; do
+  stage "train-60s-b$b" 90 "$BIN" -q train --data "$data" --out "$OUT/run-b$b" --force --minutes 1 \
+    --device "$DEVICE" --patches 0 --batch "$b" --checkpoint-every 1000000
+  stage "eval-60s-b$b" 45 "$BIN" -q eval --run "$OUT/run-b$b" --data "$data" --split test_same \
+    --json "$OUT/eval_60s_b$b.json" --device "$DEVICE"
+  batch_evals+=("\"$b\": {\"eval\": $(json_or_null "$OUT/eval_60s_b$b.json"), \"train_log_tail\": \"$(tail -n 1 "$OUT/run-b$b/train_log.csv" 2>/dev/null)\"}")
+done
 stage warm-start 45 "$BIN" -q train --data "$data" --out "$OUT/warm" --force --steps 30 "${recipe[@]}"
 stage bench-fast 60 "$BIN" -q bench device --data "$data" --out "$OUT/bench-fast" \
   --devices "$DEVICE" --presets fast --batch 512 --warmup 30 --steps 20 --renders 3
@@ -133,6 +144,7 @@ adapter=$(nvidia-smi --query-gpu=name,driver_version --format=csv,noheader 2>/de
   echo "  \"bench_paper\": $(json_or_null "$OUT/bench-paper/device.json"),"
   echo "  \"eval_test_same_60s\": $(json_or_null "$OUT/eval_60s.json"),"
   echo "  \"eval_test_same_more\": $(json_or_null "$OUT/eval_more.json"),"
+  echo "  \"larger_batches_60s\": {$(IFS=,; echo "${batch_evals[*]}")},"
   echo "  \"autotune_level\": \"$CUBECL_AUTOTUNE_LEVEL\","
   echo "  \"train_log_tail\": \"$(tail -n 1 "$OUT/run/train_log.csv" 2>/dev/null)\""
   echo "}"
