@@ -7,6 +7,8 @@
 //! (`engine`): samples, candidate masks and per-frame transforms come in as plain slices.
 //! The backend is chosen at run time through burn's `Device`: [`ComputeDevice`] parses
 //! `--device cpu|wgpu[:N]` and opens Flex (CPU) or wgpu; `.autodiff()` for training.
+//! Device tensors come back to the host through [`read_floats`], which counts the reads
+//! on a GPU (each waits for the queued work).
 //!
 //! ```
 //! use burn::prelude::*;

@@ -2,7 +2,8 @@
 //! runs: a frame's [`rays`] (its scene, conditions and samplers come from `talkin-avatar`),
 //! the [`loss`] (whose two halves' gradients nets' fused `grad_sum` adds), Adam (nets'
 //! fused kernel), the [`grid_update`]; [`step`] strings them together and [`trainer`] runs steps until
-//! the budget is spent, writing the [`log`] and the avatar's checkpoints. A run is told
+//! the budget is spent, writing the [`log`] (on a GPU a few steps' losses at a time, read
+//! in one transfer by `pending`) and the avatar's checkpoints. A run is told
 //! its [`recipe`], whose [`preset`] names the architecture and optimiser settings; with
 //! [`refine`] it also learns per-frame corrections of the training fits.
 //!

@@ -22,7 +22,7 @@ use talkin_nets::skinning::skinned_candidates;
 impl Trainer<'_> {
     /// One optimizer step (and, when due, an occupancy-grid update). Returns the log
     /// entries completed by it: on the CPU this step's; on a GPU, where the losses stay
-    /// on the device, none, or every queued step's once [`READ_EVERY`] are queued (and
+    /// on the device, none, or every queued step's once 16 are queued (and
     /// any that a checkpoint read since the last call).
     pub fn step(&mut self) -> Result<Vec<StepLog>, TrainError> {
         let t0 = Instant::now();
