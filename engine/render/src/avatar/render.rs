@@ -25,6 +25,9 @@ pub const RENDER_CHUNK_RAYS: usize = 8192;
 /// parallel took about 14 GB. A GPU's own cap comes from its binding limit
 /// ([`forward_samples_on`]).
 pub const RENDER_CHUNK_SAMPLES: usize = 1 << 17;
+/// Rays of a frame in one wave: the host holds one wave's samples at a time (32 chunks;
+/// a dense 4096x4096 frame would otherwise hold about 36 GB of them).
+pub const RENDER_WAVE_RAYS: usize = 32 * RENDER_CHUNK_RAYS;
 /// The most samples one forward takes on a GPU, whatever its binding limit allows: a
 /// 540x540 frame of the default scene (3.9M samples) is then eight forwards, which lay
 /// out their inputs on eight host threads at once.
@@ -163,32 +166,38 @@ impl Avatar {
         let rays = pixel_rays(camera)?;
         let frame_sampler = FrameSampler::new(scene, &model.shells, &rays, fingers)?;
 
-        // The host samples chunks of rays in parallel; the samples sit at their bins'
-        // regular places (no jitter), so the image is the same on any number of threads.
-        let sampled: Vec<(Range<usize>, PackedSamples)> = rays
-            .par_chunks(RENDER_CHUNK_RAYS)
-            .enumerate()
-            .map(|(i, chunk)| {
-                let first = i * RENDER_CHUNK_RAYS;
-                frame_sampler
-                    .sample(kind, chunk, &model.grid, &model.dilated, None)
-                    .map(|samples| (first..first + chunk.len(), samples))
-            })
-            .collect::<Result<_, _>>()?;
-        // On a GPU the forwards are joined up to the cap (each costs its launches); on
-        // the CPU they run in parallel (the field's inference runs on about one core).
+        // The frame goes in waves of chunks, so the host holds one wave's samples at a
+        // time. In a wave the host samples its chunks in parallel (the samples sit at
+        // their bins' regular places, no jitter, so the image is the same on any number
+        // of threads); on a GPU the forwards are then joined up to the cap (each costs its
+        // launches), and on the CPU they run in parallel as they are (the field's
+        // inference runs on about one core).
         let join = !is_cpu(&self.field.identity.val().device());
-        let forwards = plan_forwards(sampled, max_chunk_samples, join);
-        let total_samples = forwards.iter().map(|f| f.samples.num_samples()).sum();
-        let largest_forward = forwards
-            .iter()
-            .map(|f| f.samples.num_samples())
-            .max()
-            .unwrap_or(0);
-        let pieces: Vec<Piece> = forwards
-            .into_par_iter()
-            .map(|f| self.render_forward(&conditions, &rays[f.rays], &f.samples))
-            .collect::<Result<_, _>>()?;
+        let (mut total_samples, mut largest_forward) = (0, 0);
+        let mut pieces: Vec<Piece> = Vec::new();
+        for (w, wave) in rays.chunks(RENDER_WAVE_RAYS).enumerate() {
+            let wave_start = w * RENDER_WAVE_RAYS;
+            let sampled: Vec<(Range<usize>, PackedSamples)> = wave
+                .par_chunks(RENDER_CHUNK_RAYS)
+                .enumerate()
+                .map(|(i, chunk)| {
+                    let first = wave_start + i * RENDER_CHUNK_RAYS;
+                    frame_sampler
+                        .sample(kind, chunk, &model.grid, &model.dilated, None)
+                        .map(|samples| (first..first + chunk.len(), samples))
+                })
+                .collect::<Result<_, _>>()?;
+            let forwards = plan_forwards(sampled, max_chunk_samples, join);
+            for f in &forwards {
+                total_samples += f.samples.num_samples();
+                largest_forward = largest_forward.max(f.samples.num_samples());
+            }
+            let wave_pieces: Vec<Piece> = forwards
+                .into_par_iter()
+                .map(|f| self.render_forward(&conditions, &rays[f.rays], &f.samples))
+                .collect::<Result<_, _>>()?;
+            pieces.extend(wave_pieces);
+        }
         let (rgb, opacity, labels) = self.read_back(pieces, rays.len())?;
         Ok(RenderedFrame {
             width: camera.width,
