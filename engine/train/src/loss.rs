@@ -48,9 +48,10 @@ pub(crate) struct StepBatch<'a> {
     pub pose_grads: bool,
 }
 
-/// The summed loss, its MSE part and the gradients of the whole batch.
-pub(crate) struct StepLoss {
-    pub values: LossValues,
+/// The summed loss, its MSE part and the gradients of the whole batch (of a half: its
+/// `[loss, mse]` still a tensor).
+pub(crate) struct StepLoss<V = LossValues> {
+    pub values: V,
     pub grads: GradientsParams,
     /// With [`StepBatch::pose_grads`]: the gradients w.r.t. the frame's conditions.
     pub pose: Option<PoseGrads>,
@@ -115,7 +116,12 @@ pub(crate) fn loss_and_grads(
     // A GPU takes the batch whole: its work is queued, not run on this thread.
     let on_cpu = is_cpu(&field.identity.val().device());
     let Some(k) = split_point(n, patch_rays).filter(|_| on_cpu) else {
-        return half(field, false, perceptual, &batch, 0..n, &batch.samples);
+        let whole = half(field, false, perceptual, &batch, 0..n, &batch.samples)?;
+        return Ok(StepLoss {
+            values: LossValues::of(whole.values),
+            grads: whole.grads,
+            pose: whole.pose,
+        });
     };
     let (head, tail) = batch.samples.split_at_ray(k);
     let (a, b) = std::thread::scope(|scope| {
@@ -133,22 +139,8 @@ pub(crate) fn loss_and_grads(
         }
         (a, b) => a.or(b),
     };
-    let values = match (a.values, b.values) {
-        (LossValues::Read { loss: la, mse: ma }, LossValues::Read { loss: lb, mse: mb }) => {
-            LossValues::Read {
-                loss: la + lb,
-                mse: ma + mb,
-            }
-        }
-        (LossValues::Queued(a), LossValues::Queued(b)) => LossValues::Queued(Box::new(*a + *b)),
-        (LossValues::Read { loss, mse }, LossValues::Queued(t))
-        | (LossValues::Queued(t), LossValues::Read { loss, mse }) => {
-            let read = Tensor::<1>::from_floats([loss, mse], &t.device());
-            LossValues::Queued(Box::new(*t + read))
-        }
-    };
     Ok(StepLoss {
-        values,
+        values: LossValues::of(a.values + b.values),
         grads: sum_grads(field, a.grads, b.grads),
         pose,
     })
@@ -164,7 +156,7 @@ fn half(
     batch: &StepBatch,
     range: std::ops::Range<usize>,
     samples: &PackedSamples,
-) -> Result<StepLoss, NetsError> {
+) -> Result<StepLoss<Tensor<1>>, NetsError> {
     let device = field.identity.val().device();
     let forked;
     let field = if fork {
@@ -239,8 +231,8 @@ fn half(
         }
         _ => pixel,
     };
-    // The loss and its weighted MSE, together (read once the backward is recorded, on
-    // the CPU; left queued on a GPU).
+    // The loss and its weighted MSE, together (read by `loss_and_grads` on the CPU once
+    // both halves' backwards are recorded; left queued on a GPU).
     let values = Tensor::cat(
         vec![loss.clone().detach(), l_mse.detach().mul_scalar(weight)],
         0,
@@ -256,7 +248,7 @@ fn half(
         (GradientsParams::new(), pose)
     };
     Ok(StepLoss {
-        values: LossValues::of(values),
+        values,
         grads,
         pose,
     })
@@ -395,17 +387,19 @@ mod tests {
                     mask_weight,
                     ..batch()
                 };
-                half(&field, false, None, &b, 0..9, &samples)
-                    .unwrap()
-                    .values
-                    .read()
-                    .0
+                LossValues::of(
+                    half(&field, false, None, &b, 0..9, &samples)
+                        .unwrap()
+                        .values,
+                )
+                .read()
+                .0
             };
             assert_eq!(loss_with(&cut, 1.0), loss_with(&cut, 0.0));
             assert!(loss_with(&silhouette, 1.0) > loss_with(&silhouette, 0.0));
             let split = loss_and_grads(&field, None, batch()).unwrap();
             let ((whole_loss, whole_mse), (split_loss, split_mse)) =
-                (whole.values.read(), split.values.read());
+                (LossValues::of(whole.values).read(), split.values.read());
             assert!(
                 (whole_loss - split_loss).abs() <= 1e-5 * whole_loss.abs(),
                 "{whole_loss} vs {split_loss}"

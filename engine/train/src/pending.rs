@@ -14,16 +14,28 @@ use crate::log::StepLog;
 /// Steps between two reads of the queued losses on a GPU.
 pub(crate) const READ_EVERY: usize = 16;
 
-/// The queued steps, oldest first: each one's log entry (its loss, MSE and PSNR still
-/// unknown) and its `[loss, mse]` on the device.
+/// One queued step: its log entry (loss, MSE and PSNR still unknown), the host seconds
+/// it took to queue, and its `[loss, mse]` on the device.
+struct Queued {
+    entry: StepLog,
+    secs: f64,
+    values: Tensor<1>,
+}
+
+/// The queued steps, oldest first.
 #[derive(Default)]
 pub(crate) struct PendingLosses {
-    queued: Vec<(StepLog, Tensor<1>)>,
+    queued: Vec<Queued>,
 }
 
 impl PendingLosses {
-    pub fn push(&mut self, entry: StepLog, values: Tensor<1>) {
-        self.queued.push((entry, values));
+    /// Queues a step that took `secs` of host time (its entry's `seconds` at its end).
+    pub fn push(&mut self, entry: StepLog, secs: f64, values: Tensor<1>) {
+        self.queued.push(Queued {
+            entry,
+            secs,
+            values,
+        });
     }
 
     pub fn len(&self) -> usize {
@@ -40,9 +52,12 @@ impl PendingLosses {
             return Ok((Vec::new(), 0.0));
         }
         let start = Instant::now();
+        let queued = std::mem::take(&mut self.queued);
+        let n = queued.len();
+        let queued_s: f64 = queued.iter().map(|q| q.secs).sum();
+        let first_start = queued[0].entry.seconds - queued[0].secs;
         let (mut entries, values): (Vec<StepLog>, Vec<Tensor<1>>) =
-            std::mem::take(&mut self.queued).into_iter().unzip();
-        let n = entries.len();
+            queued.into_iter().map(|q| (q.entry, q.values)).unzip();
         let read = talkin_nets::read_floats(Tensor::cat(values, 0));
         let waited = start.elapsed().as_secs_f64();
         let values = match read {
@@ -58,9 +73,7 @@ impl PendingLosses {
                 });
             }
         };
-        let queued_s: f64 = entries.iter().map(|e| e.rays as f64 / e.rays_per_s).sum();
         let per_step = ((queued_s + waited) / n as f64).max(1e-9);
-        let first_start = entries[0].seconds - entries[0].rays as f64 / entries[0].rays_per_s;
         for (i, entry) in entries.iter_mut().enumerate() {
             let (loss, mse) = (values[2 * i], values[2 * i + 1]);
             if !loss.is_finite() {
@@ -117,12 +130,11 @@ mod tests {
     fn a_read_completes_every_queued_step_and_spreads_their_time() {
         let mut pending = PendingLosses::default();
         // Three steps queued in 1 + 1 + 2 s of host time, from 10 s on.
-        pending.push(queued(5, 11.0, 1.0), values(0.5, 0.01));
-        pending.push(queued(6, 12.0, 1.0), values(0.4, 0.001));
-        pending.push(queued(7, 14.0, 2.0), values(0.3, 0.0001));
+        pending.push(queued(5, 11.0, 1.0), 1.0, values(0.5, 0.01));
+        pending.push(queued(6, 12.0, 1.0), 1.0, values(0.4, 0.001));
+        pending.push(queued(7, 14.0, 2.0), 2.0, values(0.3, 0.0001));
         let (entries, waited) = pending.read().unwrap();
         assert_eq!(pending.len(), 0);
-        assert!(waited >= 0.0);
         let steps: Vec<usize> = entries.iter().map(|e| e.step).collect();
         assert_eq!(steps, [5, 6, 7]);
         assert_eq!(
@@ -144,9 +156,9 @@ mod tests {
     #[test]
     fn a_non_finite_loss_names_its_step() {
         let mut pending = PendingLosses::default();
-        pending.push(queued(1, 1.0, 1.0), values(0.5, 0.01));
-        pending.push(queued(2, 2.0, 1.0), values(f32::NAN, 0.01));
-        pending.push(queued(3, 3.0, 1.0), values(f32::INFINITY, 0.01));
+        pending.push(queued(1, 1.0, 1.0), 1.0, values(0.5, 0.01));
+        pending.push(queued(2, 2.0, 1.0), 1.0, values(f32::NAN, 0.01));
+        pending.push(queued(3, 3.0, 1.0), 1.0, values(f32::INFINITY, 0.01));
         match pending.read() {
             Err(TrainError::NonFinite { step: 2, loss }) => assert!(loss.is_nan()),
             other => panic!("{:?}", other.map(|(e, _)| e)),

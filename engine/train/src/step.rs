@@ -84,16 +84,13 @@ impl Trainer<'_> {
         let secs = t0.elapsed().as_secs_f64().max(1e-9);
         self.elapsed += secs;
         self.since_checkpoint += secs;
-        let (loss, mse) = match values {
-            LossValues::Read { loss, mse } => (loss, mse),
-            LossValues::Queued(_) => (f32::NAN, f32::NAN),
-        };
-        let entry = StepLog {
+        // A queued step's loss, MSE and PSNR are filled in when they are read.
+        let mut entry = StepLog {
             step: self.step,
             seconds: self.elapsed,
-            loss,
-            mse,
-            psnr: psnr(mse),
+            loss: f32::NAN,
+            mse: f32::NAN,
+            psnr: f32::NAN,
             rays: n_rays,
             samples: n_samples,
             rays_per_s: n_rays as f64 / secs,
@@ -106,12 +103,13 @@ impl Trainer<'_> {
         };
         let mut done = std::mem::take(&mut self.unreported);
         match values {
-            LossValues::Read { .. } => {
+            LossValues::Read { loss, mse } => {
+                (entry.loss, entry.mse, entry.psnr) = (loss, mse, psnr(mse));
                 self.log.write(&entry)?;
                 done.push(entry);
             }
             LossValues::Queued(values) => {
-                self.pending.push(entry, *values);
+                self.pending.push(entry, secs, *values);
                 if self.pending.len() >= READ_EVERY {
                     done.extend(self.read_losses()?);
                 }
