@@ -138,12 +138,14 @@ impl Mlp {
 }
 
 impl Mlp {
-    /// The fused op (`kernels::mlp`) where it applies: no skips, every layer with a
-    /// bias, a non-empty batch on the CPU backend. The shared row's product and the first
-    /// bias become one `[1, width]` bias, composed here so their gradients flow as usual.
+    /// The fused op where it applies: no skips, every layer with a bias, a non-empty
+    /// batch; on the CPU backend `kernels::mlp`, on a CubeCL device `kernels::cube::mlp`
+    /// (where its sizes fit and [`fused_on_device`]). The shared row's product and the
+    /// first bias become one `[1, width]` bias, composed here so their gradients flow as
+    /// usual.
     fn fused(&self, x: &Tensor<2>, row: Option<&Tensor<2>>) -> Option<Tensor<2>> {
         let [n, d_x] = x.dims();
-        if !self.skips.is_empty() || n == 0 {
+        if !self.skips.is_empty() || n == 0 || (!is_cpu(&x.device()) && !fused_on_device()) {
             return None;
         }
         let mut params = Vec::with_capacity(2 * (self.hidden.len() + 1));
@@ -160,6 +162,10 @@ impl Mlp {
             };
             params.push(w);
             params.push(b);
+        }
+        #[cfg(feature = "wgpu")]
+        if !is_cpu(&x.device()) {
+            return crate::kernels::cube::mlp::forward(x, &params);
         }
         crate::kernels::mlp::forward(x, &params)
     }
@@ -208,6 +214,14 @@ fn linear_with_row<const D: usize>(
             }
         }
     }
+}
+
+/// Whether MLPs without skips take the fused device op (`kernels::cube::mlp`) off the
+/// CPU: yes, unless `TALKIN_MLP_FUSED=0` (read once), a knob for measuring the op
+/// against the composed ops on a GPU.
+fn fused_on_device() -> bool {
+    static FUSED: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+    *FUSED.get_or_init(|| std::env::var("TALKIN_MLP_FUSED").map_or(true, |v| v.trim() != "0"))
 }
 
 /// Rows a slice of [`Mlp::sliced`]: 256, or `TALKIN_MLP_SLICE_ROWS` (0 turns slicing
@@ -342,38 +356,69 @@ mod tests {
         sliced_against_plain(&crate::device::test_wgpu().autodiff(), 1e-5);
     }
 
-    /// The fused op gives the composed ops' values and gradients (every parameter and the
-    /// input), over several chunks with a ragged last one, with and without a shared row,
-    /// at depths 1 to 3, and in inference without autodiff.
+    /// The fused device op (`kernels::cube::mlp`) against the composed ops on the wgpu
+    /// device: depths 2 and 3, widths 16 and 64, the body net's 24 inputs, one row, a
+    /// ragged tile, several chunks of rows with a ragged last one and a batch large enough
+    /// for the composed side to slice; and without autodiff, as renders run it.
+    #[cfg(feature = "wgpu")]
     #[test]
-    fn the_fused_op_matches_the_composed_ops() {
+    #[ignore = "needs a Vulkan adapter (lavapipe will do): \
+                cargo test --release --features wgpu -p talkin-nets -p talkin --lib --test device -- --ignored"]
+    fn device_op_fused_mlp_matches_the_composed_ops() {
+        let device = crate::device::test_wgpu();
+        let cases = [
+            (2, 16, 5, true, 1, 4),
+            (2, 16, 5, true, 1100, 4),
+            (3, 64, 24, false, 3001, 7),
+            (2, 64, 24, true, 20_000, 4),
+        ];
+        // 1e-4: a bias's gradient sums 20,000 rows in f32, in another order on each side.
+        fused_against_composed(&device.clone().autodiff(), &cases, 1e-4);
+        let mlp = MlpConfig::new(2, 64).init(24, 4, None, &device, &mut WeightRng::seeded(1));
+        let x = tensor(777, 24, 3, &device);
+        let fused = mlp.fused(&x, None).expect("the fused op applies without autodiff");
+        crate::util::assert_close_to(
+            "inference",
+            &crate::util::host(&fused),
+            &crate::util::host(&mlp.composed(x, None)),
+            2e-5,
+        );
+    }
+
+    /// The fused op against the composed ops on `device`: values and the gradients of the
+    /// input, the shared row and every layer's weight and bias, for each case's (depth,
+    /// width, input width, shared row, rows, output width), to `tol` of the largest
+    /// magnitude.
+    fn fused_against_composed(
+        device: &Device,
+        cases: &[(usize, usize, usize, bool, usize, usize)],
+        tol: f32,
+    ) {
         let close = |u: &[f32], v: &[f32], what: &str| {
             assert_eq!(u.len(), v.len(), "{what}");
             let scale = u.iter().fold(1e-6f32, |m, e| m.max(e.abs()));
             for (p, q) in u.iter().zip(v) {
-                assert!((p - q).abs() <= 2e-5 * scale, "{what}: {p} vs {q}");
+                assert!((p - q).abs() <= tol * scale, "{what}: {p} vs {q}");
             }
         };
-        let host = |t: Tensor<2>| t.try_to_vec_as::<f32>().unwrap();
-        let device = Device::flex().autodiff();
-        for (depth, with_row) in [(2, true), (2, false), (1, true), (3, false)] {
+        let host = |t: Tensor<2>| crate::util::host(&t);
+        for &(depth, width, d_x, with_row, n, d_out) in cases {
             let d_row = if with_row { 3 } else { 0 };
-            let mlp = MlpConfig::new(depth, 16).init(
-                5 + d_row,
-                4,
+            let mlp = MlpConfig::new(depth, width).init(
+                d_x + d_row,
+                d_out,
                 None,
-                &device,
+                device,
                 &mut WeightRng::seeded(1),
             );
-            let n = 1100;
-            let x = tensor(n, 5, 3, &device).require_grad();
-            let row = with_row.then(|| tensor(1, 3, 5, &device).require_grad());
+            let x = tensor(n, d_x, 3, device).require_grad();
+            let row = with_row.then(|| tensor(1, 3, 5, device).require_grad());
             let fused = mlp.fused(&x, row.as_ref()).expect("the fused op applies");
             let composed = mlp.composed(x.clone(), row.clone());
-            let what = format!("depth {depth}, row {with_row}");
+            let what = format!("depth {depth}, width {width}, row {with_row}, n {n}");
             close(&host(composed.clone()), &host(fused.clone()), &what);
             // A loss whose gradient differs per row and column.
-            let weights = tensor(n, 4, 11, &device);
+            let weights = tensor(n, d_out, 11, device);
             let grads = |out: Tensor<2>| {
                 let g = (out * weights.clone()).sum().backward();
                 let mut all = vec![host(x.grad(&g).unwrap())];
@@ -383,7 +428,7 @@ mod tests {
                 for layer in mlp.hidden.iter().chain([&mlp.output]) {
                     all.push(host(layer.weight.val().grad(&g).unwrap()));
                     let b = layer.bias.as_ref().unwrap().val().grad(&g).unwrap();
-                    all.push(b.try_to_vec_as::<f32>().unwrap());
+                    all.push(crate::util::host(&b));
                 }
                 all
             };
@@ -391,6 +436,27 @@ mod tests {
                 close(u, v, &format!("{what}, gradient {i}"));
             }
         }
+    }
+
+    /// The fused op gives the composed ops' values and gradients (every parameter and the
+    /// input), over several chunks with a ragged last one, with and without a shared row,
+    /// at depths 1 to 3, and in inference without autodiff.
+    #[test]
+    fn the_fused_op_matches_the_composed_ops() {
+        let cases = [
+            (2, 16, 5, true, 1100, 4),
+            (2, 16, 5, false, 1100, 4),
+            (1, 16, 5, true, 1100, 4),
+            (3, 16, 5, false, 1100, 4),
+        ];
+        fused_against_composed(&Device::flex().autodiff(), &cases, 2e-5);
+        let close = |u: &[f32], v: &[f32], what: &str| {
+            let scale = u.iter().fold(1e-6f32, |m, e| m.max(e.abs()));
+            for (p, q) in u.iter().zip(v) {
+                assert!((p - q).abs() <= 2e-5 * scale, "{what}: {p} vs {q}");
+            }
+        };
+        let host = |t: Tensor<2>| t.try_to_vec_as::<f32>().unwrap();
         let device = Device::flex();
         let mlp = MlpConfig::new(2, 16).init(5, 4, None, &device, &mut WeightRng::seeded(1));
         let x = tensor(700, 5, 3, &device);

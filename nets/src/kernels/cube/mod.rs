@@ -6,6 +6,7 @@
 //! - `render`: volume rendering's weights, one unit per ray.
 //! - `skin`: inverse skinning's softmax blend over each sample's candidate bones.
 //! - `adam`: Adam, one elementwise kernel per parameter.
+//! - `mlp`: a ReLU MLP without skips, a unit per row, its weights' gradients by chunks.
 
 use cubecl::{CubeCount, CubeDim, calculate_cube_count_elemwise, client::Client};
 
@@ -13,6 +14,8 @@ pub(crate) mod adam;
 mod adam_kernels;
 pub(crate) mod hash;
 mod hash_kernels;
+pub(crate) mod mlp;
+mod mlp_kernels;
 pub(crate) mod render;
 mod render_kernels;
 pub(crate) mod skin;
