@@ -23,12 +23,14 @@
 #   5. `bench device`, fast preset at the demo's 512 rays a step: step time, samples/s,
 #      the host sampler's share of a step, 540x540 render fps (30 untimed steps first:
 #      a fresh process compiles its kernels again);
-#   6. `bench device`, paper preset at 32,768 rays a step (the paper's batch).
+#   6. `bench device`, paper preset at 32,768 rays a step (the paper's batch);
+#   7. with GPU_CHECK_COMPOSED=1, stage 5 again with the MLPs as composed burn ops
+#      (`TALKIN_MLP_FUSED=0`), the baseline of the fused MLP kernels in the same run.
 #
 # Everything lands in OUT (default out/gpu-check); OUT/gpu-check.json gathers the
 # numbers, and each stage's log is beside it. A stage that fails or runs out of time is
 # recorded as such and the next one runs. The limits add up to 8 minutes at the default
-# 1 minute of training. Exit status: 0 when every stage finished.
+# 1 minute of training (stage 7 adds one). Exit status: 0 when every stage finished.
 set -uo pipefail
 
 BIN=${1:-target/release/talkin}
@@ -37,6 +39,7 @@ GL_DEBS=${GL_DEBS:-.gl}
 MINUTES=${GPU_CHECK_MINUTES:-1}
 BATCHES=${GPU_CHECK_BATCHES:-}
 DEVICE=${GPU_CHECK_DEVICE:-wgpu}
+COMPOSED=${GPU_CHECK_COMPOSED:-0}
 # cubecl's autotune at its lightest unless the caller chose a level: at the default level
 # a fresh H200 did not get through the first 30 steps in 2 minutes (docs/design.md,
 # "Devices").
@@ -126,6 +129,11 @@ stage bench-fast 60 "$BIN" -q bench device --data "$data" --out "$OUT/bench-fast
   --devices "$DEVICE" --presets fast --batch 512 --warmup 30 --steps 20 --renders 3
 stage bench-paper 120 "$BIN" -q bench device --data "$data" --out "$OUT/bench-paper" \
   --devices "$DEVICE" --presets paper --batch 32768 --warmup 3 --steps 5 --renders 2
+if [ "$COMPOSED" = 1 ]; then
+  stage bench-fast-composed 60 env TALKIN_MLP_FUSED=0 "$BIN" -q bench device --data "$data" \
+    --out "$OUT/bench-fast-composed" --devices "$DEVICE" --presets fast --batch 512 --warmup 30 \
+    --steps 20 --renders 3
+fi
 
 adapter=$(nvidia-smi --query-gpu=name,driver_version --format=csv,noheader 2>/dev/null | head -n 1)
 {
@@ -142,6 +150,7 @@ adapter=$(nvidia-smi --query-gpu=name,driver_version --format=csv,noheader 2>/de
   echo "  ],"
   echo "  \"bench_fast\": $(json_or_null "$OUT/bench-fast/device.json"),"
   echo "  \"bench_paper\": $(json_or_null "$OUT/bench-paper/device.json"),"
+  echo "  \"bench_fast_composed_mlps\": $(json_or_null "$OUT/bench-fast-composed/device.json"),"
   echo "  \"eval_test_same_60s\": $(json_or_null "$OUT/eval_60s.json"),"
   echo "  \"eval_test_same_more\": $(json_or_null "$OUT/eval_more.json"),"
   echo "  \"larger_batches_60s\": {$(IFS=,; echo "${batch_evals[*]}")},"

@@ -140,32 +140,29 @@ impl Mlp {
 impl Mlp {
     /// The fused op where it applies: no skips, every layer with a bias, a non-empty
     /// batch; on the CPU backend `kernels::mlp`, on a CubeCL device `kernels::cube::mlp`
-    /// (where its sizes fit and [`fused_on_device`]). The shared row's product and the
-    /// first bias become one `[1, width]` bias, composed here so their gradients flow as
-    /// usual.
+    /// (where its sizes fit and [`fused_on_device`]). On the CPU the shared row's product
+    /// and the first bias become one `[1, width]` bias, composed here so their gradients
+    /// flow as usual; the device op folds the row itself.
     fn fused(&self, x: &Tensor<2>, row: Option<&Tensor<2>>) -> Option<Tensor<2>> {
         let [n, d_x] = x.dims();
         if !self.skips.is_empty() || n == 0 || (!is_cpu(&x.device()) && !fused_on_device()) {
             return None;
         }
         let mut params = Vec::with_capacity(2 * (self.hidden.len() + 1));
-        for (i, layer) in self.hidden.iter().chain([&self.output]).enumerate() {
-            let w = layer.weight.val();
-            let mut b = layer.bias.as_ref()?.val().unsqueeze_dim::<2>(0); // [1, d_out]
-            let w = match (i, row) {
-                (0, Some(row)) => {
-                    let [d_in, _] = w.dims();
-                    b = row.clone().matmul(w.clone().narrow(0, d_x, d_in - d_x)) + b;
-                    w.narrow(0, 0, d_x)
-                }
-                _ => w,
-            };
-            params.push(w);
-            params.push(b);
+        for layer in self.hidden.iter().chain([&self.output]) {
+            params.push(layer.weight.val());
+            params.push(layer.bias.as_ref()?.val().unsqueeze_dim::<2>(0)); // [1, d_out]
         }
         #[cfg(feature = "wgpu")]
         if !is_cpu(&x.device()) {
-            return crate::kernels::cube::mlp::forward(x, &params);
+            return crate::kernels::cube::mlp::forward(x, row, &params);
+        }
+        if let Some(row) = row {
+            let w = params[0].clone();
+            let [d_in, _] = w.dims();
+            params[1] =
+                row.clone().matmul(w.clone().narrow(0, d_x, d_in - d_x)) + params[1].clone();
+            params[0] = w.narrow(0, 0, d_x);
         }
         crate::kernels::mlp::forward(x, &params)
     }
@@ -359,7 +356,8 @@ mod tests {
     /// The fused device op (`kernels::cube::mlp`) against the composed ops on the wgpu
     /// device: depths 2 and 3, widths 16 and 64, the body net's 24 inputs, one row, a
     /// ragged tile, several chunks of rows with a ragged last one and a batch large enough
-    /// for the composed side to slice; and without autodiff, as renders run it.
+    /// for the composed side to slice; shared rows of 3, 16 and 69 (the face's expression,
+    /// jaw and identity) and none; and without autodiff, as renders run it.
     #[cfg(feature = "wgpu")]
     #[test]
     #[ignore = "needs a Vulkan adapter (lavapipe will do): \
@@ -367,16 +365,19 @@ mod tests {
     fn device_op_fused_mlp_matches_the_composed_ops() {
         let device = crate::device::test_wgpu();
         let cases = [
-            (2, 16, 5, true, 1, 4),
-            (2, 16, 5, true, 1100, 4),
-            (3, 64, 24, false, 3001, 7),
-            (2, 64, 24, true, 20_000, 4),
+            (2, 16, 5, 3, 1, 4),
+            (2, 16, 5, 3, 1100, 4),
+            (3, 64, 24, 0, 3001, 7),
+            (2, 64, 24, 69, 2000, 4),
+            (2, 64, 24, 16, 20_000, 4),
         ];
         // 1e-4: a bias's gradient sums 20,000 rows in f32, in another order on each side.
         fused_against_composed(&device.clone().autodiff(), &cases, 1e-4);
         let mlp = MlpConfig::new(2, 64).init(24, 4, None, &device, &mut WeightRng::seeded(1));
         let x = tensor(777, 24, 3, &device);
-        let fused = mlp.fused(&x, None).expect("the fused op applies without autodiff");
+        let fused = mlp
+            .fused(&x, None)
+            .expect("the fused op applies without autodiff");
         crate::util::assert_close_to(
             "inference",
             &crate::util::host(&fused),
@@ -387,11 +388,11 @@ mod tests {
 
     /// The fused op against the composed ops on `device`: values and the gradients of the
     /// input, the shared row and every layer's weight and bias, for each case's (depth,
-    /// width, input width, shared row, rows, output width), to `tol` of the largest
-    /// magnitude.
+    /// width, input width, shared row width (0: none), rows, output width), to `tol` of
+    /// the largest magnitude.
     fn fused_against_composed(
         device: &Device,
-        cases: &[(usize, usize, usize, bool, usize, usize)],
+        cases: &[(usize, usize, usize, usize, usize, usize)],
         tol: f32,
     ) {
         let close = |u: &[f32], v: &[f32], what: &str| {
@@ -402,8 +403,7 @@ mod tests {
             }
         };
         let host = |t: Tensor<2>| crate::util::host(&t);
-        for &(depth, width, d_x, with_row, n, d_out) in cases {
-            let d_row = if with_row { 3 } else { 0 };
+        for &(depth, width, d_x, d_row, n, d_out) in cases {
             let mlp = MlpConfig::new(depth, width).init(
                 d_x + d_row,
                 d_out,
@@ -412,10 +412,10 @@ mod tests {
                 &mut WeightRng::seeded(1),
             );
             let x = tensor(n, d_x, 3, device).require_grad();
-            let row = with_row.then(|| tensor(1, 3, 5, device).require_grad());
+            let row = (d_row > 0).then(|| tensor(1, d_row, 5, device).require_grad());
             let fused = mlp.fused(&x, row.as_ref()).expect("the fused op applies");
             let composed = mlp.composed(x.clone(), row.clone());
-            let what = format!("depth {depth}, width {width}, row {with_row}, n {n}");
+            let what = format!("depth {depth}, width {width}, row {d_row}, n {n}");
             close(&host(composed.clone()), &host(fused.clone()), &what);
             // A loss whose gradient differs per row and column.
             let weights = tensor(n, d_out, 11, device);
@@ -444,10 +444,10 @@ mod tests {
     #[test]
     fn the_fused_op_matches_the_composed_ops() {
         let cases = [
-            (2, 16, 5, true, 1100, 4),
-            (2, 16, 5, false, 1100, 4),
-            (1, 16, 5, true, 1100, 4),
-            (3, 16, 5, false, 1100, 4),
+            (2, 16, 5, 3, 1100, 4),
+            (2, 16, 5, 0, 1100, 4),
+            (1, 16, 5, 3, 1100, 4),
+            (3, 16, 5, 0, 1100, 4),
         ];
         fused_against_composed(&Device::flex().autodiff(), &cases, 2e-5);
         let close = |u: &[f32], v: &[f32], what: &str| {

@@ -1,12 +1,15 @@
 //! A ReLU MLP without skips as one device op with its own backward (the fast preset's
-//! 2x64 nets). Composed of burn ops, a call is a matrix product, a bias and a ReLU a
-//! layer, and in backward a mask and two products a layer, whose weight products reduce
-//! over the whole batch; here forward is one launch, backward one for the deltas and two
-//! a layer for its weights (partial sums over chunks of rows, then their sum).
+//! 2x64 nets), its first layer fed the batch and a row shared by every sample (a frame's
+//! identity code, expression, pose). Composed of burn ops, a call is a matrix product, a
+//! bias and a ReLU a layer, plus the shared row's product, and in backward a mask and two
+//! products a layer, whose weight products reduce over the whole batch. Here forward is
+//! one launch (each cube folds the row into the first bias once) and backward four: the
+//! deltas, every layer's weight gradients as partial sums over chunks of rows, their sum,
+//! and the row's two small products.
 //!
 //! The kernels keep a unit's running sums in registers, so the sizes are bounded: hidden
-//! width at most [`MAX_WIDTH`], input at most [`MAX_IN`], output at most [`MAX_OUT`], at
-//! least two hidden layers; other MLPs keep the composed ops.
+//! width at most [`MAX_WIDTH`], batch input at most [`MAX_IN`], output at most
+//! [`MAX_OUT`], at least two hidden layers; other MLPs keep the composed ops.
 
 use burn::backend::autodiff::Autodiff;
 use burn::backend::autodiff::checkpoint::base::Checkpointer;
@@ -25,11 +28,13 @@ use burn_cubecl::tensor::CubeTensor;
 use cubecl::{CubeCount, CubeDim};
 
 use super::launch_shape;
-use super::mlp_kernels::{delta_kernel, forward_kernel, weight_partial_kernel, weight_sum_kernel};
+use super::mlp_kernels::{
+    delta_kernel, forward_kernel, row_grad_kernel, weight_partial_kernel, weight_sum_kernel,
+};
 
 /// Widest hidden layer the kernels take (a unit's sums: `width` registers).
 pub(crate) const MAX_WIDTH: usize = 64;
-/// Widest input (the input's gradient: `d_in` registers a unit).
+/// Widest batch input (the input's gradient: `d_in` registers a unit).
 pub(crate) const MAX_IN: usize = 128;
 /// Widest output.
 pub(crate) const MAX_OUT: usize = 64;
@@ -46,10 +51,12 @@ const MAX_CHUNKS: usize = 512;
 /// width]` and `[depth - 1, 1, width]`).
 #[backend_extension(Cube: cfg(feature = "wgpu"), Fusion: cfg(feature = "wgpu"), Autodiff)]
 pub trait MlpOps: Backend {
-    /// The output `[n, d_out]` of `x` `[n, d_in]`.
-    #[fusion(meta = |x, _wf, _bf, _wm, _bm, wl, _bl| out_spec(x, wl))]
+    /// The output `[n, d_out]` of `x` `[n, d_in]` with the shared `row` `[1, d_row]`
+    /// (`w_first` is `[d_in + d_row, width]`).
+    #[fusion(meta = |x, _row, _wf, _bf, _wm, _bm, wl, _bl| out_spec(x, wl))]
     fn mlp_forward(
         x: FloatTensor<Self>,
+        row: FloatTensor<Self>,
         w_first: FloatTensor<Self>,
         b_first: FloatTensor<Self>,
         w_mid: FloatTensor<Self>,
@@ -60,9 +67,10 @@ pub trait MlpOps: Backend {
 
     /// The output and the hidden activations `[depth width, n]` (what backward reads);
     /// not differentiated.
-    #[fusion(meta = |x, _wf, _bf, wm, _bm, wl, _bl| (out_spec(x, wl), hidden_spec(x, wm)))]
+    #[fusion(meta = |x, _row, _wf, _bf, wm, _bm, wl, _bl| (out_spec(x, wl), hidden_spec(x, wm)))]
     fn mlp_forward_saving(
         x: FloatTensor<Self>,
+        row: FloatTensor<Self>,
         w_first: FloatTensor<Self>,
         b_first: FloatTensor<Self>,
         w_mid: FloatTensor<Self>,
@@ -71,18 +79,20 @@ pub trait MlpOps: Backend {
         b_last: FloatTensor<Self>,
     ) -> (FloatTensor<Self>, FloatTensor<Self>);
 
-    /// The gradients of the input and of every weight and bias (first, stacked middle,
-    /// last) for the output's gradient `grad`.
+    /// The gradients of the input, the row and every weight and bias (first, stacked
+    /// middle, last) for the output's gradient `grad`.
     #[fusion(meta = backward_meta)]
     #[allow(clippy::type_complexity)]
     fn mlp_backward(
         x: FloatTensor<Self>,
+        row: FloatTensor<Self>,
         w_first: FloatTensor<Self>,
         w_mid: FloatTensor<Self>,
         w_last: FloatTensor<Self>,
         hidden: FloatTensor<Self>,
         grad: FloatTensor<Self>,
     ) -> (
+        FloatTensor<Self>,
         FloatTensor<Self>,
         FloatTensor<Self>,
         FloatTensor<Self>,
@@ -105,6 +115,7 @@ fn hidden_spec(x: &TensorSpec, w_mid: &TensorSpec) -> TensorSpec {
 #[allow(clippy::type_complexity)]
 fn backward_meta(
     x: &TensorSpec,
+    row: &TensorSpec,
     w_first: &TensorSpec,
     w_mid: &TensorSpec,
     w_last: &TensorSpec,
@@ -118,11 +129,13 @@ fn backward_meta(
     TensorSpec,
     TensorSpec,
     TensorSpec,
+    TensorSpec,
 ) {
     let spec = |shape: Vec<usize>| TensorSpec::new(shape.into(), x.dtype);
     let (width, d_out) = (w_first.shape[1], w_last.shape[1]);
     (
         x.clone(),
+        row.clone(),
         w_first.clone(),
         spec(vec![1, width]),
         w_mid.clone(),
@@ -166,6 +179,7 @@ fn empty(like: &CubeTensor, shape: Vec<usize>) -> CubeTensor {
 impl MlpOps for CubeBackend {
     fn mlp_forward(
         x: CubeTensor,
+        row: CubeTensor,
         w_first: CubeTensor,
         b_first: CubeTensor,
         w_mid: CubeTensor,
@@ -173,11 +187,12 @@ impl MlpOps for CubeBackend {
         w_last: CubeTensor,
         b_last: CubeTensor,
     ) -> CubeTensor {
-        Self::mlp_forward_saving(x, w_first, b_first, w_mid, b_mid, w_last, b_last).0
+        Self::mlp_forward_saving(x, row, w_first, b_first, w_mid, b_mid, w_last, b_last).0
     }
 
     fn mlp_forward_saving(
         x: CubeTensor,
+        row: CubeTensor,
         w_first: CubeTensor,
         b_first: CubeTensor,
         w_mid: CubeTensor,
@@ -185,8 +200,8 @@ impl MlpOps for CubeBackend {
         w_last: CubeTensor,
         b_last: CubeTensor,
     ) -> (CubeTensor, CubeTensor) {
-        let [x, w_first, b_first, w_mid, b_mid, w_last, b_last] =
-            [x, w_first, b_first, w_mid, b_mid, w_last, b_last].map(into_contiguous);
+        let [x, row, w_first, b_first, w_mid, b_mid, w_last, b_last] =
+            [x, row, w_first, b_first, w_mid, b_mid, w_last, b_last].map(into_contiguous);
         let d = Dims::of(&x, &w_mid, &w_last);
         let hidden = empty(&x, vec![(d.n_mid + 1) * d.width, d.n]);
         let out = empty(&x, vec![d.n, d.d_out]);
@@ -197,6 +212,7 @@ impl MlpOps for CubeBackend {
             count,
             dim,
             x.into_tensor_arg(),
+            row.into_tensor_arg(),
             w_first.into_tensor_arg(),
             b_first.into_tensor_arg(),
             w_mid.into_tensor_arg(),
@@ -214,6 +230,7 @@ impl MlpOps for CubeBackend {
 
     fn mlp_backward(
         x: CubeTensor,
+        row: CubeTensor,
         w_first: CubeTensor,
         w_mid: CubeTensor,
         w_last: CubeTensor,
@@ -227,10 +244,12 @@ impl MlpOps for CubeBackend {
         CubeTensor,
         CubeTensor,
         CubeTensor,
+        CubeTensor,
     ) {
-        let [x, w_first, w_mid, w_last, hidden, grad] =
-            [x, w_first, w_mid, w_last, hidden, grad].map(into_contiguous);
+        let [x, row, w_first, w_mid, w_last, hidden, grad] =
+            [x, row, w_first, w_mid, w_last, hidden, grad].map(into_contiguous);
         let d = Dims::of(&x, &w_mid, &w_last);
+        let d_row = row.meta.shape()[1];
         let client = x.client.clone();
         let delta = empty(&x, vec![(d.n_mid + 1) * d.width, d.n]);
         let grad_x = empty(&x, vec![d.n, d.d_in]);
@@ -240,7 +259,7 @@ impl MlpOps for CubeBackend {
             count,
             dim,
             grad.clone().into_tensor_arg(),
-            w_first.into_tensor_arg(),
+            w_first.clone().into_tensor_arg(),
             w_mid.into_tensor_arg(),
             w_last.into_tensor_arg(),
             hidden.clone().into_tensor_arg(),
@@ -250,110 +269,101 @@ impl MlpOps for CubeBackend {
             d.width,
             d.d_out,
         );
-        let (w, depth) = (d.width, d.n_mid + 1);
+        let w = d.width;
         let grads = [
-            empty(&x, vec![d.d_in, w]),
+            empty(&x, vec![d.d_in + d_row, w]),
             empty(&x, vec![1, w]),
             empty(&x, vec![d.n_mid, w, w]),
             empty(&x, vec![d.n_mid, 1, w]),
             empty(&x, vec![w, d.d_out]),
             empty(&x, vec![1, d.d_out]),
         ];
-        // Layer l's input and delta: (tensor, dim, base, stride along the dim, along rows).
-        for l in 0..=depth {
-            let input = if l == 0 {
-                (&x, d.d_in, 0, 1, d.d_in)
-            } else {
-                (&hidden, w, (l - 1) * w * d.n, d.n, 1)
-            };
-            let out = if l == depth {
-                (&grad, d.d_out, 0, 1, d.d_out)
-            } else {
-                (&delta, w, l * w * d.n, d.n, 1)
-            };
-            // Gradient tensors and offsets: the first layer, a middle one, the last.
-            let (w_grad, b_grad, w_at, b_at) = match l {
-                0 => (&grads[0], &grads[1], 0, 0),
-                l if l == depth => (&grads[4], &grads[5], 0, 0),
-                l => (&grads[2], &grads[3], (l - 1) * w * w, (l - 1) * w),
-            };
-            layer_weight_grad(d.n, input, out, (w_grad, b_grad), (w_at, b_at));
-        }
+        weight_grads(&d, [&x, &hidden, &delta, &grad], &grads);
+        let grad_row = empty(&x, vec![1, d_row]);
+        let (count, dim) = launch_shape(&client, (d_row * w + d_row).max(1));
+        row_grad_kernel::launch(
+            &client,
+            count,
+            dim,
+            row.into_tensor_arg(),
+            w_first.into_tensor_arg(),
+            grads[1].clone().into_tensor_arg(),
+            grads[0].clone().into_tensor_arg(),
+            grad_row.clone().into_tensor_arg(),
+            d.d_in,
+            w,
+        );
         let [gwf, gbf, gwm, gbm, gwl, gbl] = grads;
-        (grad_x, gwf, gbf, gwm, gbm, gwl, gbl)
+        (grad_x, grad_row, gwf, gbf, gwm, gbm, gwl, gbl)
     }
 }
 
-/// One layer's input or delta: the tensor, its units, the first float, the stride between
-/// units and between rows.
-type Operand<'a> = (&'a CubeTensor, usize, usize, usize, usize);
-
-/// Launches one layer's weight-gradient kernels: partial sums over chunks of rows, then
-/// their sum into `w_grad` and `b_grad` at the given offsets.
-fn layer_weight_grad(
-    n: usize,
-    input: Operand,
-    delta: Operand,
-    (w_grad, b_grad): (&CubeTensor, &CubeTensor),
-    (w_at, b_at): (usize, usize),
-) {
-    let (a, a_dim, a_base, a_si, a_sr) = input;
-    let (dt, d_dim, d_base, d_sj, d_sr) = delta;
-    let client = a.client.clone();
-    let entries = (a_dim + 1) * d_dim;
+/// Every layer's weight and bias gradients from the input, the hidden activations, their
+/// deltas and the output's gradient: partial sums over chunks of rows (a cube per chunk
+/// and layer), then their sum into `grads` (first, stacked middle and last weights and
+/// biases).
+fn weight_grads(d: &Dims, [x, hidden, delta, grad]: [&CubeTensor; 4], grads: &[CubeTensor; 6]) {
+    let client = x.client.clone();
+    let w = d.width;
+    let (a_max, d_max) = (d.d_in.max(w), d.d_out.max(w));
+    let layer_entries = [(d.d_in + 1) * w, (w + 1) * w, (w + 1) * d.d_out];
+    let entries = layer_entries[0] + d.n_mid * layer_entries[1] + layer_entries[2];
+    let most = layer_entries.into_iter().max().unwrap_or(0);
     // An odd stride of at most 33 floats whose two tiles fit in shared memory.
-    let mut stride = (SHARED_FLOATS / (a_dim + 1 + d_dim)).min(33);
+    let mut stride = (SHARED_FLOATS / (a_max + 1 + d_max)).min(33);
     if stride.is_multiple_of(2) {
         stride -= 1;
     }
     let tile = stride - 1;
-    let chunk_rows = n.div_ceil(MAX_CHUNKS).div_ceil(tile).max(8) * tile;
-    let chunks = n.div_ceil(chunk_rows).max(1);
-    let partial = empty(a, vec![chunks, entries]);
+    let chunk_rows = d.n.div_ceil(MAX_CHUNKS).div_ceil(tile).max(8) * tile;
+    let chunks = d.n.div_ceil(chunk_rows).max(1);
+    let partial = empty(x, vec![chunks, entries]);
     let u32_of = |v: usize| u32::try_from(v).expect("an MLP's operands fit u32 indices");
     weight_partial_kernel::launch(
         &client,
-        CubeCount::new_1d(u32_of(chunks)),
+        CubeCount::new_2d(u32_of(chunks), u32_of(d.n_mid + 2)),
         CubeDim::new_1d(UNITS as u32),
-        a.clone().into_tensor_arg(),
-        dt.clone().into_tensor_arg(),
+        x.clone().into_tensor_arg(),
+        hidden.clone().into_tensor_arg(),
+        delta.clone().into_tensor_arg(),
+        grad.clone().into_tensor_arg(),
         partial.clone().into_tensor_arg(),
-        u32_of(a_base),
-        u32_of(a_si),
-        u32_of(a_sr),
-        u32_of(d_base),
-        u32_of(d_sj),
-        u32_of(d_sr),
-        u32_of(n),
         u32_of(chunk_rows),
-        a_dim,
-        d_dim,
+        d.d_in,
+        w,
+        d.d_out,
+        a_max,
+        d_max,
         tile,
         UNITS,
-        entries.div_ceil(UNITS),
+        most.div_ceil(UNITS),
     );
     let (count, dim) = launch_shape(&client, entries);
+    let [gwf, gbf, gwm, gbm, gwl, gbl] = grads.clone();
     weight_sum_kernel::launch(
         &client,
         count,
         dim,
         partial.into_tensor_arg(),
-        w_grad.clone().into_tensor_arg(),
-        b_grad.clone().into_tensor_arg(),
-        u32_of(w_at),
-        u32_of(b_at),
-        u32_of(chunks),
-        a_dim,
-        d_dim,
+        gwf.into_tensor_arg(),
+        gbf.into_tensor_arg(),
+        gwm.into_tensor_arg(),
+        gbm.into_tensor_arg(),
+        gwl.into_tensor_arg(),
+        gbl.into_tensor_arg(),
+        d.d_in,
+        w,
+        d.d_out,
     );
 }
 
 #[derive(Debug)]
 struct MlpBackward;
 
-impl<B: MlpOps> Backward<B, 7> for MlpBackward {
-    /// The input, the three weights and the hidden activations.
+impl<B: MlpOps> Backward<B, 8> for MlpBackward {
+    /// The input, the row, the three weights and the hidden activations.
     type State = (
+        FloatTensor<B>,
         FloatTensor<B>,
         FloatTensor<B>,
         FloatTensor<B>,
@@ -361,12 +371,13 @@ impl<B: MlpOps> Backward<B, 7> for MlpBackward {
         FloatTensor<B>,
     );
 
-    fn backward(self, ops: Ops<Self::State, 7>, grads: &mut Gradients, _: &mut Checkpointer) {
+    fn backward(self, ops: Ops<Self::State, 8>, grads: &mut Gradients, _: &mut Checkpointer) {
         let grad = grads.consume::<B>(&ops.node);
-        let (x, w_first, w_mid, w_last, hidden) = ops.state;
-        let (gx, gwf, gbf, gwm, gbm, gwl, gbl) =
-            B::mlp_backward(x, w_first, w_mid, w_last, hidden, grad);
-        for (node, g) in ops.parents.into_iter().zip([gx, gwf, gbf, gwm, gbm, gwl, gbl]) {
+        let (x, row, w_first, w_mid, w_last, hidden) = ops.state;
+        let (gx, grow, gwf, gbf, gwm, gbm, gwl, gbl) =
+            B::mlp_backward(x, row, w_first, w_mid, w_last, hidden, grad);
+        let all = [gx, grow, gwf, gbf, gwm, gbm, gwl, gbl];
+        for (node, g) in ops.parents.into_iter().zip(all) {
             if let Some(node) = node {
                 grads.register::<B>(node.id, g);
             }
@@ -377,6 +388,7 @@ impl<B: MlpOps> Backward<B, 7> for MlpBackward {
 impl<B: MlpOps, C: CheckpointStrategy> MlpOps for Autodiff<B, C> {
     fn mlp_forward(
         x: FloatTensor<Self>,
+        row: FloatTensor<Self>,
         w_first: FloatTensor<Self>,
         b_first: FloatTensor<Self>,
         w_mid: FloatTensor<Self>,
@@ -384,18 +396,15 @@ impl<B: MlpOps, C: CheckpointStrategy> MlpOps for Autodiff<B, C> {
         w_last: FloatTensor<Self>,
         b_last: FloatTensor<Self>,
     ) -> FloatTensor<Self> {
-        let all = [x, w_first, b_first, w_mid, b_mid, w_last, b_last];
+        let all = [x, row, w_first, b_first, w_mid, b_mid, w_last, b_last];
         let nodes = all.each_ref().map(|t| t.node());
-        let [x, w_first, b_first, w_mid, b_mid, w_last, b_last] =
+        let [x, row, w_first, b_first, w_mid, b_mid, w_last, b_last] =
             all.map(|t| t.into_primitive());
-        match MlpBackward
-            .prepare::<C>(nodes)
-            .compute_bound()
-            .stateful()
-        {
+        match MlpBackward.prepare::<C>(nodes).compute_bound().stateful() {
             OpsKind::Tracked(prep) => {
                 let (out, hidden) = B::mlp_forward_saving(
                     x.clone(),
+                    row.clone(),
                     w_first.clone(),
                     b_first,
                     w_mid.clone(),
@@ -403,10 +412,10 @@ impl<B: MlpOps, C: CheckpointStrategy> MlpOps for Autodiff<B, C> {
                     w_last.clone(),
                     b_last,
                 );
-                prep.finish((x, w_first, w_mid, w_last, hidden), out)
+                prep.finish((x, row, w_first, w_mid, w_last, hidden), out)
             }
             OpsKind::UnTracked(prep) => prep.finish(B::mlp_forward(
-                x, w_first, b_first, w_mid, b_mid, w_last, b_last,
+                x, row, w_first, b_first, w_mid, b_mid, w_last, b_last,
             )),
         }
     }
@@ -414,6 +423,7 @@ impl<B: MlpOps, C: CheckpointStrategy> MlpOps for Autodiff<B, C> {
     /// Both outputs as constants.
     fn mlp_forward_saving(
         x: FloatTensor<Self>,
+        row: FloatTensor<Self>,
         w_first: FloatTensor<Self>,
         b_first: FloatTensor<Self>,
         w_mid: FloatTensor<Self>,
@@ -421,16 +431,17 @@ impl<B: MlpOps, C: CheckpointStrategy> MlpOps for Autodiff<B, C> {
         w_last: FloatTensor<Self>,
         b_last: FloatTensor<Self>,
     ) -> (FloatTensor<Self>, FloatTensor<Self>) {
-        let [x, w_first, b_first, w_mid, b_mid, w_last, b_last] =
-            [x, w_first, b_first, w_mid, b_mid, w_last, b_last].map(|t| t.into_primitive());
+        let [x, row, w_first, b_first, w_mid, b_mid, w_last, b_last] =
+            [x, row, w_first, b_first, w_mid, b_mid, w_last, b_last].map(|t| t.into_primitive());
         let (out, hidden) =
-            B::mlp_forward_saving(x, w_first, b_first, w_mid, b_mid, w_last, b_last);
+            B::mlp_forward_saving(x, row, w_first, b_first, w_mid, b_mid, w_last, b_last);
         (Self::from_inner(out), Self::from_inner(hidden))
     }
 
     /// The gradients as constants (they are not differentiated again).
     fn mlp_backward(
         x: FloatTensor<Self>,
+        row: FloatTensor<Self>,
         w_first: FloatTensor<Self>,
         w_mid: FloatTensor<Self>,
         w_last: FloatTensor<Self>,
@@ -444,13 +455,15 @@ impl<B: MlpOps, C: CheckpointStrategy> MlpOps for Autodiff<B, C> {
         FloatTensor<Self>,
         FloatTensor<Self>,
         FloatTensor<Self>,
+        FloatTensor<Self>,
     ) {
-        let [x, w_first, w_mid, w_last, hidden, grad] =
-            [x, w_first, w_mid, w_last, hidden, grad].map(|t| t.into_primitive());
-        let (gx, gwf, gbf, gwm, gbm, gwl, gbl) =
-            B::mlp_backward(x, w_first, w_mid, w_last, hidden, grad);
+        let [x, row, w_first, w_mid, w_last, hidden, grad] =
+            [x, row, w_first, w_mid, w_last, hidden, grad].map(|t| t.into_primitive());
+        let (gx, grow, gwf, gbf, gwm, gbm, gwl, gbl) =
+            B::mlp_backward(x, row, w_first, w_mid, w_last, hidden, grad);
         (
             Self::from_inner(gx),
+            Self::from_inner(grow),
             Self::from_inner(gwf),
             Self::from_inner(gbf),
             Self::from_inner(gwm),
@@ -461,19 +474,26 @@ impl<B: MlpOps, C: CheckpointStrategy> MlpOps for Autodiff<B, C> {
     }
 }
 
-/// `x` (`[n, d_in]`, `n > 0`) through a ReLU MLP without skips as one device op, where
-/// the kernels take its sizes; `None` otherwise (the caller composes tensor ops).
-/// `params` are, layer by layer, the weight `[d_in, d_out]` and the bias `[1, d_out]`.
-/// Only for tensors on a CubeCL device.
-pub(crate) fn forward(x: &Tensor<2>, params: &[Tensor<2>]) -> Option<Tensor<2>> {
+/// `cat([x, row repeated n times], 1)` (`x` `[n, d_x]`, `n > 0`; `row` `[1, d_row]`)
+/// through a ReLU MLP without skips as one device op, where the kernels take its sizes;
+/// `None` otherwise (the caller composes tensor ops). `params` are, layer by layer, the
+/// weight `[d_in, d_out]` and the bias `[1, d_out]`, the first weight `[d_x + d_row,
+/// width]`. Without a row, a zero row and a zero weight row stand in. Only for tensors
+/// on a CubeCL device.
+pub(crate) fn forward(
+    x: &Tensor<2>,
+    row: Option<&Tensor<2>>,
+    params: &[Tensor<2>],
+) -> Option<Tensor<2>> {
     let layers = params.len() / 2;
-    if params.len() % 2 != 0 || layers < 3 {
+    if !params.len().is_multiple_of(2) || layers < 3 {
         return None;
     }
-    let [_, d_in] = x.dims();
+    let [_, d_x] = x.dims();
+    let d_row = row.map_or(0, |r| r.dims()[1]);
     let width = params[0].dims()[1];
     let d_out = params[2 * layers - 1].dims()[1];
-    let mut d = d_in;
+    let mut d = d_x + d_row;
     for pair in params.chunks_exact(2) {
         let [rows, cols] = pair[0].dims();
         if rows != d || pair[1].dims() != [1, cols] {
@@ -484,9 +504,20 @@ pub(crate) fn forward(x: &Tensor<2>, params: &[Tensor<2>]) -> Option<Tensor<2>> 
     let hidden_equal = params[..2 * layers - 2]
         .chunks_exact(2)
         .all(|pair| pair[0].dims()[1] == width);
-    if !hidden_equal || width > MAX_WIDTH || d_in > MAX_IN || d_out > MAX_OUT {
+    if !hidden_equal || width > MAX_WIDTH || d_x > MAX_IN || d_out > MAX_OUT {
         return None;
     }
+    let device = x.device();
+    let (row, w_first) = match row {
+        Some(row) => (row.clone(), params[0].clone()),
+        None => (
+            Tensor::zeros([1, 1], &device),
+            Tensor::cat(
+                vec![params[0].clone(), Tensor::zeros([1, width], &device)],
+                0,
+            ),
+        ),
+    };
     let middle = &params[2..2 * layers - 2];
     let stack = |offset: usize| -> Tensor<3> {
         let mut parts: Vec<Tensor<3>> = middle
@@ -503,7 +534,8 @@ pub(crate) fn forward(x: &Tensor<2>, params: &[Tensor<2>]) -> Option<Tensor<2>> 
     };
     let out = Dispatch::mlp_forward(
         x.clone().into_dispatch(),
-        params[0].clone().into_dispatch(),
+        row.into_dispatch(),
+        w_first.into_dispatch(),
         params[1].clone().into_dispatch(),
         stack(0).into_dispatch(),
         stack(1).into_dispatch(),

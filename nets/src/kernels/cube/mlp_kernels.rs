@@ -12,12 +12,15 @@
 
 use cubecl::prelude::*;
 
-/// `out = relu(... relu(x W_first + b_first) W_mid ...) W_last + b_last`, keeping every
-/// hidden layer's activations in `hidden`; one unit per row.
+/// `out = relu(... relu([x, row] W_first + b_first) W_mid ...) W_last + b_last` with the
+/// shared `row` `[1, d_row]` repeated on every row of `x`, keeping every hidden layer's
+/// activations in `hidden`; one unit per row. Each cube first folds the row's product
+/// and the first bias into one bias in shared memory (`W_first`'s last `d_row` rows).
 #[cube(launch)]
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn forward_kernel(
     x: &Tensor<f32>,
+    row: &Tensor<f32>,
     w_first: &Tensor<f32>,
     b_first: &Tensor<f32>,
     w_mid: &Tensor<f32>,
@@ -31,6 +34,18 @@ pub(crate) fn forward_kernel(
     #[comptime] d_out: usize,
 ) {
     let n = x.shape(0);
+    let d_row = row.shape(1);
+    let mut bias = Shared::<[f32]>::new_slice(width);
+    let mut j = UNIT_POS as usize;
+    while j < width {
+        let mut b = 0.0f32;
+        for k in 0..d_row {
+            b += row[k] * w_first[(d_in + k) * width + j];
+        }
+        bias[j] = b + b_first[j];
+        j += CUBE_DIM as usize;
+    }
+    sync_cube();
     let r = ABSOLUTE_POS;
     if r >= n {
         terminate!();
@@ -39,7 +54,7 @@ pub(crate) fn forward_kernel(
     let mut acc = Array::<f32>::new(width);
     #[unroll]
     for j in 0..width {
-        acc[j] = b_first[j];
+        acc[j] = bias[j];
     }
     for i in 0..d_in {
         let xi = x[r * d_in + i];
@@ -182,44 +197,57 @@ pub(crate) fn delta_kernel(
     }
 }
 
-/// One layer's weight and bias gradients over one chunk of rows per cube: entry
-/// `i d_dim + j` of `partial[c]` sums `a[i, r] d[j, r]` (`i < a_dim`, the weight) or
-/// `d[j, r]` (`i = a_dim`, the bias) over rows `r` in `[c rows, (c + 1) rows)`. Tiles of
-/// `tile` rows go through shared memory (rows of `tile + 1` floats: an odd stride, so the
-/// units of a warp reading consecutive `j` hit different banks); each unit keeps
-/// `per_unit` entries (`unit + q units`) in registers. Element `(i, r)` of the input `a`
-/// is at `a_base + i a_si + r a_sr`, element `(j, r)` of the delta `d` at
-/// `d_base + j d_sj + r d_sr`.
+/// Where layer `l`'s weight and bias gradients start among every layer's entries: the
+/// first layer's `(d_in + 1) width` (its weight `[d_in, width]` row-major, then its bias),
+/// then each middle layer's `(width + 1) width`, then the last's `(width + 1) d_out`.
+#[cube]
+fn layer_start(l: usize, #[comptime] d_in: usize, #[comptime] width: usize) -> usize {
+    let later = (d_in + 1) * width + (l - 1) * (width + 1) * width;
+    select(l > 0, later, 0)
+}
+
+/// Every layer's weight and bias gradients over one chunk of rows: cube `(c, l)` sums,
+/// into entry `layer_start(l) + i d_dim + j` of `partial[c]`, `a[i, r] d[j, r]`
+/// (`i < a_dim`, the weight) or `d[j, r]` (`i = a_dim`, the bias) over the chunk's rows
+/// `r` in `[c rows, (c + 1) rows)`, where `a` is layer `l`'s input (`x` or a hidden
+/// layer) and `d` its delta (a hidden layer's or the output's `grad`). Tiles of `tile`
+/// rows go through shared memory (rows of `tile + 1` floats: an odd stride, so the units
+/// of a warp reading consecutive `j` hit different banks); each unit keeps `per_unit`
+/// entries (`unit + q units`) in registers. `a_max` and `d_max` are the widest input and
+/// delta, `max(d_in, width)` and `max(d_out, width)`.
 #[cube(launch)]
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn weight_partial_kernel(
-    a: &Tensor<f32>,
-    d: &Tensor<f32>,
+    x: &Tensor<f32>,
+    hidden: &Tensor<f32>,
+    delta: &Tensor<f32>,
+    grad: &Tensor<f32>,
     partial: &mut Tensor<f32>,
-    a_base: u32,
-    a_si: u32,
-    a_sr: u32,
-    d_base: u32,
-    d_sj: u32,
-    d_sr: u32,
-    n: u32,
     chunk_rows: u32,
-    #[comptime] a_dim: usize,
-    #[comptime] d_dim: usize,
+    #[comptime] d_in: usize,
+    #[comptime] width: usize,
+    #[comptime] d_out: usize,
+    #[comptime] a_max: usize,
+    #[comptime] d_max: usize,
     #[comptime] tile: usize,
     #[comptime] units: usize,
     #[comptime] per_unit: usize,
 ) {
     let stride = tile + 1;
-    let entries = (a_dim + 1) * d_dim;
+    let n = x.shape(0);
+    let last = hidden.shape(0) / width;
     let unit = UNIT_POS_X as usize;
     let c = CUBE_POS_X as usize;
+    let l = CUBE_POS_Y as usize;
+    let total = partial.shape(1);
+    let a_dim = select(l == 0, d_in, width);
+    let d_dim = select(l == last, d_out, width);
+    let entries = (a_dim + 1) * d_dim;
+    let out_at = c * total + layer_start(l, d_in, width);
     let first = c * chunk_rows as usize;
-    let end = usize::min(first + chunk_rows as usize, n as usize);
-    let (a_base, a_si, a_sr) = (a_base as usize, a_si as usize, a_sr as usize);
-    let (d_base, d_sj, d_sr) = (d_base as usize, d_sj as usize, d_sr as usize);
-    let mut s_a = Shared::<[f32]>::new_slice((a_dim + 1) * stride);
-    let mut s_d = Shared::<[f32]>::new_slice(d_dim * stride);
+    let end = usize::min(first + chunk_rows as usize, n);
+    let mut s_a = Shared::<[f32]>::new_slice((a_max + 1) * stride);
+    let mut s_d = Shared::<[f32]>::new_slice(d_max * stride);
     // The bias's input: 1 on every row (rows past the end have a zero delta).
     let mut t = unit;
     while t < tile {
@@ -233,38 +261,42 @@ pub(crate) fn weight_partial_kernel(
     }
     let mut start = first;
     while start < end {
-        // Consecutive units take consecutive rows where the layout runs along rows,
-        // consecutive columns where it runs along them.
+        // Consecutive units read consecutive floats: along a row of `x` or `grad`, along
+        // the rows of a hidden layer.
         let mut e = unit;
         while e < a_dim * tile {
-            let mut i = e / tile;
-            let mut t = e % tile;
-            if a_si == 1 {
-                i = e % a_dim;
-                t = e / a_dim;
-            }
-            let r = start + t;
             let mut v = 0.0f32;
-            if r < end {
-                v = a[a_base + i * a_si + r * a_sr];
+            if l == 0 {
+                let (i, t) = (e % a_dim, e / a_dim);
+                if start + t < end {
+                    v = x[(start + t) * d_in + i];
+                }
+                s_a[i * stride + t] = v;
+            } else {
+                let (i, t) = (e / tile, e % tile);
+                if start + t < end {
+                    v = hidden[((l - 1) * width + i) * n + start + t];
+                }
+                s_a[i * stride + t] = v;
             }
-            s_a[i * stride + t] = v;
             e += units;
         }
         let mut e = unit;
         while e < d_dim * tile {
-            let mut j = e / tile;
-            let mut t = e % tile;
-            if d_sj == 1 {
-                j = e % d_dim;
-                t = e / d_dim;
-            }
-            let r = start + t;
             let mut v = 0.0f32;
-            if r < end {
-                v = d[d_base + j * d_sj + r * d_sr];
+            if l == last {
+                let (j, t) = (e % d_dim, e / d_dim);
+                if start + t < end {
+                    v = grad[(start + t) * d_out + j];
+                }
+                s_d[j * stride + t] = v;
+            } else {
+                let (j, t) = (e / tile, e % tile);
+                if start + t < end {
+                    v = delta[(l * width + j) * n + start + t];
+                }
+                s_d[j * stride + t] = v;
             }
-            s_d[j * stride + t] = v;
             e += units;
         }
         sync_cube();
@@ -288,38 +320,91 @@ pub(crate) fn weight_partial_kernel(
     for q in 0..per_unit {
         let entry = unit + q * units;
         if entry < entries {
-            partial[c * entries + entry] = acc[q];
+            partial[out_at + entry] = acc[q];
         }
     }
 }
 
-/// The chunks' partial sums of one layer (`partial` `[chunks, (a_dim + 1) d_dim]`) summed
-/// in chunk order, one unit per entry: the weight's gradient into `w_grad` from `w_at`,
-/// the bias's into `b_grad` from `b_at`.
+/// The chunks' partial sums (`partial` `[chunks, entries]`, laid out as
+/// [`layer_start`] says) summed in chunk order, one unit per entry, each into its
+/// gradient: the first layer's weight and bias, the stacked middle layers', the last's.
 #[cube(launch)]
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn weight_sum_kernel(
     partial: &Tensor<f32>,
-    w_grad: &mut Tensor<f32>,
-    b_grad: &mut Tensor<f32>,
-    w_at: u32,
-    b_at: u32,
-    chunks: u32,
-    #[comptime] a_dim: usize,
-    #[comptime] d_dim: usize,
+    w_first: &mut Tensor<f32>,
+    b_first: &mut Tensor<f32>,
+    w_mid: &mut Tensor<f32>,
+    b_mid: &mut Tensor<f32>,
+    w_last: &mut Tensor<f32>,
+    b_last: &mut Tensor<f32>,
+    #[comptime] d_in: usize,
+    #[comptime] width: usize,
+    #[comptime] d_out: usize,
 ) {
-    let entries = (a_dim + 1) * d_dim;
+    let chunks = partial.shape(0);
+    let total = partial.shape(1);
     let e = ABSOLUTE_POS;
-    if e >= entries {
+    if e >= total {
         terminate!();
     }
     let mut s = 0.0f32;
-    for c in 0..chunks as usize {
-        s += partial[c * entries + e];
+    for c in 0..chunks {
+        s += partial[c * total + e];
     }
-    if e < a_dim * d_dim {
-        w_grad[w_at as usize + e] = s;
+    let first = (d_in + 1) * width;
+    let middle = (width + 1) * width;
+    let n_mid = w_mid.shape(0);
+    if e < first {
+        if e < d_in * width {
+            w_first[e] = s;
+        } else {
+            b_first[e - d_in * width] = s;
+        }
+    } else if e < first + n_mid * middle {
+        let m = (e - first) / middle;
+        let k = (e - first) % middle;
+        if k < width * width {
+            w_mid[m * width * width + k] = s;
+        } else {
+            b_mid[m * width + k - width * width] = s;
+        }
     } else {
-        b_grad[b_at as usize + e - a_dim * d_dim] = s;
+        let k = e - first - n_mid * middle;
+        if k < width * d_out {
+            w_last[k] = s;
+        } else {
+            b_last[k - width * d_out] = s;
+        }
+    }
+}
+
+/// The shared row's gradients from the first layer's bias gradient `b_grad` (`[1, width]`,
+/// the sum of the first layer's deltas over every row): `W_first`'s row part
+/// `row^T b_grad` into `w_grad`'s last `d_row` rows, and `b_grad W_row^T` into `row_grad`
+/// `[1, d_row]`; one unit per entry.
+#[cube(launch)]
+pub(crate) fn row_grad_kernel(
+    row: &Tensor<f32>,
+    w_first: &Tensor<f32>,
+    b_grad: &Tensor<f32>,
+    w_grad: &mut Tensor<f32>,
+    row_grad: &mut Tensor<f32>,
+    #[comptime] d_in: usize,
+    #[comptime] width: usize,
+) {
+    let d_row = row.shape(1);
+    let u = ABSOLUTE_POS;
+    if u < d_row * width {
+        let k = u / width;
+        let j = u % width;
+        w_grad[(d_in + k) * width + j] = row[k] * b_grad[j];
+    } else if u < d_row * width + d_row {
+        let k = u - d_row * width;
+        let mut s = 0.0f32;
+        for j in 0..width {
+            s += w_first[(d_in + k) * width + j] * b_grad[j];
+        }
+        row_grad[k] = s;
     }
 }
