@@ -57,6 +57,11 @@ pub struct DeviceRow {
     pub render_ms_median: f64,
     pub render_fps: f64,
     pub render_samples: usize,
+    /// The timed renders' host sampling, as a share of their wall time.
+    pub render_sampling_share: f64,
+    /// The timed renders' forwards (on a GPU: laying out inputs and queueing work), as a
+    /// share of their wall time; the rest is the read back waiting for the device.
+    pub render_forward_share: f64,
     /// The process's peak resident set over the row, MiB (`None` where Linux's
     /// `/proc/self/status` is not there).
     pub peak_rss_mib: Option<f64>,
@@ -167,12 +172,16 @@ fn measure(
     let avatar = avatar_of(&trainer);
     let mut render_samples = 0;
     let mut renders = Vec::with_capacity(opts.renders);
+    let (mut render_wall, mut render_sampling, mut render_forward) = (0.0, 0.0, 0.0);
     for k in 0..=opts.renders {
         let start = Instant::now();
         let out = avatar.render(frame.subject, &frame.params, camera, None)?;
         let _pixels = out.to_image();
         if k > 0 {
             renders.push(start.elapsed().as_secs_f64());
+            render_wall += out.seconds;
+            render_sampling += out.sampling_seconds;
+            render_forward += out.forward_seconds;
         }
         render_samples = out.samples;
         peak_device = peak_device.max(reserved());
@@ -191,6 +200,8 @@ fn measure(
         render_ms_median: render_ms,
         render_fps: 1e3 / render_ms,
         render_samples,
+        render_sampling_share: render_sampling / render_wall.max(1e-12),
+        render_forward_share: render_forward / render_wall.max(1e-12),
         peak_rss_mib: peak_rss_bytes().map(|b| b as f64 / MIB),
         peak_device_mib: device.is_gpu().then_some(peak_device as f64 / MIB),
     })
@@ -259,14 +270,14 @@ pub fn table(r: &DeviceReport) -> String {
     let mut s = format!(
         "{} timed steps after {} warm-up (their mean), {} renders at {}x{} (the median).\n\n\
          | device | preset | batch | step ms | steps/s | samples/s | sampler share | \
-         render ms | fps | peak RSS MiB | peak device MiB |\n\
-         |---|---|---|---|---|---|---|---|---|---|---|\n",
+         render ms | fps | render sampling / forwards | peak RSS MiB | peak device MiB |\n\
+         |---|---|---|---|---|---|---|---|---|---|---|---|\n",
         r.steps, r.warmup, r.renders, r.render_size[0], r.render_size[1]
     );
     let opt = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.0}"));
     for row in &r.rows {
         s += &format!(
-            "| {} | {} | {} | {:.1} | {:.2} | {:.0} | {:.1}% | {:.0} | {:.2} | {} | {} |\n",
+            "| {} | {} | {} | {:.1} | {:.2} | {:.0} | {:.1}% | {:.0} | {:.2} | {:.0}% / {:.0}% | {} | {} |\n",
             row.adapter,
             row.preset,
             row.batch_rays,
@@ -276,6 +287,8 @@ pub fn table(r: &DeviceReport) -> String {
             100.0 * row.sampling_share,
             row.render_ms_median,
             row.render_fps,
+            100.0 * row.render_sampling_share,
+            100.0 * row.render_forward_share,
             opt(row.peak_rss_mib),
             opt(row.peak_device_mib),
         );

@@ -58,10 +58,17 @@ pub struct RenderedFrame {
     pub labels: Vec<u8>,
     /// Field samples evaluated.
     pub samples: usize,
-    /// The most samples one field forward saw ([`RENDER_CHUNK_SAMPLES`] at most, unless a
+    /// The most samples one field forward saw ([`forward_samples_on`] at most, unless a
     /// single ray has more).
     pub largest_forward: usize,
+    /// Wall time of the whole frame.
     pub seconds: f64,
+    /// Of it, the host sampling the rays (each wave's chunks in parallel).
+    pub sampling_seconds: f64,
+    /// Of it, the forwards: on the CPU the field itself; on a GPU laying out each
+    /// forward's inputs and queueing its work. What is left is the read back, which on a
+    /// GPU waits for the queued work.
+    pub forward_seconds: f64,
 }
 
 impl RenderedFrame {
@@ -174,9 +181,11 @@ impl Avatar {
         // inference runs on about one core).
         let join = !is_cpu(&self.field.identity.val().device());
         let (mut total_samples, mut largest_forward) = (0, 0);
+        let (mut sampling_seconds, mut forward_seconds) = (0.0, 0.0);
         let mut pieces: Vec<Piece> = Vec::new();
         for (w, wave) in rays.chunks(RENDER_WAVE_RAYS).enumerate() {
             let wave_start = w * RENDER_WAVE_RAYS;
+            let sampling = Instant::now();
             let sampled: Vec<(Range<usize>, PackedSamples)> = wave
                 .par_chunks(RENDER_CHUNK_RAYS)
                 .enumerate()
@@ -187,6 +196,8 @@ impl Avatar {
                         .map(|samples| (first..first + chunk.len(), samples))
                 })
                 .collect::<Result<_, _>>()?;
+            sampling_seconds += sampling.elapsed().as_secs_f64();
+            let forwarding = Instant::now();
             let forwards = plan_forwards(sampled, max_chunk_samples, join);
             for f in &forwards {
                 total_samples += f.samples.num_samples();
@@ -197,6 +208,7 @@ impl Avatar {
                 .map(|f| self.render_forward(&conditions, &rays[f.rays], &f.samples))
                 .collect::<Result<_, _>>()?;
             pieces.extend(wave_pieces);
+            forward_seconds += forwarding.elapsed().as_secs_f64();
         }
         let (rgb, opacity, labels) = self.read_back(pieces, rays.len())?;
         Ok(RenderedFrame {
@@ -208,6 +220,8 @@ impl Avatar {
             samples: total_samples,
             largest_forward,
             seconds: start.elapsed().as_secs_f64(),
+            sampling_seconds,
+            forward_seconds,
         })
     }
 

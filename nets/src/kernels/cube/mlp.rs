@@ -305,12 +305,16 @@ impl MlpOps for CubeBackend {
 fn weight_grads(d: &Dims, [x, hidden, delta, grad]: [&CubeTensor; 4], grads: &[CubeTensor; 6]) {
     let client = x.client.clone();
     let w = d.width;
-    let (a_max, d_max) = (d.d_in.max(w), d.d_out.max(w));
     let layer_entries = [(d.d_in + 1) * w, (w + 1) * w, (w + 1) * d.d_out];
     let entries = layer_entries[0] + d.n_mid * layer_entries[1] + layer_entries[2];
-    let most = layer_entries.into_iter().max().unwrap_or(0);
+    // A layer's 4 x 4 blocks of entries (its input with the bias's row, by its deltas).
+    let blocks = |a: usize, dd: usize| (a + 1).div_ceil(4) * dd.div_ceil(4);
+    let most = blocks(d.d_in, w).max(blocks(w, w)).max(blocks(w, d.d_out));
+    // Shared rows: the widest input with the bias's row and the widest delta, in fours.
+    let a_rows = 4 * (d.d_in.max(w) + 1).div_ceil(4);
+    let d_rows = 4 * d.d_out.max(w).div_ceil(4);
     // An odd stride of at most 33 floats whose two tiles fit in shared memory.
-    let mut stride = (SHARED_FLOATS / (a_max + 1 + d_max)).min(33);
+    let mut stride = (SHARED_FLOATS / (a_rows + d_rows)).min(33);
     if stride.is_multiple_of(2) {
         stride -= 1;
     }
@@ -332,8 +336,8 @@ fn weight_grads(d: &Dims, [x, hidden, delta, grad]: [&CubeTensor; 4], grads: &[C
         d.d_in,
         w,
         d.d_out,
-        a_max,
-        d_max,
+        a_rows,
+        d_rows,
         tile,
         UNITS,
         most.div_ceil(UNITS),

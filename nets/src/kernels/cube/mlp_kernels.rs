@@ -211,10 +211,12 @@ fn layer_start(l: usize, #[comptime] d_in: usize, #[comptime] width: usize) -> u
 /// (`i < a_dim`, the weight) or `d[j, r]` (`i = a_dim`, the bias) over the chunk's rows
 /// `r` in `[c rows, (c + 1) rows)`, where `a` is layer `l`'s input (`x` or a hidden
 /// layer) and `d` its delta (a hidden layer's or the output's `grad`). Tiles of `tile`
-/// rows go through shared memory (rows of `tile + 1` floats: an odd stride, so the units
-/// of a warp reading consecutive `j` hit different banks); each unit keeps `per_unit`
-/// entries (`unit + q units`) in registers. `a_max` and `d_max` are the widest input and
-/// delta, `max(d_in, width)` and `max(d_out, width)`.
+/// rows go through shared memory (rows of `tile + 1` floats: an odd stride). Each unit
+/// keeps `per_unit` blocks of 4 x 4 entries in registers, four consecutive `i` by four
+/// `j` strided by the layer's column groups (`ceil(d_dim / 4)`), so that the units of a
+/// warp (consecutive column groups) read one input row together and distinct delta rows,
+/// in distinct banks: 8 shared reads feed 16 products. `a_rows` and `d_rows` are the
+/// widest input (with the bias's row) and delta rounded up to fours, the shared rows kept.
 #[cube(launch)]
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn weight_partial_kernel(
@@ -227,8 +229,8 @@ pub(crate) fn weight_partial_kernel(
     #[comptime] d_in: usize,
     #[comptime] width: usize,
     #[comptime] d_out: usize,
-    #[comptime] a_max: usize,
-    #[comptime] d_max: usize,
+    #[comptime] a_rows: usize,
+    #[comptime] d_rows: usize,
     #[comptime] tile: usize,
     #[comptime] units: usize,
     #[comptime] per_unit: usize,
@@ -242,21 +244,31 @@ pub(crate) fn weight_partial_kernel(
     let total = partial.shape(1);
     let a_dim = select(l == 0, d_in, width);
     let d_dim = select(l == last, d_out, width);
-    let entries = (a_dim + 1) * d_dim;
+    // Column groups and blocks of this layer.
+    let groups = (d_dim + 3) / 4;
+    let blocks = (a_dim + 4) / 4 * groups;
     let out_at = c * total + layer_start(l, d_in, width);
     let first = c * chunk_rows as usize;
     let end = usize::min(first + chunk_rows as usize, n);
-    let mut s_a = Shared::<[f32]>::new_slice((a_max + 1) * stride);
-    let mut s_d = Shared::<[f32]>::new_slice(d_max * stride);
-    // The bias's input: 1 on every row (rows past the end have a zero delta).
-    let mut t = unit;
-    while t < tile {
-        s_a[a_dim * stride + t] = 1.0;
-        t += units;
+    let mut s_a = Shared::<[f32]>::new_slice(a_rows * stride);
+    let mut s_d = Shared::<[f32]>::new_slice(d_rows * stride);
+    // The bias's input is 1 on every row (rows past the end have a zero delta); the
+    // padding rows past it and past the deltas stay 0.
+    let mut e = unit;
+    while e < a_rows * tile {
+        let i = e / tile;
+        s_a[i * stride + e % tile] = select(i == a_dim, 1.0f32, 0.0f32);
+        e += units;
     }
-    let mut acc = Array::<f32>::new(per_unit);
+    let mut e = unit;
+    while e < d_rows * tile {
+        s_d[(e / tile) * stride + e % tile] = 0.0f32;
+        e += units;
+    }
+    sync_cube();
+    let mut acc = Array::<f32>::new(per_unit * 16);
     #[unroll]
-    for q in 0..per_unit {
+    for q in 0..per_unit * 16 {
         acc[q] = 0.0;
     }
     let mut start = first;
@@ -302,15 +314,27 @@ pub(crate) fn weight_partial_kernel(
         sync_cube();
         #[unroll]
         for q in 0..per_unit {
-            let entry = unit + q * units;
-            if entry < entries {
-                let i = entry / d_dim;
-                let j = entry % d_dim;
-                let mut s = 0.0f32;
+            let block = unit + q * units;
+            if block < blocks {
+                let a_row = (block / groups) * 4 * stride;
+                let d_row = (block % groups) * stride;
+                let d_step = groups * stride;
                 for t in 0..tile {
-                    s += s_a[i * stride + t] * s_d[j * stride + t];
+                    let mut av = Array::<f32>::new(4usize);
+                    let mut dv = Array::<f32>::new(4usize);
+                    #[unroll]
+                    for k in 0..4 {
+                        av[k] = s_a[a_row + k * stride + t];
+                        dv[k] = s_d[d_row + k * d_step + t];
+                    }
+                    #[unroll]
+                    for ki in 0..4 {
+                        #[unroll]
+                        for kj in 0..4 {
+                            acc[q * 16 + ki * 4 + kj] += av[ki] * dv[kj];
+                        }
+                    }
                 }
-                acc[q] += s;
             }
         }
         sync_cube();
@@ -318,9 +342,21 @@ pub(crate) fn weight_partial_kernel(
     }
     #[unroll]
     for q in 0..per_unit {
-        let entry = unit + q * units;
-        if entry < entries {
-            partial[out_at + entry] = acc[q];
+        let block = unit + q * units;
+        if block < blocks {
+            let i0 = (block / groups) * 4;
+            let j0 = block % groups;
+            #[unroll]
+            for ki in 0..4 {
+                #[unroll]
+                for kj in 0..4 {
+                    let i = i0 + ki;
+                    let j = j0 + kj * groups;
+                    if i <= a_dim && j < d_dim {
+                        partial[out_at + i * d_dim + j] = acc[q * 16 + ki * 4 + kj];
+                    }
+                }
+            }
         }
     }
 }
