@@ -218,7 +218,8 @@ fn layer_start(l: usize, #[comptime] d_in: usize, #[comptime] width: usize) -> u
 /// in distinct banks: 8 shared reads feed 16 products. `a_rows` and `d_rows` are the
 /// widest input (with the bias's row) and delta rounded up to fours, the shared rows kept.
 #[cube(launch)]
-#[allow(clippy::too_many_arguments)]
+// Kernel code: `usize::div_ceil` has no cube expansion.
+#[allow(clippy::too_many_arguments, clippy::manual_div_ceil)]
 pub(crate) fn weight_partial_kernel(
     x: &Tensor<f32>,
     hidden: &Tensor<f32>,
