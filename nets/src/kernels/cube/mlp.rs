@@ -46,6 +46,11 @@ const SHARED_FLOATS: usize = 4096;
 /// one unit per weight, a loop over the chunks).
 const MAX_CHUNKS: usize = 512;
 
+/// The gradients of the input, the row, the first weight and bias, the stacked middle
+/// weights and biases, and the last weight and bias (the trait spells the tuple out: its
+/// macro reads the outputs from the tuple's type).
+type Grads<T> = (T, T, T, T, T, T, T, T);
+
 /// The MLP and its gradients on a backend. Weights are `[d_in, d_out]`, biases
 /// `[1, d_out]`; the hidden layers after the first are stacked (`[depth - 1, width,
 /// width]` and `[depth - 1, 1, width]`).
@@ -112,7 +117,6 @@ fn hidden_spec(x: &TensorSpec, w_mid: &TensorSpec) -> TensorSpec {
     TensorSpec::new([depth * width, x.shape[0]].into(), x.dtype)
 }
 
-#[allow(clippy::type_complexity)]
 fn backward_meta(
     x: &TensorSpec,
     row: &TensorSpec,
@@ -121,16 +125,7 @@ fn backward_meta(
     w_last: &TensorSpec,
     _hidden: &TensorSpec,
     _grad: &TensorSpec,
-) -> (
-    TensorSpec,
-    TensorSpec,
-    TensorSpec,
-    TensorSpec,
-    TensorSpec,
-    TensorSpec,
-    TensorSpec,
-    TensorSpec,
-) {
+) -> Grads<TensorSpec> {
     let spec = |shape: Vec<usize>| TensorSpec::new(shape.into(), x.dtype);
     let (width, d_out) = (w_first.shape[1], w_last.shape[1]);
     (
@@ -236,16 +231,7 @@ impl MlpOps for CubeBackend {
         w_last: CubeTensor,
         hidden: CubeTensor,
         grad: CubeTensor,
-    ) -> (
-        CubeTensor,
-        CubeTensor,
-        CubeTensor,
-        CubeTensor,
-        CubeTensor,
-        CubeTensor,
-        CubeTensor,
-        CubeTensor,
-    ) {
+    ) -> Grads<CubeTensor> {
         let [x, row, w_first, w_mid, w_last, hidden, grad] =
             [x, row, w_first, w_mid, w_last, hidden, grad].map(into_contiguous);
         let d = Dims::of(&x, &w_mid, &w_last);
@@ -451,16 +437,7 @@ impl<B: MlpOps, C: CheckpointStrategy> MlpOps for Autodiff<B, C> {
         w_last: FloatTensor<Self>,
         hidden: FloatTensor<Self>,
         grad: FloatTensor<Self>,
-    ) -> (
-        FloatTensor<Self>,
-        FloatTensor<Self>,
-        FloatTensor<Self>,
-        FloatTensor<Self>,
-        FloatTensor<Self>,
-        FloatTensor<Self>,
-        FloatTensor<Self>,
-        FloatTensor<Self>,
-    ) {
+    ) -> Grads<FloatTensor<Self>> {
         let [x, row, w_first, w_mid, w_last, hidden, grad] =
             [x, row, w_first, w_mid, w_last, hidden, grad].map(|t| t.into_primitive());
         let (gx, grow, gwf, gbf, gwm, gbm, gwl, gbl) =

@@ -57,52 +57,77 @@ pub(crate) fn forward_kernel(
         acc[j] = bias[j];
     }
     for i in 0..d_in {
-        let xi = x[r * d_in + i];
-        #[unroll]
-        for j in 0..width {
-            acc[j] += xi * w_first[i * width + j];
-        }
+        add_scaled(&mut acc, x[r * d_in + i], w_first, i * width, 1, width);
     }
-    #[unroll]
-    for j in 0..width {
-        hidden[j * n + r] = f32::max(acc[j], 0.0);
-    }
+    store_relu(&acc, hidden, r, n, width);
     for m in 0..n_mid {
         let below = m * width * n;
-        let above = below + width * n;
-        #[unroll]
-        for j in 0..width {
-            acc[j] = b_mid[m * width + j];
-        }
+        load(&mut acc, b_mid, m * width, width);
         for i in 0..width {
             let h = hidden[below + i * n + r];
-            let w_row = (m * width + i) * width;
-            #[unroll]
-            for j in 0..width {
-                acc[j] += h * w_mid[w_row + j];
-            }
+            add_scaled(&mut acc, h, w_mid, (m * width + i) * width, 1, width);
         }
-        #[unroll]
-        for j in 0..width {
-            hidden[above + j * n + r] = f32::max(acc[j], 0.0);
-        }
+        store_relu(&acc, hidden, below + width * n + r, n, width);
     }
     let top = n_mid * width * n;
     let mut o = Array::<f32>::new(d_out);
-    #[unroll]
-    for k in 0..d_out {
-        o[k] = b_last[k];
-    }
+    load(&mut o, b_last, 0, d_out);
     for i in 0..width {
-        let h = hidden[top + i * n + r];
-        #[unroll]
-        for k in 0..d_out {
-            o[k] += h * w_last[i * d_out + k];
-        }
+        add_scaled(&mut o, hidden[top + i * n + r], w_last, i * d_out, 1, d_out);
     }
     #[unroll]
     for k in 0..d_out {
         out[r * d_out + k] = o[k];
+    }
+}
+
+/// `acc[k] = t[start + k]` for `k < len`.
+#[cube]
+fn load(acc: &mut Array<f32>, t: &Tensor<f32>, start: usize, #[comptime] len: usize) {
+    #[unroll]
+    for k in 0..len {
+        acc[k] = t[start + k];
+    }
+}
+
+/// `acc[k] += a w[start + k step]` for `k < len`: a row (`step` 1) or a column (`step` the
+/// row length) of a weight, scaled.
+#[cube]
+fn add_scaled(
+    acc: &mut Array<f32>,
+    a: f32,
+    w: &Tensor<f32>,
+    start: usize,
+    step: usize,
+    #[comptime] len: usize,
+) {
+    #[unroll]
+    for k in 0..len {
+        acc[k] += a * w[start + k * step];
+    }
+}
+
+/// A hidden layer's activations `relu(acc[j])` at `at + j n`.
+#[cube]
+fn store_relu(
+    acc: &Array<f32>,
+    hidden: &mut Tensor<f32>,
+    at: usize,
+    n: usize,
+    #[comptime] width: usize,
+) {
+    #[unroll]
+    for j in 0..width {
+        hidden[at + j * n] = f32::max(acc[j], 0.0);
+    }
+}
+
+/// `acc[k] = 0` for `k < len`.
+#[cube]
+fn zero(acc: &mut Array<f32>, #[comptime] len: usize) {
+    #[unroll]
+    for k in 0..len {
+        acc[k] = 0.0;
     }
 }
 
@@ -151,45 +176,25 @@ pub(crate) fn delta_kernel(
     }
     let n_mid = w_mid.shape(0);
     let mut acc = Array::<f32>::new(width);
-    #[unroll]
-    for j in 0..width {
-        acc[j] = 0.0;
-    }
+    zero(&mut acc, width);
     for k in 0..d_out {
-        let g = grad[r * d_out + k];
-        #[unroll]
-        for j in 0..width {
-            acc[j] += w_last[j * d_out + k] * g;
-        }
+        add_scaled(&mut acc, grad[r * d_out + k], w_last, k, d_out, width);
     }
     store_masked(&acc, hidden, delta, n_mid * width * n + r, n, width);
     for step in 0..n_mid {
         let m = n_mid - 1 - step;
         let above = (m + 1) * width * n;
-        #[unroll]
-        for i in 0..width {
-            acc[i] = 0.0;
-        }
+        zero(&mut acc, width);
         for j in 0..width {
             let d = delta[above + j * n + r];
-            #[unroll]
-            for i in 0..width {
-                acc[i] += w_mid[(m * width + i) * width + j] * d;
-            }
+            add_scaled(&mut acc, d, w_mid, m * width * width + j, width, width);
         }
         store_masked(&acc, hidden, delta, m * width * n + r, n, width);
     }
     let mut gx = Array::<f32>::new(d_in);
-    #[unroll]
-    for i in 0..d_in {
-        gx[i] = 0.0;
-    }
+    zero(&mut gx, d_in);
     for j in 0..width {
-        let d = delta[j * n + r];
-        #[unroll]
-        for i in 0..d_in {
-            gx[i] += w_first[i * width + j] * d;
-        }
+        add_scaled(&mut gx, delta[j * n + r], w_first, j, width, d_in);
     }
     #[unroll]
     for i in 0..d_in {
@@ -268,10 +273,7 @@ pub(crate) fn weight_partial_kernel(
     }
     sync_cube();
     let mut acc = Array::<f32>::new(per_unit * 16);
-    #[unroll]
-    for q in 0..per_unit * 16 {
-        acc[q] = 0.0;
-    }
+    zero(&mut acc, per_unit * 16);
     let mut start = first;
     while start < end {
         // Consecutive units read consecutive floats: along a row of `x` or `grad`, along
