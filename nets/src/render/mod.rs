@@ -94,6 +94,9 @@ pub struct RenderWeights {
     /// Transmittance left at the end of each ray, `exp(-sum tau)`. `[r]`
     pub transmittance_end: Tensor<1>,
     ray_of_sample: Option<Tensor<1, Int>>,
+    /// On a CubeCL device, the rays' offsets `[r + 1]`: the sums are a device op there.
+    #[cfg_attr(not(feature = "wgpu"), allow(dead_code))]
+    device_offsets: Option<Tensor<1, Int>>,
     n_rays: usize,
 }
 
@@ -113,6 +116,7 @@ impl RenderWeights {
                 weights: Tensor::zeros([0], &device),
                 transmittance_end: Tensor::ones([r], &device),
                 ray_of_sample: None,
+                device_offsets: None,
                 n_rays: r,
             });
         }
@@ -129,15 +133,14 @@ impl RenderWeights {
         if !crate::device::is_cpu(&device) {
             // One unit per ray (`kernels::cube::render`) instead of the scan below.
             let offsets: Vec<i32> = samples.offsets.iter().map(|&o| o as i32).collect();
-            let (weights, transmittance_end) = crate::kernels::cube::render::render_weights(
-                tau,
-                ints(offsets, &device),
-                SMALL_TAU,
-            );
+            let offsets = ints(offsets, &device);
+            let (weights, transmittance_end) =
+                crate::kernels::cube::render::render_weights(tau, offsets.clone(), SMALL_TAU);
             return Ok(Self {
                 weights,
                 transmittance_end,
                 ray_of_sample: Some(ray),
+                device_offsets: Some(offsets),
                 n_rays: r,
             });
         }
@@ -155,6 +158,7 @@ impl RenderWeights {
             weights: transmittance * alpha,
             transmittance_end: total.neg().exp(),
             ray_of_sample: Some(ray),
+            device_offsets: None,
             n_rays: r,
         })
     }
@@ -167,28 +171,54 @@ impl RenderWeights {
     pub fn integrate(&self, values: Tensor<2>) -> Tensor<2> {
         let [_, c] = values.dims();
         let device = values.device();
-        let zeros = Tensor::<2>::zeros([self.n_rays, c], &device);
-        match &self.ray_of_sample {
-            None => zeros,
-            Some(ray) => add_rows(
-                zeros,
-                ray.clone(),
-                values * self.weights.clone().unsqueeze_dim(1),
-            ),
+        let Some(ray) = &self.ray_of_sample else {
+            return Tensor::zeros([self.n_rays, c], &device);
+        };
+        if let Some(sums) = self.device_sums(|| values.clone(), ray) {
+            return sums;
         }
+        add_rows(
+            Tensor::<2>::zeros([self.n_rays, c], &device),
+            ray.clone(),
+            values * self.weights.clone().unsqueeze_dim(1),
+        )
     }
 
     /// `sum_i w_i` per ray. `[r]`
     pub fn opacity(&self) -> Tensor<1> {
         let device = self.weights.device();
-        match &self.ray_of_sample {
-            None => Tensor::zeros([self.n_rays], &device),
-            Some(ray) => add_rows(
-                Tensor::<1>::zeros([self.n_rays], &device),
-                ray.clone(),
-                self.weights.clone(),
-            ),
+        let Some(ray) = &self.ray_of_sample else {
+            return Tensor::zeros([self.n_rays], &device);
+        };
+        if let Some(sums) = self.device_sums(|| floats(vec![1.0], [1, 1], &device), ray) {
+            return sums.squeeze_dim::<1>(1);
         }
+        add_rows(
+            Tensor::<1>::zeros([self.n_rays], &device),
+            ray.clone(),
+            self.weights.clone(),
+        )
+    }
+
+    /// On a CubeCL device, `sum_i w_i values_i` per ray as one device op
+    /// (`kernels::cube::ray_sums`; `values()` `[n, c]` or one shared row `[1, c]`);
+    /// elsewhere `None`.
+    #[cfg_attr(not(feature = "wgpu"), allow(unused_variables))]
+    fn device_sums(
+        &self,
+        values: impl FnOnce() -> Tensor<2>,
+        ray: &Tensor<1, Int>,
+    ) -> Option<Tensor<2>> {
+        #[cfg(feature = "wgpu")]
+        if let Some(offsets) = &self.device_offsets {
+            return Some(crate::kernels::cube::ray_sums::ray_sums(
+                self.weights.clone(),
+                values(),
+                offsets.clone(),
+                ray.clone(),
+            ));
+        }
+        None
     }
 }
 

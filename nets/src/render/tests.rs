@@ -249,6 +249,7 @@ fn device_op_renders_like_the_cpu() {
         let stacked = Tensor::cat(
             vec![
                 out.rgb,
+                out.seg_logits,
                 out.opacity.unsqueeze_dim(1),
                 out.depth.unsqueeze_dim(1),
             ],
@@ -274,6 +275,59 @@ fn device_op_renders_like_the_cpu() {
         ("sigma gradient", &dev[1], &cpu[1]),
         ("rgb gradient", &dev[2], &cpu[2]),
         ("front sigma gradient", &dev[3], &cpu[3]),
+    ] {
+        crate::util::assert_close_to(what, a, b, 1e-4);
+    }
+}
+
+/// The per-ray sums' device op (`kernels::cube::ray_sums`) against the CPU's scatter:
+/// a value per sample, one row shared by every sample (whose gradient sums all of them),
+/// and the opacity, with empty rays at both ends and in the middle, a ray of 300 samples
+/// and a density of 1e6; values and the densities', values' and shared row's gradients.
+#[cfg(feature = "wgpu")]
+#[test]
+#[ignore = "needs a Vulkan adapter (lavapipe will do): \
+            cargo test --release --features wgpu -p talkin-nets -p talkin --lib --test device -- --ignored"]
+fn device_op_ray_sums_match_the_cpu() {
+    let gpu = crate::device::test_wgpu().autodiff();
+    let mut seed = 11;
+    let (s, mut sigma, rgb) = batch(&[0, 4, 1, 0, 300, 7, 0], &mut seed);
+    sigma[2] = 1e6;
+    let n = sigma.len();
+    let run = |device: &Device| {
+        let (sig, col) = tensors(&sigma, &rgb, device);
+        let (sig, col) = (sig.require_grad(), col.require_grad());
+        let shared = floats(vec![0.25, -1.5], [1, 2], device).require_grad();
+        let weights = RenderWeights::new(sig.clone(), &s.view()).unwrap();
+        let stacked = Tensor::cat(
+            vec![
+                weights.integrate(col.clone()),
+                weights.integrate(shared.clone()),
+                weights.opacity().unsqueeze_dim(1),
+            ],
+            1,
+        );
+        let [r, c] = stacked.dims();
+        let q: Vec<f32> = (0..r * c)
+            .map(|i| ((i * 3 % 11) as f32 - 5.0) / 5.0)
+            .collect();
+        let grads = (stacked.clone() * floats(q, [r, c], device))
+            .sum()
+            .backward();
+        [
+            host(&stacked),
+            host(&sig.grad(&grads).unwrap()),
+            host(&col.grad(&grads).unwrap()),
+            host(&shared.grad(&grads).unwrap()),
+        ]
+    };
+    let (cpu, dev) = (run(&Device::flex().autodiff()), run(&gpu));
+    assert_eq!(dev[2].len(), n * 3);
+    for (what, a, b) in [
+        ("sums", &dev[0], &cpu[0]),
+        ("sigma gradient", &dev[1], &cpu[1]),
+        ("values gradient", &dev[2], &cpu[2]),
+        ("shared row gradient", &dev[3], &cpu[3]),
     ] {
         crate::util::assert_close_to(what, a, b, 1e-4);
     }

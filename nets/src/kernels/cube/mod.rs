@@ -4,6 +4,7 @@
 //!
 //! - `hash`: the multiresolution hash encoding, all levels in one launch.
 //! - `render`: volume rendering's weights, one unit per ray.
+//! - `ray_sums`: volume rendering's per-ray sums (colour, labels, opacity, depth).
 //! - `skin`: inverse skinning's softmax blend over each sample's candidate bones.
 //! - `adam`: Adam, one elementwise kernel per parameter.
 //! - `mlp`: a ReLU MLP without skips, a unit per row, its weights' gradients by chunks.
@@ -16,6 +17,8 @@ pub(crate) mod hash;
 mod hash_kernels;
 pub(crate) mod mlp;
 mod mlp_kernels;
+pub(crate) mod ray_sums;
+mod ray_sums_kernels;
 pub(crate) mod render;
 mod render_kernels;
 pub(crate) mod skin;
