@@ -51,9 +51,10 @@ enum Labels {
 pub(super) struct Routed {
     /// Ascending sample indices.
     pub rows: Vec<usize>,
-    /// Per row, whether the part's output replaces the body's: `None` when every row is
-    /// routed (the host read the labels), a device mask `[rows]` otherwise.
-    keep: Option<Tensor<1, Bool>>,
+    /// `None` when every row is routed (the host read the labels); otherwise every
+    /// sample's device label `[n]` and the part's: a row whose label is not the part's
+    /// keeps the body's output.
+    labels: Option<(Tensor<1, Int>, usize)>,
 }
 
 impl<'a> Router<'a> {
@@ -75,19 +76,12 @@ impl<'a> Router<'a> {
         match &self.labels {
             Labels::OnHost(labels) => Routed {
                 rows: candidates.filter(|&i| labels[i] == label).collect(),
-                keep: None,
+                labels: None,
             },
-            Labels::OnDevice(labels) => {
-                let rows: Vec<usize> = candidates.collect();
-                let keep = (!rows.is_empty()).then(|| {
-                    labels
-                        .as_ref()
-                        .clone()
-                        .select(0, index_tensor(&rows, &labels.device()))
-                        .equal_elem(label as i64)
-                });
-                Routed { rows, keep }
-            }
+            Labels::OnDevice(labels) => Routed {
+                rows: candidates.collect(),
+                labels: Some((labels.as_ref().clone(), label)),
+            },
         }
     }
 }
@@ -98,15 +92,43 @@ impl Routed {
         index_tensor(&self.rows, device)
     }
 
+    /// Per row, whether the part's output replaces the body's (`[rows]`, on the device;
+    /// `None` when every row is routed).
+    fn keep(&self) -> Option<Tensor<1, Bool>> {
+        let (labels, label) = self.labels.as_ref()?;
+        let rows = self.indices(&labels.device());
+        Some(labels.clone().select(0, rows).equal_elem(*label as i64))
+    }
+
     /// `base` with the routed rows' values from `values` (`[rows, ..]`); a candidate the
     /// label turned away keeps `base`'s.
     pub fn replace<const D: usize>(&self, base: Tensor<D>, values: Tensor<D>) -> Tensor<D> {
-        let values = match &self.keep {
+        #[cfg(feature = "wgpu")]
+        if let Some((labels, label)) = &self.labels
+            && !crate::device::is_cpu(&base.device())
+        {
+            // One device op reads the labels and puts the rows back
+            // (`kernels::cube::routed`).
+            let (n, h) = (base.dims()[0], self.rows.len());
+            let mut slot = vec![h as i32; n];
+            for (k, &i) in self.rows.iter().enumerate() {
+                slot[i] = k as i32;
+            }
+            let slot = ints(slot, &base.device());
+            return crate::kernels::cube::routed::replace(
+                base,
+                values,
+                slot,
+                labels.clone(),
+                *label as i32,
+            );
+        }
+        let values = match self.keep() {
             None => values,
             Some(keep) => {
                 let device = base.device();
                 let old = gather_rows(base.clone(), self.indices(&device));
-                old.mask_where(broadcast(keep, &values), values)
+                old.mask_where(broadcast(&keep, &values), values)
             }
         };
         replace_rows(base, &self.rows, values)
@@ -114,9 +136,9 @@ impl Routed {
 
     /// `values` (`[rows]`) with `fill` where the label turned a candidate away.
     pub fn keep_or(&self, values: Tensor<1>, fill: f32) -> Tensor<1> {
-        match &self.keep {
+        match self.keep() {
             None => values,
-            Some(keep) => values.mask_fill(keep.clone().bool_not(), fill),
+            Some(keep) => values.mask_fill(keep.bool_not(), fill),
         }
     }
 }
@@ -138,11 +160,10 @@ mod tests {
     use super::*;
     use crate::field::{PART_BIT_HANDS, PART_BIT_HEAD, SEG_HANDS, SEG_HEAD};
 
-    /// Each part's candidates, some labelled the part and some not: replacing rows and
-    /// filling turned-away rows gives the same values and gradients both ways.
-    #[test]
-    fn replace_and_fill_agree_on_host_and_device() {
-        let device = Device::flex().autodiff();
+    /// The replaced rows, the filled rows' weighted sum, the points' gradient and each
+    /// part's row count, for twelve samples (each part's candidates, some labelled the
+    /// part and some not) routed as `routing` says on `device`.
+    fn route_twelve(device: &Device, routing: Routing) -> RoutedCase {
         let n = 12;
         let parts: Vec<u8> = (0..n)
             .map(|i| {
@@ -161,30 +182,40 @@ mod tests {
                 row
             })
             .collect();
-        let seg = Tensor::<2>::from_data(TensorData::new(logits, [n, 5]), &device);
+        let seg = Tensor::<2>::from_data(TensorData::new(logits, [n, 5]), device);
         let x: Vec<f32> = (0..n * 3).map(|k| k as f32 * 0.1 - 1.0).collect();
-        let x = Tensor::<2>::from_data(TensorData::new(x, [n, 3]), &device).require_grad();
-        let run = |routing: Routing| {
-            let router = Router::new(&parts, &seg, routing);
-            let head = router.rows(PART_BIT_HEAD, SEG_HEAD);
-            let hands = router.rows(PART_BIT_HANDS, SEG_HANDS);
-            // A part's "net": doubles (head) or squares (hands) its rows.
-            let part = |r: &Routed| x.clone().select(0, r.indices(&device));
-            let y = head.replace(x.clone(), part(&head) * 2.0);
-            let y = hands.replace(y, part(&hands).powf_scalar(2.0));
-            let filled = hands.keep_or(part(&hands).sum_dim(1).reshape([hands.rows.len()]), 0.0);
-            let total = hands.indices(&device).float().mul(filled.clone()).sum();
-            let loss = y.clone().sum() + total.clone();
-            let g = x.grad(&loss.backward()).unwrap();
-            (
-                host(&y),
-                host(&total.reshape([1])),
-                g.try_to_vec_as::<f32>().unwrap(),
-                (head.rows.len(), hands.rows.len()),
-            )
-        };
-        let (y_h, t_h, g_h, rows_h) = run(Routing::OnHost);
-        let (y_d, t_d, g_d, rows_d) = run(Routing::OnDevice);
+        let x = Tensor::<2>::from_data(TensorData::new(x, [n, 3]), device).require_grad();
+        let router = Router::new(&parts, &seg, routing);
+        let head = router.rows(PART_BIT_HEAD, SEG_HEAD);
+        let hands = router.rows(PART_BIT_HANDS, SEG_HANDS);
+        // A part's "net": doubles (head) or squares (hands) its rows.
+        let part = |r: &Routed| x.clone().select(0, r.indices(device));
+        let y = head.replace(x.clone(), part(&head) * 2.0);
+        let y = hands.replace(y, part(&hands).powf_scalar(2.0));
+        // A one-column replace too (the densities'), through the rows' sums.
+        let y1 = head.replace(
+            x.clone().sum_dim(1).reshape([n]),
+            part(&head).sum_dim(1).reshape([head.rows.len()]) * 3.0,
+        );
+        let filled = hands.keep_or(part(&hands).sum_dim(1).reshape([hands.rows.len()]), 0.0);
+        let total = hands.indices(device).float().mul(filled.clone()).sum();
+        let loss = y.clone().sum() + (y1.clone() * y1.clone()).sum() + total.clone();
+        let g = x.grad(&loss.backward()).unwrap();
+        (
+            [host(&y), host(&y1), host(&total.reshape([1])), host(&g)],
+            (head.rows.len(), hands.rows.len()),
+        )
+    }
+
+    type RoutedCase = ([Vec<f32>; 4], (usize, usize));
+
+    /// Replacing rows and filling turned-away rows gives the same values and gradients
+    /// with the labels read on the host and on the device.
+    #[test]
+    fn replace_and_fill_agree_on_host_and_device() {
+        let device = Device::flex().autodiff();
+        let (host_out, rows_h) = route_twelve(&device, Routing::OnHost);
+        let (device_out, rows_d) = route_twelve(&device, Routing::OnDevice);
         assert!(
             rows_h.0 > 0 && rows_h.0 < rows_d.0,
             "{rows_h:?} vs {rows_d:?}"
@@ -193,8 +224,23 @@ mod tests {
             rows_h.1 > 0 && rows_h.1 < rows_d.1,
             "{rows_h:?} vs {rows_d:?}"
         );
-        assert_eq!(y_h, y_d);
-        assert_eq!(t_h, t_d);
-        assert_eq!(g_h, g_d);
+        assert_eq!(host_out, device_out);
+    }
+
+    /// The routed replace's device op (`kernels::cube::routed`) against the host-routed
+    /// CPU: values and the points' gradient, several columns and one.
+    #[cfg(feature = "wgpu")]
+    #[test]
+    #[ignore = "needs a Vulkan adapter (lavapipe will do): \
+                cargo test --release --features wgpu -p talkin-nets -p talkin --lib --test device -- --ignored"]
+    fn device_op_routes_like_the_host() {
+        let gpu = crate::device::test_wgpu().autodiff();
+        let (cpu, _) = route_twelve(&Device::flex().autodiff(), Routing::OnHost);
+        let (dev, _) = route_twelve(&gpu, Routing::for_device(&gpu));
+        assert_eq!(Routing::for_device(&gpu), Routing::OnDevice);
+        let names = ["rows", "one column", "filled", "gradient"];
+        for (what, (a, b)) in names.into_iter().zip(dev.iter().zip(&cpu)) {
+            crate::util::assert_close_to(what, a, b, 1e-6);
+        }
     }
 }

@@ -5,6 +5,7 @@
 //! - `hash`: the multiresolution hash encoding, all levels in one launch.
 //! - `render`: volume rendering's weights, one unit per ray.
 //! - `ray_sums`: volume rendering's per-ray sums (colour, labels, opacity, depth).
+//! - `routed`: a part net's routed rows put back into the batch.
 //! - `skin`: inverse skinning's softmax blend over each sample's candidate bones.
 //! - `adam`: Adam, one elementwise kernel per parameter.
 //! - `mlp`: a ReLU MLP without skips, a unit per row, its weights' gradients by chunks.
@@ -21,6 +22,8 @@ pub(crate) mod ray_sums;
 mod ray_sums_kernels;
 pub(crate) mod render;
 mod render_kernels;
+pub(crate) mod routed;
+mod routed_kernels;
 pub(crate) mod skin;
 mod skin_kernels;
 
