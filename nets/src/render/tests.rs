@@ -224,6 +224,17 @@ fn gradients_match_central_differences() {
     }
 }
 
+/// A sum of `stacked`'s entries with fixed weights of both signs, for a backward that
+/// reaches every entry.
+#[cfg(feature = "wgpu")]
+fn mixed_sum(stacked: &Tensor<2>) -> Tensor<1> {
+    let [r, c] = stacked.dims();
+    let q: Vec<f32> = (0..r * c)
+        .map(|i| ((i * 5 % 7) as f32 - 3.0) / 3.0)
+        .collect();
+    (stacked.clone() * floats(q, [r, c], &stacked.device())).sum()
+}
+
 /// The device op (`kernels::cube::render`) renders and differentiates a batch as the
 /// CPU's scan does: long, short and empty rays, a huge density, zero-length intervals,
 /// through a body pass and a hands pass in front of it (the final transmittance).
@@ -255,13 +266,7 @@ fn device_op_renders_like_the_cpu() {
             ],
             1,
         );
-        let [r, c] = stacked.dims();
-        let q: Vec<f32> = (0..r * c)
-            .map(|i| ((i * 5 % 7) as f32 - 3.0) / 3.0)
-            .collect();
-        let grads = (stacked.clone() * floats(q, [r, c], device))
-            .sum()
-            .backward();
+        let grads = mixed_sum(&stacked).backward();
         [
             host(&stacked),
             host(&sig.grad(&grads).unwrap()),
@@ -307,13 +312,7 @@ fn device_op_ray_sums_match_the_cpu() {
             ],
             1,
         );
-        let [r, c] = stacked.dims();
-        let q: Vec<f32> = (0..r * c)
-            .map(|i| ((i * 3 % 11) as f32 - 5.0) / 5.0)
-            .collect();
-        let grads = (stacked.clone() * floats(q, [r, c], device))
-            .sum()
-            .backward();
+        let grads = mixed_sum(&stacked).backward();
         [
             host(&stacked),
             host(&sig.grad(&grads).unwrap()),
