@@ -95,6 +95,10 @@ impl FrequencyEncoding {
         if let Some(fused) = crate::kernels::frequency::encode(&x, &weights) {
             return fused;
         }
+        #[cfg(feature = "wgpu")]
+        if x.dims()[0] > 0 && x.dims()[1] > 0 && !crate::device::is_cpu(&x.device()) {
+            return crate::kernels::cube::frequency::encode(x, &weights);
+        }
         self.composed(x, &weights)
     }
 
@@ -157,11 +161,8 @@ mod tests {
         }
     }
 
-    /// The fused op (Flex, autodiff or not) matches the composed ops in output and input
-    /// gradient: six bands (angles up to 32 |x|), a half-open window (one band at 0.5,
-    /// two off), inputs of both signs up to 3 and 0.
-    #[test]
-    fn fused_matches_composed_ops() {
+    /// The encoding, its band weights, the inputs and their shape of the fused-op tests.
+    fn case() -> (FrequencyEncoding, Vec<f32>, Vec<f32>, [usize; 2]) {
         let enc = FrequencyConfig::new(6)
             .with_window(Some(HannWindowConfig::new(0, 600)))
             .init();
@@ -177,21 +178,32 @@ mod tests {
                 _ => ((i as f32 * 0.618).fract() - 0.5) * 2.4,
             })
             .collect();
+        (enc, weights, values, [n, d])
+    }
+
+    /// `fused` on `device` (with autodiff) against the composed ops there, in output and
+    /// input gradient, on [`case`]: six bands (angles up to 32 |x|), a half-open window
+    /// (one band at 0.5, two off), inputs of both signs up to 3 and 0. Returns the fused
+    /// output.
+    fn fused_against_composed(
+        device: &Device,
+        fused: impl Fn(&Tensor<2>, &[f32]) -> Tensor<2>,
+    ) -> Vec<f32> {
+        let (enc, weights, values, [n, d]) = case();
         let upstream: Vec<f32> = (0..n * enc.output_dim(d))
             .map(|i| ((i as f32 * 0.377).fract() - 0.5) * 2.0)
             .collect();
-        let device = Device::flex().autodiff();
-        let run = |fused: bool| {
-            let x = Tensor::<2>::from_data(TensorData::new(values.clone(), [n, d]), &device)
+        let run = |use_fused: bool| {
+            let x = Tensor::<2>::from_data(TensorData::new(values.clone(), [n, d]), device)
                 .require_grad();
-            let y = if fused {
-                crate::kernels::frequency::encode(&x, &weights).expect("Flex takes it")
+            let y = if use_fused {
+                fused(&x, &weights)
             } else {
                 enc.composed(x.clone(), &weights)
             };
             let g = Tensor::<2>::from_data(
                 TensorData::new(upstream.clone(), [n, enc.output_dim(d)]),
-                &device,
+                device,
             );
             let grads = (y.clone() * g).sum().backward();
             let dx = x.grad(&grads).expect("x has a gradient");
@@ -207,12 +219,31 @@ mod tests {
                 "gradient {a} vs {b}"
             );
         }
+        y_f
+    }
+
+    /// The fused op (Flex, autodiff or not) matches the composed ops.
+    #[test]
+    fn fused_matches_composed_ops() {
+        let fused = |x: &Tensor<2>, w: &[f32]| {
+            crate::kernels::frequency::encode(x, w).expect("Flex takes it")
+        };
+        let y = fused_against_composed(&Device::flex().autodiff(), fused);
         // Without autodiff, the same values.
-        let plain =
-            Tensor::<2>::from_data(TensorData::new(values.clone(), [n, d]), &Device::flex());
-        let y_plain = crate::util::host(
-            &crate::kernels::frequency::encode(&plain, &weights).expect("Flex takes it"),
-        );
-        assert_eq!(y_plain, y_f);
+        let (_, weights, values, shape) = case();
+        let plain = Tensor::<2>::from_data(TensorData::new(values, shape), &Device::flex());
+        assert_eq!(crate::util::host(&fused(&plain, &weights)), y);
+    }
+
+    /// The device op (`kernels::cube::frequency`) matches the composed ops on the device.
+    #[cfg(feature = "wgpu")]
+    #[test]
+    #[ignore = "needs a Vulkan adapter (lavapipe will do): \
+                cargo test --release --features wgpu -p talkin-nets -p talkin --lib --test device -- --ignored"]
+    fn device_op_frequency_matches_the_composed_ops() {
+        let gpu = crate::device::test_wgpu().autodiff();
+        fused_against_composed(&gpu, |x, w| {
+            crate::kernels::cube::frequency::encode(x.clone(), w)
+        });
     }
 }

@@ -2,6 +2,7 @@
 //! own backward, used where tensors live on a CubeCL device, and tested against the
 //! composed burn ops the other devices run.
 //!
+//! - `frequency`: the frequency encoding of the deformation nets.
 //! - `hash`: the multiresolution hash encoding, all levels in one launch.
 //! - `render`: volume rendering's weights, one unit per ray.
 //! - `ray_sums`: volume rendering's per-ray sums (colour, labels, opacity, depth).
@@ -14,6 +15,8 @@ use cubecl::{CubeCount, CubeDim, calculate_cube_count_elemwise, client::Client};
 
 pub(crate) mod adam;
 mod adam_kernels;
+pub(crate) mod frequency;
+mod frequency_kernels;
 pub(crate) mod hash;
 mod hash_kernels;
 pub(crate) mod mlp;
