@@ -55,6 +55,10 @@ pub(super) struct Routed {
     /// sample's device label `[n]` and the part's: a row whose label is not the part's
     /// keeps the body's output.
     labels: Option<(Tensor<1, Int>, usize)>,
+    /// On a CubeCL device, each sample's row among `rows` (`rows.len()` for none) `[n]`,
+    /// uploaded once for all of the part's replaces.
+    #[cfg(feature = "wgpu")]
+    slot: std::cell::OnceCell<Tensor<1, Int>>,
 }
 
 impl<'a> Router<'a> {
@@ -77,10 +81,14 @@ impl<'a> Router<'a> {
             Labels::OnHost(labels) => Routed {
                 rows: candidates.filter(|&i| labels[i] == label).collect(),
                 labels: None,
+                #[cfg(feature = "wgpu")]
+                slot: Default::default(),
             },
             Labels::OnDevice(labels) => Routed {
                 rows: candidates.collect(),
                 labels: Some((labels.as_ref().clone(), label)),
+                #[cfg(feature = "wgpu")]
+                slot: Default::default(),
             },
         }
     }
@@ -109,16 +117,18 @@ impl Routed {
         {
             // One device op reads the labels and puts the rows back
             // (`kernels::cube::routed`).
-            let (n, h) = (base.dims()[0], self.rows.len());
-            let mut slot = vec![h as i32; n];
-            for (k, &i) in self.rows.iter().enumerate() {
-                slot[i] = k as i32;
-            }
-            let slot = ints(slot, &base.device());
+            let slot = self.slot.get_or_init(|| {
+                let (n, h) = (base.dims()[0], self.rows.len());
+                let mut slot = vec![h as i32; n];
+                for (k, &i) in self.rows.iter().enumerate() {
+                    slot[i] = k as i32;
+                }
+                ints(slot, &base.device())
+            });
             return crate::kernels::cube::routed::replace(
                 base,
                 values,
-                slot,
+                slot.clone(),
                 labels.clone(),
                 *label as i32,
             );
