@@ -21,7 +21,7 @@ use burn_cubecl::kernel::into_contiguous;
 use burn_cubecl::ops::numeric::empty_device_dtype;
 use burn_cubecl::tensor::CubeTensor;
 
-use super::frequency_kernels::{encode_backward_kernel, encode_kernel};
+use super::frequency_kernels::{frequency_backward_kernel, frequency_kernel};
 use super::launch_shape;
 use crate::util::floats;
 
@@ -61,7 +61,7 @@ impl FrequencyOps for CubeBackend {
             DType::F32,
         );
         let (count, dim) = launch_shape(&client, (n * d).max(1));
-        encode_kernel::launch(
+        frequency_kernel::launch(
             &client,
             count,
             dim,
@@ -83,7 +83,7 @@ impl FrequencyOps for CubeBackend {
             DType::F32,
         );
         let (count, dim) = launch_shape(&client, shape.num_elements().max(1));
-        encode_backward_kernel::launch(
+        frequency_backward_kernel::launch(
             &client,
             count,
             dim,

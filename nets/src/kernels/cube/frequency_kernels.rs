@@ -6,7 +6,7 @@ use cubecl::prelude::*;
 
 /// The encoding of `x` `[n, d]` with band weights `window` `[L]`.
 #[cube(launch)]
-pub(crate) fn encode_kernel(x: &Tensor<f32>, window: &Tensor<f32>, out: &mut Tensor<f32>) {
+pub(crate) fn frequency_kernel(x: &Tensor<f32>, window: &Tensor<f32>, out: &mut Tensor<f32>) {
     let pos = ABSOLUTE_POS;
     if pos >= x.len() {
         terminate!();
@@ -31,7 +31,7 @@ pub(crate) fn encode_kernel(x: &Tensor<f32>, window: &Tensor<f32>, out: &mut Ten
 /// the derivative of `w sin(2^k x)` is `2^k` times the windowed cosine `out` holds (and
 /// of the cosine minus `2^k` times the sine), so no trigonometry.
 #[cube(launch)]
-pub(crate) fn encode_backward_kernel(
+pub(crate) fn frequency_backward_kernel(
     grad: &Tensor<f32>,
     out: &Tensor<f32>,
     grad_x: &mut Tensor<f32>,
