@@ -224,9 +224,31 @@ pub struct TalkinField {
 
 /// Splits raw `[sigma, rgb]` into activated `(sigma [n], rgb [n, 3])`.
 fn activate(raw: &Tensor<2>) -> (Tensor<1>, Tensor<2>) {
+    #[cfg(feature = "wgpu")]
+    if !crate::device::is_cpu(&raw.device()) {
+        // A device op each, cut and activation (`kernels::cube::heads`).
+        use crate::kernels::cube::heads::{Activation, columns};
+        let sigma = columns(raw.clone(), 0, 1, Activation::Softplus).squeeze_dim::<1>(1);
+        return (sigma, columns(raw.clone(), 1, 3, Activation::Sigmoid));
+    }
+    activate_composed(raw)
+}
+
+/// [`activate`] as burn ops (the CPU's, and the device op's reference).
+fn activate_composed(raw: &Tensor<2>) -> (Tensor<1>, Tensor<2>) {
     let sigma = softplus(raw.clone().narrow(1, 0, 1)).squeeze_dim::<1>(1);
     let rgb = sigmoid(raw.clone().narrow(1, 1, 3));
     (sigma, rgb)
+}
+
+/// The segmentation logits `[n, 5]` of F_body's raw output `[n, 9]`.
+fn seg_logits_of(raw: Tensor<2>) -> Tensor<2> {
+    #[cfg(feature = "wgpu")]
+    if !crate::device::is_cpu(&raw.device()) {
+        use crate::kernels::cube::heads::{Activation, columns};
+        return columns(raw, 4, N_SEG_CLASSES, Activation::None);
+    }
+    raw.narrow(1, 4, N_SEG_CLASSES)
 }
 
 /// `base` with rows `idx` replaced by `values` (unique indices; gradients exact).
@@ -399,7 +421,7 @@ impl TalkinField {
             step,
         ); // [n, 9]
         let (mut sigma, mut rgb) = activate(&raw);
-        let seg_logits = raw.narrow(1, 4, N_SEG_CLASSES); // [n, 5]
+        let seg_logits = seg_logits_of(raw); // [n, 5]
 
         // Hard routing: candidates (the sampler's capsules) whose body label is the part.
         let route = Router::new(input.part_masks, &seg_logits, routing);

@@ -591,3 +591,44 @@ fn a_seed_gives_one_field_while_others_are_built_beside_it() {
         }
     }
 }
+
+/// The heads' device op (`kernels::cube::heads`) against the composed cut and
+/// activations on the device: density, colour and labels of a `[n, 9]` output with
+/// entries of 0, +-1e-3, +-5, +-40 and +-100 (softplus linear and flat, the sigmoid
+/// saturated), values and the output's gradient.
+#[cfg(feature = "wgpu")]
+#[test]
+#[ignore = "needs a Vulkan adapter (lavapipe will do): \
+            cargo test --release --features wgpu -p talkin-nets -p talkin --lib --test device -- --ignored"]
+fn device_op_heads_match_the_composed_ops() {
+    let gpu = crate::device::test_wgpu().autodiff();
+    let n = 40;
+    let levels = [
+        0.0, 1e-3, -1e-3, 5.0, -5.0, 40.0, -40.0, 100.0, -100.0, 0.7, -2.3,
+    ];
+    let values: Vec<f32> = (0..n * 9)
+        .map(|i| levels[(i * 7 + i / 9) % levels.len()])
+        .collect();
+    let run = |device_op: bool| {
+        let raw = floats(values.clone(), [n, 9], &gpu).require_grad();
+        let (sigma, rgb) = if device_op {
+            activate(&raw)
+        } else {
+            activate_composed(&raw)
+        };
+        let seg = if device_op {
+            seg_logits_of(raw.clone())
+        } else {
+            raw.clone().narrow(1, 4, N_SEG_CLASSES)
+        };
+        let stacked = Tensor::cat(vec![sigma.unsqueeze_dim(1), rgb, seg], 1);
+        let q: Vec<f32> = (0..n * 9)
+            .map(|i| ((i * 5 % 7) as f32 - 3.0) / 3.0)
+            .collect();
+        let grads = (stacked.clone() * floats(q, [n, 9], &gpu)).sum().backward();
+        [host(&stacked), host(&raw.grad(&grads).unwrap())]
+    };
+    let (dev, composed) = (run(true), run(false));
+    crate::util::assert_close_to("heads", &dev[0], &composed[0], 1e-6);
+    crate::util::assert_close_to("output gradient", &dev[1], &composed[1], 1e-6);
+}

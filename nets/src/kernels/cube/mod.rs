@@ -4,6 +4,7 @@
 //!
 //! - `frequency`: the frequency encoding of the deformation nets.
 //! - `hash`: the multiresolution hash encoding, all levels in one launch.
+//! - `heads`: a net output's columns through their activations.
 //! - `render`: volume rendering's weights, one unit per ray.
 //! - `ray_sums`: volume rendering's per-ray sums (colour, labels, opacity, depth).
 //! - `routed`: a part net's routed rows put back into the batch.
@@ -19,6 +20,8 @@ pub(crate) mod frequency;
 mod frequency_kernels;
 pub(crate) mod hash;
 mod hash_kernels;
+pub(crate) mod heads;
+mod heads_kernels;
 pub(crate) mod mlp;
 mod mlp_kernels;
 pub(crate) mod ray_sums;
