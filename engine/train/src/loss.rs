@@ -15,7 +15,9 @@ use burn::prelude::*;
 use talkin_avatar::field_inputs::packed_layout;
 use talkin_grids::{PackedSamples, Ray};
 use talkin_nets::field::leaves::zero_grads;
-use talkin_nets::loss::{PerceptualLoss, mse, seg_cross_entropy};
+use talkin_nets::loss::{
+    PerceptualLoss, PixelWeights, mse, pixel_loss_on_device, seg_cross_entropy,
+};
 use talkin_nets::{
     FieldInput, FrameConditions, NetsError, PoseGrads, PoseLeaves, TalkinField, is_cpu,
 };
@@ -189,7 +191,6 @@ fn half(
         None => field.forward(&input)?,
     }
     .render(&layout.view())?;
-    let rgb = rendered.rgb_over(batch.background); // [r, 3]
     let target = Tensor::<2>::from_data(
         TensorData::new(
             batch.rgb[3 * range.start..3 * range.end].to_vec(),
@@ -201,23 +202,46 @@ fn half(
         TensorData::new(batch.labels[range.clone()].to_vec(), [n_rays]),
         &device,
     );
-    let l_mse = mse(rgb.clone(), target.clone());
-    let l_seg = seg_cross_entropy(rendered.seg_logits, labels.clone());
     // Patches sit at the start of the first half (see `split_point`); with them, the
     // MSE is the minor term in both halves.
     let with_patches = perceptual.is_some() && batch.patches > 0;
     let mse_weight = if with_patches { MSE_WEIGHT } else { 1.0 };
-    let mut pixel = l_seg.mul_scalar(SEG_WEIGHT) + l_mse.clone().mul_scalar(mse_weight);
-    if batch.mask_weight > 0.0 {
-        // Label 0 is the background; every other label is the person.
-        let person = labels.clone().greater_elem(0).float();
-        let sure = Tensor::<1>::from_data(
+    let sure = (batch.mask_weight > 0.0).then(|| {
+        Tensor::<1>::from_data(
             TensorData::new(batch.silhouette[range.clone()].to_vec(), [n_rays]),
             &device,
-        );
-        let l_mask = mse(rendered.opacity.clone() * sure.clone(), person * sure);
-        pixel = pixel + l_mask.mul_scalar(batch.mask_weight);
-    }
+        )
+    });
+    let weights = PixelWeights {
+        mse: mse_weight,
+        seg: SEG_WEIGHT,
+        mask: batch.mask_weight,
+    };
+    // On a GPU the pixel terms are one device op; elsewhere tensor ops, the same terms.
+    let on_device = pixel_loss_on_device(
+        &rendered,
+        batch.background,
+        &target,
+        &labels,
+        sure.as_ref(),
+        weights,
+    );
+    let (pixel, l_mse, rgb) = match on_device {
+        Some((pixel, l_mse)) => (pixel, l_mse, None),
+        None => {
+            let rgb = rendered.rgb_over(batch.background); // [r, 3]
+            let l_mse = mse(rgb.clone(), target.clone());
+            let l_seg = seg_cross_entropy(rendered.seg_logits.clone(), labels.clone());
+            let mut pixel = l_seg.mul_scalar(SEG_WEIGHT) + l_mse.clone().mul_scalar(mse_weight);
+            if let Some(sure) = sure {
+                // Label 0 is the background; every other label is the person.
+                let person = labels.clone().greater_elem(0).float();
+                let l_mask = mse(rendered.opacity.clone() * sure.clone(), person * sure);
+                pixel = pixel + l_mask.mul_scalar(batch.mask_weight);
+            }
+            (pixel, l_mse, Some(rgb))
+        }
+    };
     let pixel = pixel.mul_scalar(weight);
     let loss = match perceptual {
         Some(p) if with_patches && range.start == 0 => {
@@ -227,6 +251,7 @@ fn half(
                     .reshape([k, side, side, 3])
                     .permute([0, 3, 1, 2])
             };
+            let rgb = rgb.unwrap_or_else(|| rendered.rgb_over(batch.background));
             pixel + p.forward(to_images(rgb), to_images(target)).mean()
         }
         _ => pixel,

@@ -44,6 +44,77 @@ pub fn seg_cross_entropy(logits: Tensor<2>, labels: Tensor<1, Int>) -> Tensor<1>
     picked.mean().neg()
 }
 
+/// The weights of the pixel loss's terms (see [`pixel_loss_on_device`]).
+#[derive(Clone, Copy, Debug)]
+pub struct PixelWeights {
+    /// Of the colour's MSE over the background.
+    pub mse: f32,
+    /// Of the labels' cross-entropy.
+    pub seg: f32,
+    /// Of the silhouette term (0: off).
+    pub mask: f32,
+}
+
+/// On a CubeCL device, the weighted pixel loss `[1]`,
+/// `mse * MSE(rgb over background, target) + seg * CE(seg logits, labels)
+/// + mask * MSE(opacity * sure, person * sure)` (`person` 1 where the label is not the
+/// background), from one device op over the rays and their sum; and the MSE alone `[1]`,
+/// detached, for the log. `None` elsewhere and for no rays: the caller composes [`mse`]
+/// and [`seg_cross_entropy`] (the same terms, as tensor ops).
+///
+/// # Shapes
+/// - `target`: `[r, 3]`, `labels`: `[r]`, `sure`: `[r]` (needed when `weights.mask > 0`)
+pub fn pixel_loss_on_device(
+    rendered: &crate::render::RenderedRays,
+    background: [f32; 3],
+    target: &Tensor<2>,
+    labels: &Tensor<1, Int>,
+    sure: Option<&Tensor<1>>,
+    weights: PixelWeights,
+) -> Option<(Tensor<1>, Tensor<1>)> {
+    #[cfg(feature = "wgpu")]
+    {
+        let device = rendered.opacity.device();
+        let rays = rendered.opacity.dims()[0];
+        if rays == 0 || crate::device::is_cpu(&device) {
+            return None;
+        }
+        use crate::util::floats;
+        let sure = match sure {
+            Some(s) if weights.mask > 0.0 => s.clone(),
+            _ => Tensor::zeros([rays], &device),
+        };
+        let terms = crate::kernels::cube::pixel_loss::pixel_terms(
+            rendered.rgb.clone(),
+            rendered.opacity.clone(),
+            rendered.seg_logits.clone(),
+            target.clone(),
+            labels.clone(),
+            sure,
+            floats(background.to_vec(), [3], &device),
+        ); // [r, 3]
+        let r = rays as f32;
+        let scale = floats(
+            vec![weights.mse / (3.0 * r), weights.seg / r, weights.mask / r],
+            [1, 3],
+            &device,
+        );
+        let sums = terms.sum_dim(0); // [1, 3]
+        let mse = sums
+            .clone()
+            .detach()
+            .narrow(1, 0, 1)
+            .reshape([1])
+            .div_scalar(3.0 * r);
+        Some(((sums * scale).sum(), mse))
+    }
+    #[cfg(not(feature = "wgpu"))]
+    {
+        let _ = (rendered, background, target, labels, sure, weights);
+        None
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -88,5 +159,86 @@ mod tests {
         let y = Tensor::<1, Int>::from_data(TensorData::new(vec![1i64], [1]), &device);
         let got: f32 = seg_cross_entropy(t, y).into_scalar();
         assert!((got - 2e4).abs() < 1.0, "{got}");
+    }
+    /// The device op's pixel loss (`kernels::cube::pixel_loss`) against the same terms
+    /// composed on the device: labels of the background and the person, silhouette
+    /// weights of 0, 1/2 and 1, opacities of 0 and 1, logits of 1e4; the loss, its MSE
+    /// and the colour's, opacity's and logits' gradients.
+    #[cfg(feature = "wgpu")]
+    #[test]
+    #[ignore = "needs a Vulkan adapter (lavapipe will do): \
+                cargo test --release --features wgpu -p talkin-nets -p talkin --lib --test device -- --ignored"]
+    fn device_op_pixel_loss_matches_the_composed_ops() {
+        use crate::render::RenderedRays;
+        use crate::util::{floats, host};
+        let device = crate::device::test_wgpu().autodiff();
+        let r = 23;
+        let wave = |i: usize, k: f32| ((i as f32 * k).sin() * 0.5 + 0.5);
+        let rgb: Vec<f32> = (0..r * 3).map(|i| wave(i, 0.7)).collect();
+        let target: Vec<f32> = (0..r * 3).map(|i| wave(i, 1.3)).collect();
+        let mut opacity: Vec<f32> = (0..r).map(|i| wave(i, 2.1)).collect();
+        opacity[3] = 0.0;
+        opacity[4] = 1.0;
+        let mut seg: Vec<f32> = (0..r * 5).map(|i| (wave(i, 0.9) - 0.5) * 8.0).collect();
+        seg[5 * 6 + 2] = 1e4;
+        let labels: Vec<i64> = (0..r).map(|i| (i % 5) as i64).collect();
+        let sure: Vec<f32> = (0..r).map(|i| [0.0, 0.5, 1.0][i % 3]).collect();
+        let background = [0.2, 0.5, 0.9];
+        let weights = PixelWeights {
+            mse: 0.2,
+            seg: 0.05,
+            mask: 0.3,
+        };
+        let run = |device_op: bool| {
+            let rendered = RenderedRays {
+                rgb: floats(rgb.clone(), [r, 3], &device).require_grad(),
+                seg_logits: floats(seg.clone(), [r, 5], &device).require_grad(),
+                opacity: floats(opacity.clone(), [r], &device).require_grad(),
+                depth: Tensor::zeros([r], &device),
+            };
+            let target = floats(target.clone(), [r, 3], &device);
+            let labels = Tensor::<1, Int>::from_data(TensorData::new(labels.clone(), [r]), &device);
+            let sure = floats(sure.clone(), [r], &device);
+            let (loss, l_mse) = if device_op {
+                pixel_loss_on_device(
+                    &rendered,
+                    background,
+                    &target,
+                    &labels,
+                    Some(&sure),
+                    weights,
+                )
+                .expect("a CubeCL device takes it")
+            } else {
+                let over = rendered.rgb_over(background);
+                let l_mse = mse(over, target.clone());
+                let l_seg = seg_cross_entropy(rendered.seg_logits.clone(), labels.clone());
+                let person = labels.clone().greater_elem(0).float();
+                let l_mask = mse(rendered.opacity.clone() * sure.clone(), person * sure);
+                let loss = l_mse.clone().mul_scalar(weights.mse)
+                    + l_seg.mul_scalar(weights.seg)
+                    + l_mask.mul_scalar(weights.mask);
+                (loss, l_mse)
+            };
+            let grads = loss.backward();
+            [
+                host(&loss),
+                host(&l_mse),
+                host(&rendered.rgb.grad(&grads).unwrap()),
+                host(&rendered.opacity.grad(&grads).unwrap()),
+                host(&rendered.seg_logits.grad(&grads).unwrap()),
+            ]
+        };
+        let (dev, composed) = (run(true), run(false));
+        let names = [
+            "loss",
+            "mse",
+            "colour gradient",
+            "opacity gradient",
+            "logits gradient",
+        ];
+        for (what, (a, b)) in names.into_iter().zip(dev.iter().zip(&composed)) {
+            crate::util::assert_close_to(what, a, b, 1e-5);
+        }
     }
 }

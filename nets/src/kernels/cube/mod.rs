@@ -5,6 +5,7 @@
 //! - `frequency`: the frequency encoding of the deformation nets.
 //! - `hash`: the multiresolution hash encoding, all levels in one launch.
 //! - `heads`: a net output's columns through their activations.
+//! - `pixel_loss`: the pixel loss's per-ray terms (colour, labels, silhouette).
 //! - `render`: volume rendering's weights, one unit per ray.
 //! - `ray_sums`: volume rendering's per-ray sums (colour, labels, opacity, depth).
 //! - `routed`: a part net's routed rows put back into the batch.
@@ -24,6 +25,8 @@ pub(crate) mod heads;
 mod heads_kernels;
 pub(crate) mod mlp;
 mod mlp_kernels;
+pub(crate) mod pixel_loss;
+mod pixel_loss_kernels;
 pub(crate) mod ray_sums;
 mod ray_sums_kernels;
 pub(crate) mod render;
