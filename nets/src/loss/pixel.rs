@@ -173,7 +173,7 @@ mod tests {
         use crate::util::{floats, host};
         let device = crate::device::test_wgpu().autodiff();
         let r = 23;
-        let wave = |i: usize, k: f32| ((i as f32 * k).sin() * 0.5 + 0.5);
+        let wave = |i: usize, k: f32| (i as f32 * k).sin() * 0.5 + 0.5;
         let rgb: Vec<f32> = (0..r * 3).map(|i| wave(i, 0.7)).collect();
         let target: Vec<f32> = (0..r * 3).map(|i| wave(i, 1.3)).collect();
         let mut opacity: Vec<f32> = (0..r).map(|i| wave(i, 2.1)).collect();
