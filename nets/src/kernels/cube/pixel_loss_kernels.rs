@@ -8,6 +8,46 @@
 
 use cubecl::prelude::*;
 
+/// Channel `c` of ray `r`'s colour over the background, less the truth.
+#[cube]
+fn colour_error(
+    rgb: &Tensor<f32>,
+    target: &Tensor<f32>,
+    background: &Tensor<f32>,
+    clear: f32,
+    r: usize,
+    c: usize,
+) -> f32 {
+    rgb[r * 3 + c] + clear * background[c] - target[r * 3 + c]
+}
+
+/// The largest of the logits in `row..row + classes`.
+#[cube]
+fn top_logit(seg: &Tensor<f32>, row: usize, classes: usize) -> f32 {
+    let mut top = seg[row];
+    for j in 1..classes {
+        top = f32::max(top, seg[row + j]);
+    }
+    top
+}
+
+/// `sum_j exp(l_j - top)` over the logits in `row..row + classes`.
+#[cube]
+fn shifted_exp_sum(seg: &Tensor<f32>, row: usize, classes: usize, top: f32) -> f32 {
+    let mut total = 0.0f32;
+    for j in 0..classes {
+        total += f32::exp(seg[row + j] - top);
+    }
+    total
+}
+
+/// The silhouette's gap `o s - p s`, `p` 1 on the person's labels (> 0).
+#[cube]
+fn silhouette_gap(o: f32, s: f32, label: usize) -> f32 {
+    let person = select(label > 0, 1.0f32, 0.0f32);
+    o * s - person * s
+}
+
 /// `terms[r] = [squared error, cross-entropy, silhouette term]`.
 #[cube(launch)]
 #[allow(clippy::too_many_arguments)]
@@ -30,23 +70,15 @@ pub(crate) fn pixel_terms_kernel<I: Int>(
     let clear = 1.0 - o;
     let mut squared = 0.0f32;
     for c in 0..3usize {
-        let d = rgb[r * 3 + c] + clear * background[c] - target[r * 3 + c];
+        let d = colour_error(rgb, target, background, clear, r, c);
         squared += d * d;
     }
     let classes = seg.shape(1);
     let row = r * classes;
     let label = usize::cast_from(labels[r]);
-    let mut top = seg[row];
-    for j in 1..classes {
-        top = f32::max(top, seg[row + j]);
-    }
-    let mut total = 0.0f32;
-    for j in 0..classes {
-        total += f32::exp(seg[row + j] - top);
-    }
-    let s = sure[r];
-    let person = select(label > 0, 1.0f32, 0.0f32);
-    let a = o * s - person * s;
+    let top = top_logit(seg, row, classes);
+    let total = shifted_exp_sum(seg, row, classes, top);
+    let a = silhouette_gap(o, sure[r], label);
     terms[r * 3] = squared;
     terms[r * 3 + 1] = top + f32::ln(total) - seg[row + label];
     terms[r * 3 + 2] = a * a;
@@ -78,26 +110,17 @@ pub(crate) fn pixel_terms_backward_kernel<I: Int>(
     let clear = 1.0 - o;
     let mut g_o = 0.0f32;
     for c in 0..3usize {
-        let d = rgb[r * 3 + c] + clear * background[c] - target[r * 3 + c];
-        let g = g_squared * 2.0 * d;
+        let g = g_squared * 2.0 * colour_error(rgb, target, background, clear, r, c);
         grad_rgb[r * 3 + c] = g;
         g_o -= g * background[c];
     }
     let label = usize::cast_from(labels[r]);
     let s = sure[r];
-    let person = select(label > 0, 1.0f32, 0.0f32);
-    let a = o * s - person * s;
-    grad_opacity[r] = g_o + g_mask * 2.0 * a * s;
+    grad_opacity[r] = g_o + g_mask * 2.0 * silhouette_gap(o, s, label) * s;
     let classes = seg.shape(1);
     let row = r * classes;
-    let mut top = seg[row];
-    for j in 1..classes {
-        top = f32::max(top, seg[row + j]);
-    }
-    let mut total = 0.0f32;
-    for j in 0..classes {
-        total += f32::exp(seg[row + j] - top);
-    }
+    let top = top_logit(seg, row, classes);
+    let total = shifted_exp_sum(seg, row, classes, top);
     for j in 0..classes {
         let p = f32::exp(seg[row + j] - top) / total;
         grad_seg[row + j] = g_entropy * (p - select(j == label, 1.0f32, 0.0f32));
