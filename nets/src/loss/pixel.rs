@@ -55,11 +55,11 @@ pub struct PixelWeights {
     pub mask: f32,
 }
 
-/// On a CubeCL device, the weighted pixel loss `[1]`,
-/// `mse * MSE(rgb over background, target) + seg * CE(seg logits, labels)
-/// + mask * MSE(opacity * sure, person * sure)` (`person` 1 where the label is not the
-/// background), from one device op over the rays and their sum; and the MSE alone `[1]`,
-/// detached, for the log. `None` elsewhere and for no rays: the caller composes [`mse`]
+/// On a CubeCL device, the weighted pixel loss `[1]`: `weights.mse` times the MSE of
+/// the colour over the background against `target`, plus `weights.seg` times the
+/// labels' cross-entropy, plus `weights.mask` times `MSE(opacity * sure, person * sure)`
+/// (`person` 1 where the label is not the background), from one device op over the
+/// rays and their sum; and the MSE alone `[1]`, detached, for the log. `None` elsewhere and for no rays: the caller composes [`mse`]
 /// and [`seg_cross_entropy`] (the same terms, as tensor ops).
 ///
 /// # Shapes
