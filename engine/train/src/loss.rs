@@ -215,7 +215,6 @@ fn half(
     let weights = PixelWeights {
         mse: mse_weight,
         seg: SEG_WEIGHT,
-        mask: batch.mask_weight,
     };
     // On a GPU the pixel terms are one device op; elsewhere tensor ops, the same terms.
     let on_device = pixel_loss_on_device(
@@ -223,7 +222,7 @@ fn half(
         batch.background,
         &target,
         &labels,
-        sure.as_ref(),
+        sure.as_ref().map(|sure| (sure, batch.mask_weight)),
         weights,
     );
     let (pixel, l_mse, rgb) = match on_device {

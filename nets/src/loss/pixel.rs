@@ -51,25 +51,24 @@ pub struct PixelWeights {
     pub mse: f32,
     /// Of the labels' cross-entropy.
     pub seg: f32,
-    /// Of the silhouette term (0: off).
-    pub mask: f32,
 }
 
 /// On a CubeCL device, the weighted pixel loss `[1]`: `weights.mse` times the MSE of
 /// the colour over the background against `target`, plus `weights.seg` times the
-/// labels' cross-entropy, plus `weights.mask` times `MSE(opacity * sure, person * sure)`
-/// (`person` 1 where the label is not the background), from one device op over the
-/// rays and their sum; and the MSE alone `[1]`, detached, for the log. `None` elsewhere and for no rays: the caller composes [`mse`]
-/// and [`seg_cross_entropy`] (the same terms, as tensor ops).
+/// labels' cross-entropy, plus, with `silhouette = Some((sure, weight))`, `weight` times
+/// `MSE(opacity * sure, person * sure)` (`person` 1 where the label is not the
+/// background), from one device op over the rays and their sum; and the MSE alone
+/// `[1]`, detached, for the log. `None` elsewhere and for no rays: the caller composes
+/// [`mse`] and [`seg_cross_entropy`] (the same terms, as tensor ops).
 ///
 /// # Shapes
-/// - `target`: `[r, 3]`, `labels`: `[r]`, `sure`: `[r]` (needed when `weights.mask > 0`)
+/// - `target`: `[r, 3]`, `labels`: `[r]`, `sure`: `[r]`
 pub fn pixel_loss_on_device(
     rendered: &crate::render::RenderedRays,
     background: [f32; 3],
     target: &Tensor<2>,
     labels: &Tensor<1, Int>,
-    sure: Option<&Tensor<1>>,
+    silhouette: Option<(&Tensor<1>, f32)>,
     weights: PixelWeights,
 ) -> Option<(Tensor<1>, Tensor<1>)> {
     #[cfg(feature = "wgpu")]
@@ -80,9 +79,10 @@ pub fn pixel_loss_on_device(
             return None;
         }
         use crate::util::floats;
-        let sure = match sure {
-            Some(s) if weights.mask > 0.0 => s.clone(),
-            _ => Tensor::zeros([rays], &device),
+        // Without the term its weights are zeros, and so is its every ray's value.
+        let (sure, mask_weight) = match silhouette {
+            Some((sure, weight)) => (sure.clone(), weight),
+            None => (Tensor::zeros([rays], &device), 0.0),
         };
         let terms = crate::kernels::cube::pixel_loss::pixel_terms(
             rendered.rgb.clone(),
@@ -95,7 +95,7 @@ pub fn pixel_loss_on_device(
         ); // [r, 3]
         let r = rays as f32;
         let scale = floats(
-            vec![weights.mse / (3.0 * r), weights.seg / r, weights.mask / r],
+            vec![weights.mse / (3.0 * r), weights.seg / r, mask_weight / r],
             [1, 3],
             &device,
         );
@@ -110,7 +110,7 @@ pub fn pixel_loss_on_device(
     }
     #[cfg(not(feature = "wgpu"))]
     {
-        let _ = (rendered, background, target, labels, sure, weights);
+        let _ = (rendered, background, target, labels, silhouette, weights);
         None
     }
 }
@@ -187,8 +187,8 @@ mod tests {
         let weights = PixelWeights {
             mse: 0.2,
             seg: 0.05,
-            mask: 0.3,
         };
+        let mask_weight = 0.3;
         let run = |device_op: bool| {
             let rendered = RenderedRays {
                 rgb: floats(rgb.clone(), [r, 3], &device).require_grad(),
@@ -205,7 +205,7 @@ mod tests {
                     background,
                     &target,
                     &labels,
-                    Some(&sure),
+                    Some((&sure, mask_weight)),
                     weights,
                 )
                 .expect("a CubeCL device takes it")
@@ -217,7 +217,7 @@ mod tests {
                 let l_mask = mse(rendered.opacity.clone() * sure.clone(), person * sure);
                 let loss = l_mse.clone().mul_scalar(weights.mse)
                     + l_seg.mul_scalar(weights.seg)
-                    + l_mask.mul_scalar(weights.mask);
+                    + l_mask.mul_scalar(mask_weight);
                 (loss, l_mse)
             };
             let grads = loss.backward();
