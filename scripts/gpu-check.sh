@@ -22,7 +22,8 @@
 #      so what any later process pays to compile its kernels;
 #   5. `bench device`, fast preset at the demo's 512 rays a step: step time, samples/s,
 #      the host sampler's share of a step, 540x540 render fps (30 untimed steps first:
-#      a fresh process compiles its kernels again);
+#      a fresh process compiles its kernels again), and the 540x540 fps of stage 3's
+#      trained avatar (its occupancy grid updated, where the bench's fresh field's is not);
 #   6. `bench device`, paper preset at 32,768 rays a step (the paper's batch);
 #   7. with GPU_CHECK_COMPOSED=1, stage 5 again with the MLPs as composed burn ops
 #      (`TALKIN_MLP_FUSED=0`), the baseline of the fused MLP kernels in the same run.
@@ -102,7 +103,7 @@ stage() {
 json_or_null() { if [ -s "$1" ]; then cat "$1"; else echo null; fi; }
 
 data=$OUT/data
-stage synth 30 "$BIN" -q synth --out "$data"
+stage synth 20 "$BIN" -q synth --out "$data"
 # The demo's recipe (`talkin demo`): MSE + 0.05 CE, 512 rays a step, no LPIPS patch.
 recipe=(--device "$DEVICE" --patches 0 --batch 512 --checkpoint-every 1000000)
 stage cold-start 90 "$BIN" -q train --data "$data" --out "$OUT/cold" --force --steps 30 "${recipe[@]}"
@@ -125,8 +126,10 @@ for b in $BATCHES; do
   batch_evals+=("\"$b\": {\"eval\": $(json_or_null "$OUT/eval_60s_b$b.json"), \"train_log_tail\": \"$(tail -n 1 "$OUT/run-b$b/train_log.csv" 2>/dev/null)\"}")
 done
 stage warm-start 45 "$BIN" -q train --data "$data" --out "$OUT/warm" --force --steps 30 "${recipe[@]}"
-stage bench-fast 60 "$BIN" -q bench device --data "$data" --out "$OUT/bench-fast" \
-  --devices "$DEVICE" --presets fast --batch 512 --warmup 30 --steps 20 --renders 3
+avatar=()
+[ -d "$OUT/run/checkpoint" ] && avatar=(--avatar "$OUT/run")
+stage bench-fast 70 "$BIN" -q bench device --data "$data" --out "$OUT/bench-fast" \
+  --devices "$DEVICE" --presets fast --batch 512 --warmup 30 --steps 20 --renders 3 "${avatar[@]}"
 stage bench-paper 120 "$BIN" -q bench device --data "$data" --out "$OUT/bench-paper" \
   --devices "$DEVICE" --presets paper --batch 32768 --warmup 3 --steps 5 --renders 2
 if [ "$COMPOSED" = 1 ]; then

@@ -40,6 +40,76 @@ fn a_device_that_cannot_be_opened_is_a_named_error_and_a_nonzero_exit() {
     assert!(ComputeDevice::Cpu.open().is_ok());
 }
 
+/// `bench device --avatar RUN` renders the run's own avatar (its checkpoint, its grid) on
+/// each device, the shot the training rows render, and names a run it cannot load.
+#[test]
+fn the_device_bench_renders_a_trained_avatar() {
+    use talkin::benches::device::{DeviceBenchOptions, render_shot, run, table};
+    use talkin::grids::SamplerKind;
+    use talkin::render::avatar::Avatar;
+    use talkin::train::{Preset, Trainer};
+
+    let dataset = common::synthetic_scene("device_bench_scene", 1, 64, 5);
+    let trained = common::temp_dir("device_bench_run");
+    let train = common::small_train_opts(SamplerKind::Accelerated, 2);
+    // Trained with the dense sampler, so its frames sample unlike the fresh fields'.
+    let dense = common::small_train_opts(SamplerKind::Dense, 1);
+    let mut trainer = Trainer::new(&dataset, &trained, &dense).unwrap();
+    while !trainer.done() {
+        trainer.step().unwrap();
+    }
+    trainer.save().unwrap();
+    drop(trainer);
+
+    let opts = DeviceBenchOptions {
+        devices: vec![ComputeDevice::Cpu],
+        presets: vec![Preset::Fast],
+        warmup: 1,
+        steps: 1,
+        renders: 1,
+        render_side: 32,
+        avatar: Some(trained.clone()),
+        train: train.clone(),
+    };
+    let work = common::temp_dir("device_bench_work");
+    let report = run(&dataset, &work, &opts, &mut |_| {}).unwrap();
+    assert_eq!(report.render_size, [32, 32]);
+    assert_eq!(report.rows.len(), 1);
+    assert_eq!(report.avatar_rows.len(), 1);
+    let row = &report.avatar_rows[0];
+    assert_eq!(row.run, trained);
+    assert!(row.render.render_ms_median > 0.0, "{row:?}");
+    // The samples of the run's avatar rendering that shot itself.
+    let (frame, camera) = render_shot(&dataset, 32).unwrap();
+    let direct = Avatar::load(&trained)
+        .unwrap()
+        .render(frame.subject, &frame.params, &camera, None)
+        .unwrap();
+    assert!(direct.samples > 0);
+    assert_eq!(row.render.render_samples, direct.samples);
+    assert_ne!(direct.samples, report.rows[0].render.render_samples);
+    assert!(
+        table(&report).contains("A trained avatar"),
+        "{}",
+        table(&report)
+    );
+
+    let missing = work.join("no_such_run");
+    let err = run(
+        &dataset,
+        &work,
+        &DeviceBenchOptions {
+            avatar: Some(missing.clone()),
+            ..opts
+        },
+        &mut |_| {},
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(err.contains("no_such_run"), "{err}");
+    assert!(render_shot(&dataset, 8).is_err());
+}
+
 #[cfg(feature = "wgpu")]
 mod wgpu {
     use burn::module::{Module, ModuleVisitor, Param};

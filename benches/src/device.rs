@@ -1,16 +1,23 @@
 //! The device bench: per device and preset, in one run, the training step rate (steps/s,
-//! samples/s, the host sampler's share of a step), the render rate at 540x540 and the
-//! peak memory.
+//! samples/s, the host sampler's share of a step), the render rate at 540x540 (or another
+//! size) and the peak memory; with a trained run, its avatar's render rate on each device
+//! too.
 //!
 //! Each row trains a fresh field from the same seed for `warmup + steps` steps on the
 //! same frames and times the last `steps` as one block (the mean step); then it renders
-//! `renders` frames at 540x540 from that field and times them (the median render). The
-//! block starts after the warm-up's losses are read and ends once its own are (a GPU
-//! reads a step's loss only with later steps', so a step's own time is its queueing),
-//! and a render ends with its pixels read back: a GPU's queued work is inside the time. Memory: the process's peak resident set (reset before each
-//! row where Linux allows it) and, on a GPU, the most the device's allocator reserved.
+//! `renders` frames from that field and times them (the median render). The block starts
+//! after the warm-up's losses are read and ends once its own are (a GPU reads a step's
+//! loss only with later steps', so a step's own time is its queueing), and a render ends
+//! with its pixels read back: a GPU's queued work is inside the time. Memory: the
+//! process's peak resident set (reset before each row where Linux allows it) and, on a
+//! GPU, the most the device's allocator reserved.
+//!
+//! A fresh field's occupancy grid holds only its initial marks, so its frame samples what
+//! a trained avatar's updated grid culls: its render rate is a floor. The avatar rows
+//! render a trained run's newest checkpoint on each device, the same shot timed the same
+//! way: the frame a user's avatar renders.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use serde::Serialize;
@@ -21,8 +28,9 @@ use talkin_train::{Budget, Preset, TrainOptions, Trainer};
 
 use crate::error::BenchError;
 use crate::shared::avatar_of;
+use talkin_render::avatar::Avatar;
 
-/// The render size the report names (InstantAvatar's 540x540).
+/// The default render size (InstantAvatar's 540x540).
 pub const RENDER_SIDE: u32 = 540;
 
 /// What to measure.
@@ -34,8 +42,12 @@ pub struct DeviceBenchOptions {
     pub warmup: usize,
     /// Timed steps.
     pub steps: usize,
-    /// Timed 540x540 renders (after one untimed).
+    /// Timed renders (after one untimed).
     pub renders: usize,
+    /// The renders' side in pixels (square).
+    pub render_side: u32,
+    /// A trained run whose avatar (newest checkpoint) each device also renders.
+    pub avatar: Option<PathBuf>,
     /// Everything else (batch, sampler, seed); its preset, device and budget are set here.
     pub train: TrainOptions,
 }
@@ -54,19 +66,40 @@ pub struct DeviceRow {
     pub samples_per_s: f64,
     /// The host sampler's share of the timed steps' wall time.
     pub sampling_share: f64,
+    #[serde(flatten)]
+    pub render: RenderTiming,
+    /// The process's peak resident set over the row, MiB (`None` where Linux's
+    /// `/proc/self/status` is not there).
+    pub peak_rss_mib: Option<f64>,
+    /// The most the device's allocator reserved, MiB (`None` on the CPU, whose tensors are
+    /// in the resident set).
+    pub peak_device_mib: Option<f64>,
+}
+
+/// A frame's render rate: `renders` timed renders of one shot after an untimed one.
+#[derive(Clone, Debug, Serialize)]
+pub struct RenderTiming {
     pub render_ms_median: f64,
     pub render_fps: f64,
+    /// Field samples a frame evaluates.
     pub render_samples: usize,
     /// The timed renders' host sampling, as a share of their wall time.
     pub render_sampling_share: f64,
     /// The timed renders' forwards (on a GPU: laying out inputs and queueing work), as a
     /// share of their wall time; the rest is the read back waiting for the device.
     pub render_forward_share: f64,
-    /// The process's peak resident set over the row, MiB (`None` where Linux's
-    /// `/proc/self/status` is not there).
-    pub peak_rss_mib: Option<f64>,
-    /// The most the device's allocator reserved, MiB (`None` on the CPU, whose tensors are
-    /// in the resident set).
+}
+
+/// A trained run's avatar rendered on one device.
+#[derive(Clone, Debug, Serialize)]
+pub struct AvatarRow {
+    pub device: String,
+    pub adapter: String,
+    /// The run's directory (its newest checkpoint is rendered).
+    pub run: PathBuf,
+    #[serde(flatten)]
+    pub render: RenderTiming,
+    /// The most the device's allocator reserved over the renders, MiB (`None` on the CPU).
     pub peak_device_mib: Option<f64>,
 }
 
@@ -77,6 +110,8 @@ pub struct DeviceReport {
     pub renders: usize,
     pub render_size: [u32; 2],
     pub rows: Vec<DeviceRow>,
+    /// With a trained run: its avatar on each device.
+    pub avatar_rows: Vec<AvatarRow>,
 }
 
 /// Runs every device x preset row on `dataset`, training in `work/<device>-<preset>`.
@@ -92,13 +127,23 @@ pub fn run(
             problem: "must be at least 1".into(),
         });
     }
-    let (frame, camera) = render_shot(dataset)?;
+    let (frame, camera) = render_shot(dataset, opts.render_side)?;
     let mut rows = Vec::new();
+    let mut avatar_rows = Vec::new();
     for &device in &opts.devices {
         let opened = device.open().map_err(|e| BenchError::BadOption {
             field: "--devices",
             problem: e.to_string(),
         })?;
+        if let Some(run) = &opts.avatar {
+            progress(&format!("rendering {} on {device}", run.display()));
+            let row = render_avatar(run, opts.renders, (device, &opened), (frame, &camera))?;
+            progress(&format!(
+                "{device} avatar: render {:.0} ms, {} samples",
+                row.render.render_ms_median, row.render.render_samples
+            ));
+            avatar_rows.push(row);
+        }
         for &preset in &opts.presets {
             progress(&format!("measuring {device} {}", preset.name()));
             let run = work.join(format!("{device}-{}", preset.name()).replace(':', "_"));
@@ -115,7 +160,7 @@ pub fn run(
                 preset.name(),
                 row.step_ms,
                 row.samples_per_s,
-                row.render_ms_median
+                row.render.render_ms_median
             ));
             rows.push(row);
         }
@@ -124,8 +169,67 @@ pub fn run(
         warmup: opts.warmup,
         steps: opts.steps,
         renders: opts.renders,
-        render_size: [RENDER_SIDE, RENDER_SIDE],
+        render_size: [opts.render_side, opts.render_side],
         rows,
+        avatar_rows,
+    })
+}
+
+/// The newest checkpoint of `run` loaded on `device` and rendered as [`time_renders`]
+/// says.
+fn render_avatar(
+    run: &Path,
+    renders: usize,
+    (device, opened): (ComputeDevice, &Device),
+    (frame, camera): (&Frame, &Camera),
+) -> Result<AvatarRow, BenchError> {
+    let reserved = || opened.memory_pool_usage().map_or(0, |u| u.bytes_reserved);
+    let avatar = Avatar::load_on(run, opened)?;
+    let mut peak_device = reserved();
+    let render = time_renders(&avatar, renders, (frame, camera), &mut || {
+        peak_device = peak_device.max(reserved())
+    })?;
+    Ok(AvatarRow {
+        device: device.to_string(),
+        adapter: device.describe(opened),
+        run: run.to_path_buf(),
+        render,
+        peak_device_mib: device.is_gpu().then_some(peak_device as f64 / MIB),
+    })
+}
+
+/// `renders` timed renders of `frame` through `camera` after an untimed one (the first
+/// compiles a GPU's kernels): their median, each ending with its pixels read back, so a
+/// GPU's queued work is inside the time. `after_each` runs after every render.
+fn time_renders(
+    avatar: &Avatar,
+    renders: usize,
+    (frame, camera): (&Frame, &Camera),
+    after_each: &mut dyn FnMut(),
+) -> Result<RenderTiming, BenchError> {
+    let mut render_samples = 0;
+    let mut times = Vec::with_capacity(renders);
+    let (mut wall, mut sampling, mut forward) = (0.0, 0.0, 0.0);
+    for k in 0..=renders {
+        let start = Instant::now();
+        let out = avatar.render(frame.subject, &frame.params, camera, None)?;
+        let _pixels = out.to_image();
+        if k > 0 {
+            times.push(start.elapsed().as_secs_f64());
+            wall += out.seconds;
+            sampling += out.sampling_seconds;
+            forward += out.forward_seconds;
+        }
+        render_samples = out.samples;
+        after_each();
+    }
+    let render_ms = median(times) * 1e3;
+    Ok(RenderTiming {
+        render_ms_median: render_ms,
+        render_fps: 1e3 / render_ms,
+        render_samples,
+        render_sampling_share: sampling / f64::max(wall, 1e-12),
+        render_forward_share: forward / f64::max(wall, 1e-12),
     })
 }
 
@@ -170,23 +274,9 @@ fn measure(
     let sampling = logs.iter().map(|l| l.sampling_s).sum::<f64>() / wall;
 
     let avatar = avatar_of(&trainer);
-    let mut render_samples = 0;
-    let mut renders = Vec::with_capacity(opts.renders);
-    let (mut render_wall, mut render_sampling, mut render_forward) = (0.0, 0.0, 0.0);
-    for k in 0..=opts.renders {
-        let start = Instant::now();
-        let out = avatar.render(frame.subject, &frame.params, camera, None)?;
-        let _pixels = out.to_image();
-        if k > 0 {
-            renders.push(start.elapsed().as_secs_f64());
-            render_wall += out.seconds;
-            render_sampling += out.sampling_seconds;
-            render_forward += out.forward_seconds;
-        }
-        render_samples = out.samples;
-        peak_device = peak_device.max(reserved());
-    }
-    let render_ms = median(renders) * 1e3;
+    let render = time_renders(&avatar, opts.renders, (frame, camera), &mut || {
+        peak_device = peak_device.max(reserved())
+    })?;
     Ok(DeviceRow {
         device: device.to_string(),
         adapter: device.describe(opened),
@@ -197,11 +287,7 @@ fn measure(
         samples_per_step: samples,
         samples_per_s: samples / (step_ms / 1e3),
         sampling_share: sampling,
-        render_ms_median: render_ms,
-        render_fps: 1e3 / render_ms,
-        render_samples,
-        render_sampling_share: render_sampling / render_wall.max(1e-12),
-        render_forward_share: render_forward / render_wall.max(1e-12),
+        render,
         peak_rss_mib: peak_rss_bytes().map(|b| b as f64 / MIB),
         peak_device_mib: device.is_gpu().then_some(peak_device as f64 / MIB),
     })
@@ -209,10 +295,16 @@ fn measure(
 
 const MIB: f64 = 1024.0 * 1024.0;
 
-/// The first training frame, and its camera widened to `RENDER_SIDE` square: the focal
-/// length scaled so the longer side fills it, the principal point moved to keep the
-/// subject centred.
-fn render_shot(dataset: &Dataset) -> Result<(&Frame, Camera), BenchError> {
+/// The shot every row renders: the first training frame, and its camera widened to
+/// `side` square, the focal length scaled so the longer side fills it, the principal
+/// point moved to keep the subject centred.
+pub fn render_shot(dataset: &Dataset, side: u32) -> Result<(&Frame, Camera), BenchError> {
+    if !(16..=4096).contains(&side) {
+        return Err(BenchError::BadOption {
+            field: "--render-size",
+            problem: format!("{side} is not in 16..=4096 pixels"),
+        });
+    }
     let frame = dataset
         .frames
         .iter()
@@ -223,8 +315,8 @@ fn render_shot(dataset: &Dataset) -> Result<(&Frame, Camera), BenchError> {
             problem: "the dataset has no frames".into(),
         })?;
     let c = &frame.camera;
-    let side = RENDER_SIDE as f64;
-    let scale = side / c.width.max(c.height) as f64;
+    let px = f64::from(side);
+    let scale = px / c.width.max(c.height) as f64;
     let mut k = c.intrinsics_rows();
     for v in &mut k[0] {
         *v *= scale;
@@ -232,14 +324,13 @@ fn render_shot(dataset: &Dataset) -> Result<(&Frame, Camera), BenchError> {
     for v in &mut k[1] {
         *v *= scale;
     }
-    k[0][2] += (side - c.width as f64 * scale) / 2.0;
-    k[1][2] += (side - c.height as f64 * scale) / 2.0;
-    let camera = Camera::new(RENDER_SIDE, RENDER_SIDE, k, c.extrinsics_rows()).map_err(|e| {
-        BenchError::BadOption {
+    k[0][2] += (px - c.width as f64 * scale) / 2.0;
+    k[1][2] += (px - c.height as f64 * scale) / 2.0;
+    let camera =
+        Camera::new(side, side, k, c.extrinsics_rows()).map_err(|e| BenchError::BadOption {
             field: "--data",
-            problem: format!("the first training frame's camera at {RENDER_SIDE}px: {e}"),
-        }
-    })?;
+            problem: format!("the first training frame's camera at {side}px: {e}"),
+        })?;
     Ok((frame, camera))
 }
 
@@ -285,13 +376,32 @@ pub fn table(r: &DeviceReport) -> String {
             row.steps_per_s,
             row.samples_per_s,
             100.0 * row.sampling_share,
-            row.render_ms_median,
-            row.render_fps,
-            100.0 * row.render_sampling_share,
-            100.0 * row.render_forward_share,
+            row.render.render_ms_median,
+            row.render.render_fps,
+            100.0 * row.render.render_sampling_share,
+            100.0 * row.render.render_forward_share,
             opt(row.peak_rss_mib),
             opt(row.peak_device_mib),
         );
+    }
+    if !r.avatar_rows.is_empty() {
+        s += "\nA trained avatar, the same shot (its grid carved and updated, where a fresh \
+              field's is not):\n\n\
+              | device | run | render ms | fps | samples | render sampling / forwards | \
+              peak device MiB |\n|---|---|---|---|---|---|---|\n";
+        for row in &r.avatar_rows {
+            s += &format!(
+                "| {} | {} | {:.0} | {:.2} | {} | {:.0}% / {:.0}% | {} |\n",
+                row.adapter,
+                row.run.display(),
+                row.render.render_ms_median,
+                row.render.render_fps,
+                row.render.render_samples,
+                100.0 * row.render.render_sampling_share,
+                100.0 * row.render.render_forward_share,
+                opt(row.peak_device_mib),
+            );
+        }
     }
     s
 }

@@ -88,9 +88,17 @@ pub struct DeviceBenchArgs {
     /// Timed steps per row (the median is reported).
     #[arg(long, default_value_t = 10)]
     pub steps: usize,
-    /// Timed 540x540 renders per row (after one untimed).
+    /// Timed renders per row (after one untimed).
     #[arg(long, default_value_t = 3)]
     pub renders: usize,
+    /// The renders' side in pixels (square; InstantAvatar's 540 by default).
+    #[arg(long, value_name = "PX", default_value_t = talkin_benches::device::RENDER_SIDE)]
+    pub render_size: u32,
+    /// A trained run whose avatar (newest checkpoint) each device also renders, the same
+    /// shot timed the same way: a fresh field's occupancy grid is not yet carved, so its
+    /// frames sample more than a trained avatar's.
+    #[arg(long, value_name = "RUN")]
+    pub avatar: Option<PathBuf>,
     /// Random pixel rays per step (the paper: 32768 for its preset).
     #[arg(long = "batch", value_name = "N", default_value_t = TrainOptions::default().batch_rays)]
     pub batch_rays: usize,
@@ -264,6 +272,8 @@ fn device_bench(args: DeviceBenchArgs) -> anyhow::Result<()> {
         warmup: args.warmup,
         steps: args.steps,
         renders: args.renders,
+        render_side: args.render_size,
+        avatar: args.avatar.clone(),
         train: TrainOptions {
             batch_rays: args.batch_rays,
             patches: args.patches,
