@@ -23,7 +23,8 @@
 #   5. `bench device`, fast preset at the demo's 512 rays a step: step time, samples/s,
 #      the host sampler's share of a step, 540x540 render fps (30 untimed steps first:
 #      a fresh process compiles its kernels again), and the 540x540 fps of stage 3's
-#      trained avatar (its occupancy grid updated, where the bench's fresh field's is not);
+#      trained avatar (its grid updated, samples routed to its face and hand nets, where
+#      the bench's fresh field's are not);
 #   6. `bench device`, paper preset at 32,768 rays a step (the paper's batch);
 #   7. with GPU_CHECK_COMPOSED=1, stage 5 again with the MLPs as composed burn ops
 #      (`TALKIN_MLP_FUSED=0`), the baseline of the fused MLP kernels in the same run.

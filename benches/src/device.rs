@@ -12,10 +12,10 @@
 //! process's peak resident set (reset before each row where Linux allows it) and, on a
 //! GPU, the most the device's allocator reserved.
 //!
-//! A fresh field's occupancy grid holds only its initial marks, so its frame samples what
-//! a trained avatar's updated grid culls: its render rate is a floor. The avatar rows
-//! render a trained run's newest checkpoint on each device, the same shot timed the same
-//! way: the frame a user's avatar renders.
+//! A fresh field is not the avatar a user renders: its occupancy grid holds only its
+//! initial marks and its segmentation routes no sample to the face and hand nets. The
+//! avatar rows render a trained run's newest checkpoint on each device, the same shot
+//! timed the same way: the frame a user's avatar costs.
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -385,8 +385,8 @@ pub fn table(r: &DeviceReport) -> String {
         );
     }
     if !r.avatar_rows.is_empty() {
-        s += "\nA trained avatar, the same shot (its grid carved and updated, where a fresh \
-              field's is not):\n\n\
+        s += "\nA trained avatar, the same shot (its grid updated, samples routed to its \
+              face and hand nets, where a fresh field's are not):\n\n\
               | device | run | render ms | fps | samples | render sampling / forwards | \
               peak device MiB |\n|---|---|---|---|---|---|---|\n";
         for row in &r.avatar_rows {

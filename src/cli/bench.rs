@@ -95,8 +95,8 @@ pub struct DeviceBenchArgs {
     #[arg(long, value_name = "PX", default_value_t = talkin_benches::device::RENDER_SIDE)]
     pub render_size: u32,
     /// A trained run whose avatar (newest checkpoint) each device also renders, the same
-    /// shot timed the same way: a fresh field's occupancy grid is not yet carved, so its
-    /// frames sample more than a trained avatar's.
+    /// shot timed the same way: a fresh field's frame is not an avatar's (its grid keeps
+    /// its initial marks and nothing is routed to the face and hand nets).
     #[arg(long, value_name = "RUN")]
     pub avatar: Option<PathBuf>,
     /// Random pixel rays per step (the paper: 32768 for its preset).
