@@ -22,7 +22,8 @@ pub struct DemoArgs {
     #[arg(long, default_value_t = 10.0)]
     pub minutes: f64,
     /// Train with the paper's loss (one LPIPS patch + 0.2 MSE + 0.05 CE, 1024 rays)
-    /// instead of the short-run recipe (MSE + 0.05 CE, 512 rays a step).
+    /// instead of the short-run recipe (MSE + 0.05 CE, 512 rays a step on the CPU, 4096
+    /// on a GPU).
     #[arg(long)]
     pub paper_loss: bool,
     /// Train and evaluate on this device.
@@ -34,7 +35,44 @@ pub struct DemoArgs {
 /// rays a step) and large batches cost more steps than they buy. 3-minute runs on the
 /// default scene: paper loss 11.4 dB against MSE's 15.6 dB on 6 test_same frames; batch
 /// PSNR over the last 100 steps, MSE with 1024 rays 16.8 dB, with 512 rays 17.7 dB.
-const SHORT_RUN_RECIPE: [&str; 4] = ["--patches", "0", "--batch", "512"];
+const SHORT_RUN_RECIPE: [&str; 2] = ["--patches", "0"];
+/// Rays a step on the CPU, whose step costs about its rays.
+const CPU_BATCH: &str = "512";
+/// Rays a step on a GPU, whose step costs the host about the same time at any batch:
+/// over the same 3000 steps (the count a 20-ms step fits into 60 s) 4096 rays scored
+/// 27.75 dB on test_same, 2048 rays 27.18 and 512 rays 25.57 (docs/results.md, "Rays a
+/// step on a GPU").
+const GPU_BATCH: &str = "4096";
+/// The demo's training options: `talkin train`'s defaults with its budget, seed and
+/// device, and the short-run recipe unless it trains with the paper's loss.
+fn recipe(args: &DemoArgs) -> anyhow::Result<TrainOptions> {
+    let minutes = args.minutes.to_string();
+    let seed = args.seed.to_string();
+    let device = args.device.device.to_string();
+    let mut argv = vec![
+        "demo",
+        "--minutes",
+        &minutes,
+        "--seed",
+        &seed,
+        "--device",
+        &device,
+    ];
+    if !args.paper_loss {
+        argv.extend(SHORT_RUN_RECIPE);
+        argv.extend([
+            "--batch",
+            if args.device.device.is_gpu() {
+                GPU_BATCH
+            } else {
+                CPU_BATCH
+            },
+        ]);
+    }
+    Ok(Recipe::try_parse_from(argv)
+        .context("the demo's training options")?
+        .recipe)
+}
 
 /// The recipe's defaults, as `talkin train` would take them, with a budget in minutes.
 #[derive(Parser)]
@@ -73,28 +111,15 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
         if args.paper_loss {
             "the paper's loss"
         } else {
-            "short-run recipe: MSE + CE, 512 rays a step"
+            if args.device.device.is_gpu() {
+                "short-run recipe: MSE + CE, 4096 rays a step on the GPU"
+            } else {
+                "short-run recipe: MSE + CE, 512 rays a step"
+            }
         },
         run_dir.display()
     );
-    let minutes = args.minutes.to_string();
-    let seed = args.seed.to_string();
-    let device = args.device.device.to_string();
-    let mut argv = vec![
-        "demo",
-        "--minutes",
-        &minutes,
-        "--seed",
-        &seed,
-        "--device",
-        &device,
-    ];
-    if !args.paper_loss {
-        argv.extend(SHORT_RUN_RECIPE);
-    }
-    let recipe = Recipe::try_parse_from(argv)
-        .context("the demo's training options")?
-        .recipe;
+    let recipe = recipe(&args)?;
     // The demo regenerates its scene and starts its run over every time.
     train::run(TrainArgs {
         data: data.clone(),
@@ -207,4 +232,40 @@ fn contact_sheet(data: &Path, report: &serde_json::Value, file: &Path) -> anyhow
         write_png(&comparison_sheet(&rows), file)?;
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn args(device: &str, paper_loss: bool) -> DemoArgs {
+        DemoArgs {
+            out: PathBuf::from("out/demo"),
+            seed: 7,
+            minutes: 1.5,
+            paper_loss,
+            device: super::super::DeviceArg {
+                device: device.parse().unwrap(),
+            },
+        }
+    }
+
+    #[test]
+    fn the_short_run_recipe_takes_more_rays_a_step_on_a_gpu() {
+        let cpu = recipe(&args("cpu", false)).unwrap();
+        assert_eq!((cpu.batch_rays, cpu.patches), (512, 0));
+        assert_eq!(cpu.seed, 7);
+        let gpu = recipe(&args("wgpu:1", false)).unwrap();
+        assert_eq!((gpu.batch_rays, gpu.patches), (4096, 0));
+        assert!(gpu.device.is_gpu());
+        // The paper's loss keeps `talkin train`'s batch and patch on either device.
+        let defaults = TrainOptions::default();
+        for device in ["cpu", "wgpu"] {
+            let paper = recipe(&args(device, true)).unwrap();
+            assert_eq!(
+                (paper.batch_rays, paper.patches),
+                (defaults.batch_rays, defaults.patches)
+            );
+        }
+    }
 }
