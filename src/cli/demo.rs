@@ -36,7 +36,8 @@ pub struct DemoArgs {
 /// default scene: paper loss 11.4 dB against MSE's 15.6 dB on 6 test_same frames; batch
 /// PSNR over the last 100 steps, MSE with 1024 rays 16.8 dB, with 512 rays 17.7 dB.
 const SHORT_RUN_RECIPE: [&str; 2] = ["--patches", "0"];
-/// Rays a step on the CPU, whose step costs about its rays.
+/// Rays a step on the CPU, whose step costs about its rays: 10 minutes of 2048 rays a step
+/// scored 28.05 dB on test_same against 512's 28.03.
 const CPU_BATCH: &str = "512";
 /// Rays a step on a GPU, whose step costs the host about the same time at any batch:
 /// over the same 3000 steps (the count a 20-ms step fits into 60 s) 4096 rays scored
