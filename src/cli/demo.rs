@@ -39,8 +39,8 @@ const SHORT_RUN_RECIPE: [&str; 2] = ["--patches", "0"];
 /// Rays a step on the CPU, whose step costs about its rays: 10 minutes of 2048 rays a step
 /// scored 28.05 dB on test_same against 512's 28.03.
 const CPU_BATCH: &str = "512";
-/// Rays a step on a GPU, whose step costs the host about the same time at any batch:
-/// over the same 3000 steps (the count a 20-ms step fits into 60 s) 4096 rays scored
+/// Rays a step on a GPU, whose 512-ray step waited on the host (an H200: 24.5 ms against
+/// 9.5 ms of GPU time), so more rays cost it little: over the same 3000 steps (the count a 20-ms step fits into 60 s) 4096 rays scored
 /// 27.75 dB on test_same, 2048 rays 27.18 and 512 rays 25.57 (docs/results.md, "Rays a
 /// step on a GPU").
 const GPU_BATCH: &str = "4096";
@@ -83,6 +83,7 @@ struct Recipe {
 }
 
 pub fn run(args: DemoArgs) -> anyhow::Result<()> {
+    let recipe = recipe(&args)?;
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("creating {}", args.out.display()))?;
     let data = args.out.join("data");
@@ -106,21 +107,20 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
         joints_json: Some(args.out.join("joints.json")),
     })?;
     ensure_lpips_weights(&DEFAULT_LPIPS_DIR);
+    let short_run = format!(
+        "short-run recipe: MSE + CE, {} rays a step",
+        recipe.batch_rays
+    );
     println!(
         "== 3/4 train all identities for {} min (accelerated sampler, fast preset, {}) -> {}",
         args.minutes,
         if args.paper_loss {
             "the paper's loss"
         } else {
-            if args.device.device.is_gpu() {
-                "short-run recipe: MSE + CE, 4096 rays a step on the GPU"
-            } else {
-                "short-run recipe: MSE + CE, 512 rays a step"
-            }
+            &short_run
         },
         run_dir.display()
     );
-    let recipe = recipe(&args)?;
     // The demo regenerates its scene and starts its run over every time.
     train::run(TrainArgs {
         data: data.clone(),
