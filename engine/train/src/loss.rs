@@ -15,9 +15,7 @@ use burn::prelude::*;
 use talkin_avatar::field_inputs::packed_layout;
 use talkin_grids::{PackedSamples, Ray};
 use talkin_nets::field::leaves::zero_grads;
-use talkin_nets::loss::{
-    PerceptualLoss, PixelWeights, mse, pixel_loss_on_device, seg_cross_entropy,
-};
+use talkin_nets::loss::{PerceptualLoss, PixelLoss, PixelWeights, pixel_loss};
 use talkin_nets::{
     FieldInput, FrameConditions, NetsError, PoseGrads, PoseLeaves, TalkinField, is_cpu,
 };
@@ -217,7 +215,11 @@ fn half(
         seg: SEG_WEIGHT,
     };
     // On a GPU the pixel terms are one device op; elsewhere tensor ops, the same terms.
-    let on_device = pixel_loss_on_device(
+    let PixelLoss {
+        loss: pixel,
+        mse: l_mse,
+        rgb,
+    } = pixel_loss(
         &rendered,
         batch.background,
         &target,
@@ -225,22 +227,6 @@ fn half(
         sure.as_ref().map(|sure| (sure, batch.mask_weight)),
         weights,
     );
-    let (pixel, l_mse, rgb) = match on_device {
-        Some((pixel, l_mse)) => (pixel, l_mse, None),
-        None => {
-            let rgb = rendered.rgb_over(batch.background); // [r, 3]
-            let l_mse = mse(rgb.clone(), target.clone());
-            let l_seg = seg_cross_entropy(rendered.seg_logits.clone(), labels.clone());
-            let mut pixel = l_seg.mul_scalar(SEG_WEIGHT) + l_mse.clone().mul_scalar(mse_weight);
-            if let Some(sure) = sure {
-                // Label 0 is the background; every other label is the person.
-                let person = labels.clone().greater_elem(0).float();
-                let l_mask = mse(rendered.opacity.clone() * sure.clone(), person * sure);
-                pixel = pixel + l_mask.mul_scalar(batch.mask_weight);
-            }
-            (pixel, l_mse, Some(rgb))
-        }
-    };
     let pixel = pixel.mul_scalar(weight);
     let loss = match perceptual {
         Some(p) if with_patches && range.start == 0 => {

@@ -44,7 +44,7 @@ pub fn seg_cross_entropy(logits: Tensor<2>, labels: Tensor<1, Int>) -> Tensor<1>
     picked.mean().neg()
 }
 
-/// The weights of the pixel loss's terms (see [`pixel_loss_on_device`]).
+/// The weights of the pixel loss's terms (see [`pixel_loss`]).
 #[derive(Clone, Copy, Debug)]
 pub struct PixelWeights {
     /// Of the colour's MSE over the background.
@@ -53,17 +53,81 @@ pub struct PixelWeights {
     pub seg: f32,
 }
 
+/// The pixel loss of a batch and its parts (see [`pixel_loss`]).
+#[derive(Clone, Debug)]
+pub struct PixelLoss {
+    /// The weighted sum of the terms. `[1]`
+    pub loss: Tensor<1>,
+    /// The colour's MSE over the background, for the log. `[1]`
+    pub mse: Tensor<1>,
+    /// The colour over the background `[r, 3]` where the terms were composed from it
+    /// (`None` from the device op, which never forms it).
+    pub rgb: Option<Tensor<2>>,
+}
+
+/// The weighted pixel loss: `weights.mse` times the MSE of the colour over the
+/// background against `target`, plus `weights.seg` times the labels' cross-entropy, plus,
+/// with `silhouette = Some((sure, weight))`, `weight` times `MSE(opacity * sure,
+/// person * sure)` (`person` 1 where the label is not the background). One device op on
+/// a CubeCL device (`kernels::cube::pixel_loss`), tensor ops elsewhere.
+///
+/// # Shapes
+/// - `target`: `[r, 3]`, `labels`: `[r]`, `sure`: `[r]`
+pub fn pixel_loss(
+    rendered: &crate::render::RenderedRays,
+    background: [f32; 3],
+    target: &Tensor<2>,
+    labels: &Tensor<1, Int>,
+    silhouette: Option<(&Tensor<1>, f32)>,
+    weights: PixelWeights,
+) -> PixelLoss {
+    match pixel_loss_on_device(rendered, background, target, labels, silhouette, weights) {
+        Some((loss, mse)) => PixelLoss {
+            loss,
+            mse,
+            rgb: None,
+        },
+        None => pixel_loss_composed(rendered, background, target, labels, silhouette, weights),
+    }
+}
+
+/// [`pixel_loss`] as tensor ops (the CPU's, and the device op's reference).
+fn pixel_loss_composed(
+    rendered: &crate::render::RenderedRays,
+    background: [f32; 3],
+    target: &Tensor<2>,
+    labels: &Tensor<1, Int>,
+    silhouette: Option<(&Tensor<1>, f32)>,
+    weights: PixelWeights,
+) -> PixelLoss {
+    let rgb = rendered.rgb_over(background); // [r, 3]
+    let l_mse = mse(rgb.clone(), target.clone());
+    let l_seg = seg_cross_entropy(rendered.seg_logits.clone(), labels.clone());
+    let mut loss = l_seg.mul_scalar(weights.seg) + l_mse.clone().mul_scalar(weights.mse);
+    if let Some((sure, weight)) = silhouette {
+        // Label 0 is the background; every other label is the person.
+        let person = labels.clone().greater_elem(0).float();
+        let l_mask = mse(
+            rendered.opacity.clone() * sure.clone(),
+            person * sure.clone(),
+        );
+        loss = loss + l_mask.mul_scalar(weight);
+    }
+    PixelLoss {
+        loss,
+        mse: l_mse,
+        rgb: Some(rgb),
+    }
+}
+
 /// On a CubeCL device, the weighted pixel loss `[1]`: `weights.mse` times the MSE of
 /// the colour over the background against `target`, plus `weights.seg` times the
 /// labels' cross-entropy, plus, with `silhouette = Some((sure, weight))`, `weight` times
 /// `MSE(opacity * sure, person * sure)` (`person` 1 where the label is not the
 /// background), from one device op over the rays and their sum; and the MSE alone
-/// `[1]`, detached, for the log. `None` elsewhere and for no rays: the caller composes
-/// [`mse`] and [`seg_cross_entropy`] (the same terms, as tensor ops).
-///
-/// # Shapes
-/// - `target`: `[r, 3]`, `labels`: `[r]`, `sure`: `[r]`
-pub fn pixel_loss_on_device(
+/// `[1]`, detached, for the log. `None` elsewhere and for no rays (then [`pixel_loss`]
+/// composes the same terms as tensor ops).
+fn pixel_loss_on_device(
     rendered: &crate::render::RenderedRays,
     background: [f32; 3],
     target: &Tensor<2>,
@@ -160,8 +224,8 @@ mod tests {
         let got: f32 = seg_cross_entropy(t, y).into_scalar();
         assert!((got - 2e4).abs() < 1.0, "{got}");
     }
-    /// The device op's pixel loss (`kernels::cube::pixel_loss`) against the same terms
-    /// composed on the device: labels of the background and the person, silhouette
+    /// The device op's pixel loss (`kernels::cube::pixel_loss`) against the CPU's
+    /// composition of the same terms, both on the device: labels of the background and the person, silhouette
     /// weights of 0, 1/2 and 1, opacities of 0 and 1, logits of 1e4; the loss, its MSE
     /// and the colour's, opacity's and logits' gradients.
     #[cfg(feature = "wgpu")]
@@ -199,26 +263,15 @@ mod tests {
             let target = floats(target.clone(), [r, 3], &device);
             let labels = Tensor::<1, Int>::from_data(TensorData::new(labels.clone(), [r]), &device);
             let sure = floats(sure.clone(), [r], &device);
+            let silhouette = Some((&sure, mask_weight));
             let (loss, l_mse) = if device_op {
-                pixel_loss_on_device(
-                    &rendered,
-                    background,
-                    &target,
-                    &labels,
-                    Some((&sure, mask_weight)),
-                    weights,
-                )
-                .expect("a CubeCL device takes it")
+                pixel_loss_on_device(&rendered, background, &target, &labels, silhouette, weights)
+                    .expect("a CubeCL device takes it")
             } else {
-                let over = rendered.rgb_over(background);
-                let l_mse = mse(over, target.clone());
-                let l_seg = seg_cross_entropy(rendered.seg_logits.clone(), labels.clone());
-                let person = labels.clone().greater_elem(0).float();
-                let l_mask = mse(rendered.opacity.clone() * sure.clone(), person * sure);
-                let loss = l_mse.clone().mul_scalar(weights.mse)
-                    + l_seg.mul_scalar(weights.seg)
-                    + l_mask.mul_scalar(mask_weight);
-                (loss, l_mse)
+                let composed = pixel_loss_composed(
+                    &rendered, background, &target, &labels, silhouette, weights,
+                );
+                (composed.loss, composed.mse)
             };
             let grads = loss.backward();
             [
