@@ -49,10 +49,11 @@ use crate::util::{floats, ints};
 
 #[cfg(feature = "wgpu")]
 mod device;
+mod pairs;
 mod prior;
 
 pub use prior::{BoneCapsule, BoneSegment, ladder_prior};
-use prior::{NO_CAPSULE_LOGIT, canonical_prior_logits, capsule_distance};
+use prior::canonical_prior_logits;
 
 /// Body joints driving D_r.
 pub const N_BODY_JOINTS: usize = 22;
@@ -232,20 +233,6 @@ pub struct BlendWeightVolume {
     finger_bones: bool,
 }
 
-/// Host-side (sample, bone) pairs with their canonical points and volume corners.
-pub(crate) struct Pairs {
-    pub sample: Vec<i32>,
-    pub bone: Vec<usize>,
-    /// `[m * 3]`
-    pub x: Vec<f32>,
-    /// `[m * 8]`
-    pub rows: Vec<i32>,
-    /// `[m * 8]`
-    pub weights: Vec<f32>,
-    /// `[m]` the posed-space prior's logit (0 when off).
-    pub posed: Vec<f32>,
-}
-
 impl BlendWeightVolume {
     /// Vertices per axis.
     pub fn resolution(&self) -> usize {
@@ -261,86 +248,6 @@ impl BlendWeightVolume {
     /// [`Self::inverse_lbs`] evaluates for it.
     pub fn candidates(&self, mask: u64) -> u64 {
         skinned_candidates(mask, self.finger_bones)
-    }
-
-    /// The eight volume rows and trilinear weights where bone `b`'s logit is read at
-    /// canonical point `xc`, onto `p`.
-    fn push_corners(&self, b: usize, xc: [f32; 3], p: &mut Pairs) {
-        let r = self.resolution;
-        let mut cell = [0usize; 3];
-        let mut frac = [0f32; 3];
-        for a in 0..3 {
-            let span = self.aabb[3 + a] - self.aabb[a];
-            let u = ((xc[a] - self.aabb[a]) / span * (r - 1) as f32).clamp(0.0, (r - 1) as f32);
-            let c = (u.floor() as usize).min(r - 2);
-            cell[a] = c;
-            frac[a] = u - c as f32;
-        }
-        for k in 0..8 {
-            let d = [k & 1, (k >> 1) & 1, k >> 2];
-            let mut w = 1.0;
-            for a in 0..3 {
-                w *= if d[a] == 1 { frac[a] } else { 1.0 - frac[a] };
-            }
-            let (x, y, z) = (cell[0] + d[0], cell[1] + d[1], cell[2] + d[2]);
-            p.rows.push((((b * r + z) * r + y) * r + x) as i32);
-            p.weights.push(w);
-        }
-    }
-
-    /// Each sample's (sample, candidate bone) pairs; with `corners`, their volume corners
-    /// too (the device kernel finds those itself).
-    pub(crate) fn pairs(
-        &self,
-        points: &[[f32; 3]],
-        bone_masks: &[u64],
-        canonical_from_posed: &[[f32; 16]],
-        bone_capsules: &[BoneCapsule],
-        corners: bool,
-    ) -> Pairs {
-        let mut p = Pairs {
-            sample: vec![],
-            bone: vec![],
-            x: vec![],
-            rows: vec![],
-            weights: vec![],
-            posed: vec![],
-        };
-        let mut by_bone: [Vec<&BoneCapsule>; N_SMPLX_JOINTS] = std::array::from_fn(|_| vec![]);
-        for c in bone_capsules {
-            by_bone[skinned_joint(c.bone, self.finger_bones)].push(c);
-        }
-        for (s, (x, &mask)) in points.iter().zip(bone_masks).enumerate() {
-            let mut bones = self.candidates(mask);
-            let tau = match self.posed_tau {
-                Some(tau) if bones & FINGER_MASK != 0 => Some(tau * FINGER_TAU_FRACTION),
-                tau => tau,
-            };
-            while bones != 0 {
-                let b = bones.trailing_zeros() as usize;
-                bones &= bones - 1;
-                let m = &canonical_from_posed[b];
-                let xc: [f32; 3] = std::array::from_fn(|i| {
-                    (m[4 * i] as f64 * x[0] as f64
-                        + m[4 * i + 1] as f64 * x[1] as f64
-                        + m[4 * i + 2] as f64 * x[2] as f64
-                        + m[4 * i + 3] as f64) as f32
-                });
-                if corners {
-                    self.push_corners(b, xc, &mut p);
-                }
-                p.sample.push(s as i32);
-                p.bone.push(b);
-                p.x.extend(xc);
-                p.posed.push(match tau {
-                    Some(tau) => by_bone[b].iter().fold(NO_CAPSULE_LOGIT, |l, c| {
-                        l.max(-capsule_distance(*x, c) / tau)
-                    }),
-                    None => 0.0,
-                });
-            }
-        }
-        p
     }
 
     /// Maps observation-space samples to canonical space (see the module docs).

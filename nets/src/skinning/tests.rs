@@ -438,3 +438,91 @@ fn device_op_skins_like_the_cpu() {
         crate::util::assert_close_to(what, a, b, 1e-4);
     }
 }
+
+/// The pairs are laid out by tasks of samples on rayon's threads: any number of threads
+/// gives the same pairs, bit for bit, and each sample's pairs sit where `start` says.
+#[test]
+fn pairs_are_the_same_on_any_number_of_threads() {
+    let device = Device::flex();
+    let vol = SkinningConfig::new()
+        .with_resolution(8)
+        .with_posed_tau(Some(0.02))
+        .with_finger_bones(Some(true))
+        .init([-1.0; 3], [1.0; 3], &ladder_prior(), &device)
+        .unwrap();
+    let t = identity_transforms();
+    // Several tasks' worth of samples (2048 a task) and a ragged last one.
+    let n = 3 * 2048 + 17;
+    let mut seed = 7u64;
+    let mut next = move || {
+        seed = seed
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        seed >> 11
+    };
+    let all = (1u64 << N_SMPLX_JOINTS) - 1;
+    let pts: Vec<[f32; 3]> = (0..n)
+        .map(|_| std::array::from_fn(|_| (next() % 2000) as f32 / 1000.0 - 1.0))
+        .collect();
+    // Empty masks (the body fallback), every joint (a dense sample), fingers and a few
+    // body joints.
+    let masks: Vec<u64> = (0..n)
+        .map(|i| match i % 7 {
+            0 => 0,
+            1 => all,
+            _ => (next() & next() & next()) & all,
+        })
+        .collect();
+    let capsules: Vec<BoneCapsule> = (0..N_SMPLX_JOINTS)
+        .flat_map(|bone| {
+            let o = bone as f32 / N_SMPLX_JOINTS as f32 - 0.5;
+            [
+                BoneCapsule {
+                    bone,
+                    a: [o, -0.3, 0.1],
+                    b: [o + 0.1, 0.4, -0.1],
+                    radius: 0.04,
+                },
+                BoneCapsule {
+                    bone,
+                    a: [-o, 0.2, o],
+                    b: [-o, 0.2, o],
+                    radius: 0.0,
+                },
+            ]
+        })
+        .collect();
+    for corners in [false, true] {
+        let on = |threads: usize| {
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap()
+                .install(|| vol.pairs(&pts, &masks, &t, &capsules, corners))
+        };
+        let (one, three) = (on(1), on(3));
+        let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        assert_eq!(one.sample, three.sample);
+        assert_eq!(one.bone, three.bone);
+        assert_eq!(bits(&one.x), bits(&three.x));
+        assert_eq!(bits(&one.posed), bits(&three.posed));
+        assert_eq!(one.rows, three.rows);
+        assert_eq!(bits(&one.weights), bits(&three.weights));
+        assert_eq!(one.start, three.start);
+        assert_eq!(one.rows.len(), if corners { 8 } else { 0 } * one.sample.len());
+        assert!(one.posed.iter().any(|&l| l != 0.0));
+        // Each sample's candidates, in bone order, at its start.
+        for (s, &mask) in masks.iter().enumerate() {
+            let range = one.start[s]..one.start[s + 1];
+            assert!(one.sample[range.clone()].iter().all(|&k| k == s as i32));
+            let mut want = vec![];
+            let mut bones = vol.candidates(mask);
+            while bones != 0 {
+                want.push(bones.trailing_zeros() as usize);
+                bones &= bones - 1;
+            }
+            assert_eq!(one.bone[range], want[..], "sample {s}");
+        }
+        assert_eq!(*one.start.last().unwrap(), one.sample.len());
+    }
+}
