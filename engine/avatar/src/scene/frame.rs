@@ -1,6 +1,7 @@
 //! One frame's geometry in posed (world) space: skeleton, capsules, bounding box, rays.
 
 use glam::{Affine3A, Vec3};
+use rayon::prelude::*;
 use talkin_grids::{Capsule, GridError, LabelledRay, Ray};
 
 use talkin_data::dataset::FrameImages;
@@ -110,12 +111,13 @@ pub fn foreground_rays(
 /// finely. 5 mm if no ray crosses the box.
 pub fn median_dense_step(rays: &[Ray], lo: Vec3, hi: Vec3, dense_samples: u32) -> f32 {
     let mut chords: Vec<f32> = rays
-        .iter()
+        .par_iter()
         .filter_map(|r| talkin_grids::ray::clip_to_box(r, lo, hi))
         .map(|(t0, t1)| t1 - t0)
         .collect();
     // The element a full sort would put in the middle, found in linear time: this runs
-    // in every frame's build, over all of the frame's rays.
+    // in every frame's build, over all of the frame's rays (the chords on every thread:
+    // a 540x540 render's build took 5 ms on one).
     let mid = chords.len() / 2;
     if !chords.is_empty() {
         chords.select_nth_unstable_by(mid, f32::total_cmp);
