@@ -66,7 +66,12 @@ impl BlendWeightVolume {
 /// holds the index of sample `s`'s `j`-th pair, the rest `m`, past the last pair.
 fn padded_slots(start: &[usize]) -> (Vec<i32>, usize) {
     let m = *start.last().unwrap_or(&0);
-    let k = start.windows(2).map(|w| w[1] - w[0]).max().unwrap_or(1).max(1);
+    let k = start
+        .windows(2)
+        .map(|w| w[1] - w[0])
+        .max()
+        .unwrap_or(1)
+        .max(1);
     let mut slot = vec![m as i32; (start.len() - 1) * k];
     slot.par_chunks_mut(k)
         .zip(start.par_windows(2))

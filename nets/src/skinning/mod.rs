@@ -52,8 +52,8 @@ mod device;
 mod pairs;
 mod prior;
 
-pub use prior::{BoneCapsule, BoneSegment, ladder_prior};
 use prior::canonical_prior_logits;
+pub use prior::{BoneCapsule, BoneSegment, ladder_prior};
 
 /// Body joints driving D_r.
 pub const N_BODY_JOINTS: usize = 22;

@@ -10,8 +10,8 @@
 use rayon::prelude::*;
 
 use super::prior::{NO_CAPSULE_LOGIT, capsule_distance};
-use super::{BlendWeightVolume, BoneCapsule, FINGER_MASK, FINGER_TAU_FRACTION, N_SMPLX_JOINTS};
 use super::skinned_joint;
+use super::{BlendWeightVolume, BoneCapsule, FINGER_MASK, FINGER_TAU_FRACTION, N_SMPLX_JOINTS};
 
 /// Samples a rayon task lays out.
 const SAMPLES_PER_TASK: usize = 2048;
@@ -140,7 +140,14 @@ impl BlendWeightVolume {
         }
 
         stretches.into_par_iter().for_each(|out| {
-            self.fill(out, points, &candidates, canonical_from_posed, &by_bone, corners)
+            self.fill(
+                out,
+                points,
+                &candidates,
+                canonical_from_posed,
+                &by_bone,
+                corners,
+            )
         });
         p
     }

@@ -509,7 +509,8 @@ fn pairs_are_the_same_on_any_number_of_threads() {
         assert_eq!(one.rows, three.rows);
         assert_eq!(bits(&one.weights), bits(&three.weights));
         assert_eq!(one.start, three.start);
-        assert_eq!(one.rows.len(), if corners { 8 } else { 0 } * one.sample.len());
+        let corners_a_pair = if corners { 8 } else { 0 };
+        assert_eq!(one.rows.len(), corners_a_pair * one.sample.len());
         assert!(one.posed.iter().any(|&l| l != 0.0));
         // Each sample's candidates, in bone order, at its start.
         for (s, &mask) in masks.iter().enumerate() {
