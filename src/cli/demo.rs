@@ -40,9 +40,9 @@ const SHORT_RUN_RECIPE: [&str; 2] = ["--patches", "0"];
 /// scored 28.05 dB on test_same against 512's 28.03.
 const CPU_BATCH: &str = "512";
 /// Rays a step on a GPU, whose 512-ray step waited on the host (an H200: 24.5 ms against
-/// 9.5 ms of GPU time), so more rays cost it little: over the same 3000 steps (the count a 20-ms step fits into 60 s) 4096 rays scored
-/// 27.75 dB on test_same, 2048 rays 27.18 and 512 rays 25.57 (docs/results.md, "Rays a
-/// step on a GPU").
+/// 9.5 ms of GPU time), so more rays cost it little: over the same 3000 steps (the count
+/// a 20-ms step fits into 60 s) 4096 rays scored 27.75 dB on test_same, 2048 rays 27.18
+/// and 512 rays 25.57 (docs/results.md, "Rays a step on a GPU").
 const GPU_BATCH: &str = "4096";
 /// The demo's training options: `talkin train`'s defaults with its budget, seed and
 /// device, and the short-run recipe unless it trains with the paper's loss.

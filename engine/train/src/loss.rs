@@ -15,7 +15,7 @@ use burn::prelude::*;
 use talkin_avatar::field_inputs::packed_layout;
 use talkin_grids::{PackedSamples, Ray};
 use talkin_nets::field::leaves::zero_grads;
-use talkin_nets::loss::{PerceptualLoss, PixelLoss, PixelWeights, pixel_loss};
+use talkin_nets::loss::{PerceptualLoss, PixelInputs, PixelLoss, PixelWeights, pixel_loss};
 use talkin_nets::{
     FieldInput, FrameConditions, NetsError, PoseGrads, PoseLeaves, TalkinField, is_cpu,
 };
@@ -219,14 +219,14 @@ fn half(
         loss: pixel,
         mse: l_mse,
         rgb,
-    } = pixel_loss(
-        &rendered,
-        batch.background,
-        &target,
-        &labels,
-        sure.as_ref().map(|sure| (sure, batch.mask_weight)),
+    } = pixel_loss(PixelInputs {
+        rendered: &rendered,
+        background: batch.background,
+        target: &target,
+        labels: &labels,
+        silhouette: sure.as_ref().map(|sure| (sure, batch.mask_weight)),
         weights,
-    );
+    });
     let pixel = pixel.mul_scalar(weight);
     let loss = match perceptual {
         Some(p) if with_patches && range.start == 0 => {

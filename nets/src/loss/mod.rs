@@ -19,6 +19,6 @@ mod weights_dir;
 pub use error::LossError;
 pub use lpips::{Backbone, Lpips};
 pub use perceptual::{PerceptualKind, PerceptualLoss};
-pub use pixel::{PixelLoss, PixelWeights, mse, pixel_loss, seg_cross_entropy};
+pub use pixel::{PixelInputs, PixelLoss, PixelWeights, mse, pixel_loss, seg_cross_entropy};
 pub use ssim::{SSIM_C1, SSIM_C2, SSIM_SIGMA, SSIM_WINDOW, ssim, ssim_loss};
 pub use weights_dir::{DEFAULT_LPIPS_DIR, LPIPS_DIR_ENV, lpips_weights_dir};

@@ -65,41 +65,47 @@ pub struct PixelLoss {
     pub rgb: Option<Tensor<2>>,
 }
 
+/// What the pixel loss scores (see [`pixel_loss`]).
+///
+/// # Shapes
+/// - `target`: `[r, 3]`, `labels`: `[r]`, a silhouette's `sure`: `[r]`
+#[derive(Clone, Copy)]
+pub struct PixelInputs<'a> {
+    pub rendered: &'a crate::render::RenderedRays,
+    pub background: [f32; 3],
+    pub target: &'a Tensor<2>,
+    pub labels: &'a Tensor<1, Int>,
+    /// `Some((sure, weight))`: the silhouette term, weighted per ray by `sure`.
+    pub silhouette: Option<(&'a Tensor<1>, f32)>,
+    pub weights: PixelWeights,
+}
+
 /// The weighted pixel loss: `weights.mse` times the MSE of the colour over the
 /// background against `target`, plus `weights.seg` times the labels' cross-entropy, plus,
 /// with `silhouette = Some((sure, weight))`, `weight` times `MSE(opacity * sure,
 /// person * sure)` (`person` 1 where the label is not the background). One device op on
 /// a CubeCL device (`kernels::cube::pixel_loss`), tensor ops elsewhere.
-///
-/// # Shapes
-/// - `target`: `[r, 3]`, `labels`: `[r]`, `sure`: `[r]`
-pub fn pixel_loss(
-    rendered: &crate::render::RenderedRays,
-    background: [f32; 3],
-    target: &Tensor<2>,
-    labels: &Tensor<1, Int>,
-    silhouette: Option<(&Tensor<1>, f32)>,
-    weights: PixelWeights,
-) -> PixelLoss {
-    match pixel_loss_on_device(rendered, background, target, labels, silhouette, weights) {
+pub fn pixel_loss(inputs: PixelInputs) -> PixelLoss {
+    match pixel_loss_on_device(inputs) {
         Some((loss, mse)) => PixelLoss {
             loss,
             mse,
             rgb: None,
         },
-        None => pixel_loss_composed(rendered, background, target, labels, silhouette, weights),
+        None => pixel_loss_composed(inputs),
     }
 }
 
 /// [`pixel_loss`] as tensor ops (the CPU's, and the device op's reference).
-fn pixel_loss_composed(
-    rendered: &crate::render::RenderedRays,
-    background: [f32; 3],
-    target: &Tensor<2>,
-    labels: &Tensor<1, Int>,
-    silhouette: Option<(&Tensor<1>, f32)>,
-    weights: PixelWeights,
-) -> PixelLoss {
+fn pixel_loss_composed(inputs: PixelInputs) -> PixelLoss {
+    let PixelInputs {
+        rendered,
+        background,
+        target,
+        labels,
+        silhouette,
+        weights,
+    } = inputs;
     let rgb = rendered.rgb_over(background); // [r, 3]
     let l_mse = mse(rgb.clone(), target.clone());
     let l_seg = seg_cross_entropy(rendered.seg_logits.clone(), labels.clone());
@@ -120,23 +126,20 @@ fn pixel_loss_composed(
     }
 }
 
-/// On a CubeCL device, the weighted pixel loss `[1]`: `weights.mse` times the MSE of
-/// the colour over the background against `target`, plus `weights.seg` times the
-/// labels' cross-entropy, plus, with `silhouette = Some((sure, weight))`, `weight` times
-/// `MSE(opacity * sure, person * sure)` (`person` 1 where the label is not the
-/// background), from one device op over the rays and their sum; and the MSE alone
-/// `[1]`, detached, for the log. `None` elsewhere and for no rays (then [`pixel_loss`]
-/// composes the same terms as tensor ops).
-fn pixel_loss_on_device(
-    rendered: &crate::render::RenderedRays,
-    background: [f32; 3],
-    target: &Tensor<2>,
-    labels: &Tensor<1, Int>,
-    silhouette: Option<(&Tensor<1>, f32)>,
-    weights: PixelWeights,
-) -> Option<(Tensor<1>, Tensor<1>)> {
+/// On a CubeCL device, [`pixel_loss`]'s loss `[1]` from one device op over the rays and
+/// their sum, and the MSE alone `[1]`, detached, for the log. `None` elsewhere and for no
+/// rays (then [`pixel_loss`] composes the same terms as tensor ops).
+fn pixel_loss_on_device(inputs: PixelInputs) -> Option<(Tensor<1>, Tensor<1>)> {
     #[cfg(feature = "wgpu")]
     {
+        let PixelInputs {
+            rendered,
+            background,
+            target,
+            labels,
+            silhouette,
+            weights,
+        } = inputs;
         let device = rendered.opacity.device();
         let rays = rendered.opacity.dims()[0];
         if rays == 0 || crate::device::is_cpu(&device) {
@@ -174,7 +177,7 @@ fn pixel_loss_on_device(
     }
     #[cfg(not(feature = "wgpu"))]
     {
-        let _ = (rendered, background, target, labels, silhouette, weights);
+        let _ = inputs;
         None
     }
 }
@@ -263,14 +266,18 @@ mod tests {
             let target = floats(target.clone(), [r, 3], &device);
             let labels = Tensor::<1, Int>::from_data(TensorData::new(labels.clone(), [r]), &device);
             let sure = floats(sure.clone(), [r], &device);
-            let silhouette = Some((&sure, mask_weight));
+            let inputs = PixelInputs {
+                rendered: &rendered,
+                background,
+                target: &target,
+                labels: &labels,
+                silhouette: Some((&sure, mask_weight)),
+                weights,
+            };
             let (loss, l_mse) = if device_op {
-                pixel_loss_on_device(&rendered, background, &target, &labels, silhouette, weights)
-                    .expect("a CubeCL device takes it")
+                pixel_loss_on_device(inputs).expect("a CubeCL device takes it")
             } else {
-                let composed = pixel_loss_composed(
-                    &rendered, background, &target, &labels, silhouette, weights,
-                );
+                let composed = pixel_loss_composed(inputs);
                 (composed.loss, composed.mse)
             };
             let grads = loss.backward();
