@@ -133,12 +133,7 @@ fn pixel_loss_on_device(inputs: PixelInputs) -> Option<(Tensor<1>, Tensor<1>)> {
     #[cfg(feature = "wgpu")]
     {
         let PixelInputs {
-            rendered,
-            background,
-            target,
-            labels,
-            silhouette,
-            weights,
+            rendered, weights, ..
         } = inputs;
         let device = rendered.opacity.device();
         let rays = rendered.opacity.dims()[0];
@@ -147,7 +142,7 @@ fn pixel_loss_on_device(inputs: PixelInputs) -> Option<(Tensor<1>, Tensor<1>)> {
         }
         use crate::util::floats;
         // Without the term its weights are zeros, and so is its every ray's value.
-        let (sure, mask_weight) = match silhouette {
+        let (sure, mask_weight) = match inputs.silhouette {
             Some((sure, weight)) => (sure.clone(), weight),
             None => (Tensor::zeros([rays], &device), 0.0),
         };
@@ -155,10 +150,10 @@ fn pixel_loss_on_device(inputs: PixelInputs) -> Option<(Tensor<1>, Tensor<1>)> {
             rendered.rgb.clone(),
             rendered.opacity.clone(),
             rendered.seg_logits.clone(),
-            target.clone(),
-            labels.clone(),
+            inputs.target.clone(),
+            inputs.labels.clone(),
             sure,
-            floats(background.to_vec(), [3], &device),
+            floats(inputs.background.to_vec(), [3], &device),
         ); // [r, 3]
         let r = rays as f32;
         let scale = floats(
