@@ -1,84 +1,91 @@
-//! Inverse skinning's blend on a CubeCL device (`kernels::cube::skin`): the pairs laid
-//! out for the kernel, one row of slots per sample.
+//! Inverse skinning on a CubeCL device (`kernels::cube::skin`): the host uploads each
+//! sample's point and candidate bones (a mask) and the frame's numbers; the kernel does
+//! the rest, so no (sample, bone) pair is laid out or uploaded.
 
 use burn::prelude::*;
 use rayon::prelude::*;
 
-use super::BlendWeightVolume;
-use super::pairs::Pairs;
-use crate::kernels::cube::skin::{GRID_PARAMS, PAIR_PARAMS, blend};
+use super::{BlendWeightVolume, BoneCapsule, FINGER_TAU_FRACTION, N_SMPLX_JOINTS, skinned_joint};
+use crate::kernels::cube::skin::{
+    CAPSULE_PARAMS, CAPSULE_STARTS, FINGER_TAU, FIRST_FINGER, FRAME_HEAD, MASK_BITS, N_JOINTS, TAU,
+    warp,
+};
 use crate::util::{floats, ints};
 
-/// Pairs a rayon task lays out for the kernel.
-const PAIRS_PER_TASK: usize = 4096;
+const _: () = assert!(N_JOINTS == N_SMPLX_JOINTS && FIRST_FINGER == super::FIRST_FINGER_JOINT);
+const _: () = assert!(2 * MASK_BITS >= N_SMPLX_JOINTS && MASK_BITS < 31);
 
 impl BlendWeightVolume {
-    /// The softmax blend on a CubeCL device (`kernels::cube::skin`): one unit per sample
-    /// over its candidates, the volume's corners found in the kernel from the pairs' host
-    /// points. Uploads the pairs' numbers with the grid's, and the slots.
-    pub(super) fn blend_on_device(
+    /// The warp on a CubeCL device (`kernels::cube::skin`): one unit per sample over its
+    /// candidates, their canonical points from `transforms` `[55, 12]` (which may require
+    /// gradients). Uploads the points, the candidates and the frame's numbers; returns the
+    /// canonical points and how many (sample, bone) pairs the kernel weighs.
+    pub(super) fn warp_on_device(
         &self,
-        p: &Pairs,
-        n: usize,
-        xb: Tensor<2>,
+        points: &[[f32; 3]],
+        bone_masks: &[u64],
+        bone_capsules: &[BoneCapsule],
+        transforms: Tensor<2>,
         device: &Device,
-    ) -> Tensor<2> {
-        let numbers = self.pair_numbers(p);
-        let (slots, k) = padded_slots(&p.start);
-        let len = numbers.len();
-        blend(
+    ) -> (Tensor<2>, usize) {
+        let n = points.len();
+        let (words, pairs) = self.candidate_words(bone_masks);
+        let flat = points.as_flattened().to_vec();
+        let frame = self.frame_numbers(bone_capsules);
+        let len = frame.len();
+        let x_canonical = warp(
             self.logits.val(),
-            xb,
-            floats(numbers, [len], device),
-            ints(slots, device).reshape([n, k]),
-        )
+            transforms,
+            floats(flat, [n, 3], device),
+            floats(frame, [len], device),
+            ints(words, device).reshape([n, 2]),
+        );
+        (x_canonical, pairs)
     }
 
-    /// The kernel's `pairs` tensor: each pair's canonical point, bone and posed logit
-    /// ([`PAIR_PARAMS`] numbers), then the grid's ([`GRID_PARAMS`]).
-    fn pair_numbers(&self, p: &Pairs) -> Vec<f32> {
-        let m = p.sample.len();
-        let r = self.resolution;
-        let mut numbers = vec![0.0; m * PAIR_PARAMS + GRID_PARAMS];
-        let (pairs, grid) = numbers.split_at_mut(m * PAIR_PARAMS);
-        pairs
-            .par_chunks_mut(PAIR_PARAMS * PAIRS_PER_TASK)
-            .enumerate()
-            .for_each(|(c, out)| {
-                for (k, row) in out.chunks_exact_mut(PAIR_PARAMS).enumerate() {
-                    let i = c * PAIRS_PER_TASK + k;
-                    row[..3].copy_from_slice(&p.x[3 * i..3 * i + 3]);
-                    row[3] = p.bone[i] as f32;
-                    row[4] = p.posed[i];
-                }
-            });
-        grid[..3].copy_from_slice(&self.aabb[..3]);
-        for a in 0..3 {
-            grid[3 + a] = (r - 1) as f32 / (self.aabb[3 + a] - self.aabb[a]);
+    /// Each sample's candidate bones as two words of [`MASK_BITS`] bits, and how many
+    /// there are in all.
+    fn candidate_words(&self, bone_masks: &[u64]) -> (Vec<i32>, usize) {
+        let low = (1u64 << MASK_BITS) - 1;
+        let words: Vec<i32> = bone_masks
+            .par_iter()
+            .flat_map_iter(|&mask| {
+                let c = self.candidates(mask);
+                [(c & low) as i32, (c >> MASK_BITS) as i32]
+            })
+            .collect();
+        let pairs = words.par_iter().map(|w| w.count_ones() as usize).sum();
+        (words, pairs)
+    }
+
+    /// The kernel's `frame`: the volume's grid, the posed prior's temperatures (0 when
+    /// off) and each skinned joint's capsules (see `skin_kernels`).
+    fn frame_numbers(&self, bone_capsules: &[BoneCapsule]) -> Vec<f32> {
+        let mut by_bone: [Vec<&BoneCapsule>; N_SMPLX_JOINTS] = std::array::from_fn(|_| vec![]);
+        for c in bone_capsules {
+            by_bone[skinned_joint(c.bone, self.finger_bones)].push(c);
         }
-        grid[6] = r as f32;
-        numbers
-    }
-}
-
-/// Each sample's pairs in a row of `K` slots (`K` the most any sample has), from where
-/// each sample's pairs `start` (`[n + 1]`; pairs are sorted by sample): slot `(s, j)`
-/// holds the index of sample `s`'s `j`-th pair, the rest `m`, past the last pair.
-fn padded_slots(start: &[usize]) -> (Vec<i32>, usize) {
-    let m = *start.last().unwrap_or(&0);
-    let k = start
-        .windows(2)
-        .map(|w| w[1] - w[0])
-        .max()
-        .unwrap_or(1)
-        .max(1);
-    let mut slot = vec![m as i32; (start.len() - 1) * k];
-    slot.par_chunks_mut(k)
-        .zip(start.par_windows(2))
-        .for_each(|(row, w)| {
-            for (j, pair) in (w[0]..w[1]).enumerate() {
-                row[j] = pair as i32;
+        let mut frame = vec![0.0; FRAME_HEAD];
+        let r = self.resolution;
+        frame[..3].copy_from_slice(&self.aabb[..3]);
+        for a in 0..3 {
+            frame[3 + a] = (r - 1) as f32 / (self.aabb[3 + a] - self.aabb[a]);
+        }
+        frame[6] = r as f32;
+        if let Some(tau) = self.posed_tau {
+            frame[TAU] = tau;
+            frame[FINGER_TAU] = tau * FINGER_TAU_FRACTION;
+        }
+        let mut count = 0;
+        for (b, caps) in by_bone.iter().enumerate() {
+            frame[CAPSULE_STARTS + b] = count as f32;
+            for c in caps {
+                frame.extend(c.a.iter().chain(&c.b).chain([&c.radius]));
             }
-        });
-    (slot, k)
+            count += caps.len();
+        }
+        frame[CAPSULE_STARTS + N_SMPLX_JOINTS] = count as f32;
+        debug_assert_eq!(frame.len(), FRAME_HEAD + CAPSULE_PARAMS * count);
+        frame
+    }
 }

@@ -42,6 +42,7 @@ use burn::module::Param;
 use burn::prelude::*;
 use burn::tensor::IndexingUpdateOp;
 
+#[cfg(feature = "wgpu")]
 use crate::device::is_cpu;
 use crate::error::{NetsError, check_len};
 use crate::rows::gather_rows;
@@ -322,19 +323,26 @@ impl BlendWeightVolume {
                 limit: N_SMPLX_JOINTS,
             });
         }
-        let on_cube = cfg!(feature = "wgpu") && !is_cpu(device);
-        let mut p = self.pairs(
-            points,
-            bone_masks,
-            canonical_from_posed,
-            bone_capsules,
-            !on_cube,
-        );
+        #[cfg(feature = "wgpu")]
+        if !is_cpu(device) {
+            let transforms = match transforms {
+                Some(rows) => rows.clone(),
+                None => {
+                    let rows = canonical_from_posed.iter().flat_map(|m| m[..12].to_vec());
+                    floats(rows.collect(), [N_SMPLX_JOINTS, 12], device)
+                }
+            };
+            let (x_canonical, n_pairs) =
+                self.warp_on_device(points, bone_masks, bone_capsules, transforms, device);
+            return Ok(RigidWarp {
+                x_canonical,
+                n_pairs,
+            });
+        }
+        let mut p = self.pairs(points, bone_masks, canonical_from_posed, bone_capsules);
         let m = p.sample.len();
         let xb = match transforms {
-            // The device blend still reads the pairs' host points.
-            None if on_cube => floats(p.x.clone(), [m, 3], device), // [m, 3]
-            None => floats(std::mem::take(&mut p.x), [m, 3], device),
+            None => floats(std::mem::take(&mut p.x), [m, 3], device), // [m, 3]
             Some(rows) => {
                 // [m, 3, 4] transforms times [m, 1, 4] homogeneous points, summed.
                 let bones = ints(p.bone.iter().map(|&b| b as i32).collect::<Vec<_>>(), device);
@@ -351,13 +359,6 @@ impl BlendWeightVolume {
                 (mats * xh).sum_dim(2).reshape([m, 3])
             }
         };
-        #[cfg(feature = "wgpu")]
-        if on_cube {
-            return Ok(RigidWarp {
-                x_canonical: self.blend_on_device(&p, n, xb, device),
-                n_pairs: m,
-            });
-        }
         let corner_w = floats(p.weights, [m, 8], device);
         let logits = (gather_rows(self.logits.val(), ints(p.rows, device)).reshape([m, 8])
             * corner_w)

@@ -1,8 +1,8 @@
-//! Inverse skinning's host side: each sample's (sample, candidate bone) pairs with the
-//! candidate's canonical point, the posed-space prior's logit and, for the CPU's gather,
-//! the volume corners where the bone's logit is read.
+//! Inverse skinning's pairs for the CPU: each sample's (sample, candidate bone) pairs with
+//! the candidate's canonical point, the posed-space prior's logit and the volume corners
+//! where the bone's logit is read (a CubeCL device finds all of it in its kernel).
 //!
-//! Every device builds them for every forward, so they are laid out in parallel: a first
+//! The CPU builds them for every forward, so they are laid out in parallel: a first
 //! pass counts each sample's candidates, which fixes where its pairs go, and chunks of
 //! samples then fill their own stretch of the output on rayon's threads. Each pair's
 //! arithmetic is the same on any number of threads, so the pairs are too.
@@ -23,9 +23,9 @@ pub(crate) struct Pairs {
     pub bone: Vec<usize>,
     /// `[m * 3]`
     pub x: Vec<f32>,
-    /// `[m * 8]` (empty without corners)
+    /// `[m * 8]`
     pub rows: Vec<i32>,
-    /// `[m * 8]` (empty without corners)
+    /// `[m * 8]`
     pub weights: Vec<f32>,
     /// `[m]` the posed-space prior's logit (0 when off).
     pub posed: Vec<f32>,
@@ -73,15 +73,13 @@ impl BlendWeightVolume {
         (rows, weights)
     }
 
-    /// Each sample's (sample, candidate bone) pairs; with `corners`, their volume corners
-    /// too (the device kernel finds those itself).
+    /// Each sample's (sample, candidate bone) pairs with their volume corners.
     pub(crate) fn pairs(
         &self,
         points: &[[f32; 3]],
         bone_masks: &[u64],
         canonical_from_posed: &[[f32; 16]],
         bone_capsules: &[BoneCapsule],
-        corners: bool,
     ) -> Pairs {
         let mut by_bone: [Vec<&BoneCapsule>; N_SMPLX_JOINTS] = std::array::from_fn(|_| vec![]);
         for c in bone_capsules {
@@ -97,13 +95,12 @@ impl BlendWeightVolume {
             start.push(start.last().unwrap() + c.count_ones() as usize);
         }
         let m = *start.last().unwrap();
-        let per_corner = if corners { 8 } else { 0 };
         let mut p = Pairs {
             sample: vec![0; m],
             bone: vec![0; m],
             x: vec![0.0; 3 * m],
-            rows: vec![0; per_corner * m],
-            weights: vec![0.0; per_corner * m],
+            rows: vec![0; 8 * m],
+            weights: vec![0.0; 8 * m],
             posed: vec![0.0; m],
             start,
         };
@@ -123,9 +120,9 @@ impl BlendWeightVolume {
             let xs;
             (xs, x) = x.split_at_mut(3 * k);
             let r;
-            (r, rows) = rows.split_at_mut(per_corner * k);
+            (r, rows) = rows.split_at_mut(8 * k);
             let w;
-            (w, weights) = weights.split_at_mut(per_corner * k);
+            (w, weights) = weights.split_at_mut(8 * k);
             let l;
             (l, posed) = posed.split_at_mut(k);
             stretches.push(Stretch {
@@ -139,16 +136,9 @@ impl BlendWeightVolume {
             });
         }
 
-        stretches.into_par_iter().for_each(|out| {
-            self.fill(
-                out,
-                points,
-                &candidates,
-                canonical_from_posed,
-                &by_bone,
-                corners,
-            )
-        });
+        stretches
+            .into_par_iter()
+            .for_each(|out| self.fill(out, points, &candidates, canonical_from_posed, &by_bone));
         p
     }
 
@@ -160,7 +150,6 @@ impl BlendWeightVolume {
         candidates: &[u64],
         canonical_from_posed: &[[f32; 16]],
         by_bone: &[Vec<&BoneCapsule>; N_SMPLX_JOINTS],
-        corners: bool,
     ) {
         let mut j = 0;
         for s in out.samples {
@@ -180,11 +169,9 @@ impl BlendWeightVolume {
                         + m[4 * i + 2] as f64 * x[2] as f64
                         + m[4 * i + 3] as f64) as f32
                 });
-                if corners {
-                    let (r, w) = self.corners(b, xc);
-                    out.rows[8 * j..8 * j + 8].copy_from_slice(&r);
-                    out.weights[8 * j..8 * j + 8].copy_from_slice(&w);
-                }
+                let (r, w) = self.corners(b, xc);
+                out.rows[8 * j..8 * j + 8].copy_from_slice(&r);
+                out.weights[8 * j..8 * j + 8].copy_from_slice(&w);
                 out.sample[j] = s as i32;
                 out.bone[j] = b;
                 out.x[3 * j..3 * j + 3].copy_from_slice(&xc);

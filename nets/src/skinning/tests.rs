@@ -29,6 +29,37 @@ fn identity_transforms() -> Vec<[f32; 16]> {
         .collect()
 }
 
+/// Each joint a rotation about its own axis (up to 0.53 rad) and a translation, except
+/// every ninth (0, 9, 18, ...), which keeps points where they are (on a cell's face, say).
+#[cfg(feature = "wgpu")]
+fn rigid_transforms() -> Vec<[f32; 16]> {
+    (0..N_SMPLX_JOINTS)
+        .map(|b| {
+            let angle = if b % 9 == 0 { 0.0 } else { b as f64 * 0.01 };
+            let axis = [1.0, (b % 3) as f64, 2.0 - (b % 5) as f64];
+            let len = axis.iter().map(|v| v * v).sum::<f64>().sqrt();
+            let [x, y, z] = axis.map(|v| v / len);
+            let (sin, cos) = angle.sin_cos();
+            let c1 = 1.0 - cos;
+            let r = [
+                [cos + x * x * c1, x * y * c1 - z * sin, x * z * c1 + y * sin],
+                [y * x * c1 + z * sin, cos + y * y * c1, y * z * c1 - x * sin],
+                [z * x * c1 - y * sin, z * y * c1 + x * sin, cos + z * z * c1],
+            ];
+            let t = [0.02 * angle, -0.5 * angle, 0.3 * angle];
+            let mut m = [0f32; 16];
+            for i in 0..3 {
+                for j in 0..3 {
+                    m[4 * i + j] = r[i][j] as f32;
+                }
+                m[4 * i + 3] = t[i] as f32;
+            }
+            m[15] = 1.0;
+            m
+        })
+        .collect()
+}
+
 #[test]
 fn ancestors_and_candidates() {
     assert_eq!(body_ancestor(22), HEAD_JOINT);
@@ -295,7 +326,7 @@ fn gradient_check(posed_tau: Option<f64>, capsules: &[BoneCapsule]) {
     let grads = (warp.x_canonical * c).sum().backward();
     let g = host(&vol.logits.grad(&grads).unwrap());
     let logits: Vec<f64> = host(&vol.logits.val()).iter().map(|&v| v as f64).collect();
-    let pairs = vol.pairs(&pts, &masks, &t, capsules, true);
+    let pairs = vol.pairs(&pts, &masks, &t, capsules);
     assert_eq!(
         pairs.posed.iter().any(|&l| l != 0.0),
         posed_tau.is_some(),
@@ -348,17 +379,18 @@ fn gradient_check(posed_tau: Option<f64>, capsules: &[BoneCapsule]) {
     assert!(nonzero > 8);
 }
 
-/// The device op (`kernels::cube::skin`) skins and differentiates as the CPU's scattered
-/// blend does, with finger bones and the posed prior on: one candidate, several, every
-/// bone (the body fallback), fingers, logits far apart, points on a cell's face and
-/// outside the box; the volume's and the transforms' gradients both.
+/// The device op (`kernels::cube::skin`) skins and differentiates as the CPU's pairs and
+/// scattered blend do, with finger bones, the posed prior and a rotation and translation
+/// a joint: one candidate, several, every bone (the body fallback), fingers, logits far
+/// apart, points on a cell's face and outside the box; the volume's and the transforms'
+/// gradients both.
 #[cfg(feature = "wgpu")]
 #[test]
 #[ignore = "needs a Vulkan adapter (lavapipe will do): \
             cargo test --release --features wgpu -p talkin-nets -p talkin --lib --test device -- --ignored"]
 fn device_op_skins_like_the_cpu() {
     let gpu = crate::device::test_wgpu().autodiff();
-    let t = identity_transforms();
+    let t = rigid_transforms();
     let capsules = [
         BoneCapsule {
             bone: 9,
@@ -370,6 +402,14 @@ fn device_op_skins_like_the_cpu() {
             bone: 27,
             a: [0.3, 0.1, 0.0],
             b: [0.35, 0.1, 0.0],
+            radius: 0.01,
+        },
+        // A sample between two finger bones' capsules is weighed at the fingers'
+        // temperature.
+        BoneCapsule {
+            bone: 28,
+            a: [0.3, 0.15, 0.0],
+            b: [0.36, 0.15, 0.0],
             radius: 0.01,
         },
     ];
@@ -492,38 +532,35 @@ fn pairs_are_the_same_on_any_number_of_threads() {
             ]
         })
         .collect();
-    for corners in [false, true] {
-        let on = |threads: usize| {
-            rayon::ThreadPoolBuilder::new()
-                .num_threads(threads)
-                .build()
-                .unwrap()
-                .install(|| vol.pairs(&pts, &masks, &t, &capsules, corners))
-        };
-        let (one, three) = (on(1), on(3));
-        let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
-        assert_eq!(one.sample, three.sample);
-        assert_eq!(one.bone, three.bone);
-        assert_eq!(bits(&one.x), bits(&three.x));
-        assert_eq!(bits(&one.posed), bits(&three.posed));
-        assert_eq!(one.rows, three.rows);
-        assert_eq!(bits(&one.weights), bits(&three.weights));
-        assert_eq!(one.start, three.start);
-        let corners_a_pair = if corners { 8 } else { 0 };
-        assert_eq!(one.rows.len(), corners_a_pair * one.sample.len());
-        assert!(one.posed.iter().any(|&l| l != 0.0));
-        // Each sample's candidates, in bone order, at its start.
-        for (s, &mask) in masks.iter().enumerate() {
-            let range = one.start[s]..one.start[s + 1];
-            assert!(one.sample[range.clone()].iter().all(|&k| k == s as i32));
-            let mut want = vec![];
-            let mut bones = vol.candidates(mask);
-            while bones != 0 {
-                want.push(bones.trailing_zeros() as usize);
-                bones &= bones - 1;
-            }
-            assert_eq!(one.bone[range], want[..], "sample {s}");
+    let on = |threads: usize| {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap()
+            .install(|| vol.pairs(&pts, &masks, &t, &capsules))
+    };
+    let (one, three) = (on(1), on(3));
+    let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+    assert_eq!(one.sample, three.sample);
+    assert_eq!(one.bone, three.bone);
+    assert_eq!(bits(&one.x), bits(&three.x));
+    assert_eq!(bits(&one.posed), bits(&three.posed));
+    assert_eq!(one.rows, three.rows);
+    assert_eq!(bits(&one.weights), bits(&three.weights));
+    assert_eq!(one.start, three.start);
+    assert_eq!(one.rows.len(), 8 * one.sample.len());
+    assert!(one.posed.iter().any(|&l| l != 0.0));
+    // Each sample's candidates, in bone order, at its start.
+    for (s, &mask) in masks.iter().enumerate() {
+        let range = one.start[s]..one.start[s + 1];
+        assert!(one.sample[range.clone()].iter().all(|&k| k == s as i32));
+        let mut want = vec![];
+        let mut bones = vol.candidates(mask);
+        while bones != 0 {
+            want.push(bones.trailing_zeros() as usize);
+            bones &= bones - 1;
         }
-        assert_eq!(*one.start.last().unwrap(), one.sample.len());
+        assert_eq!(one.bone[range], want[..], "sample {s}");
     }
+    assert_eq!(*one.start.last().unwrap(), one.sample.len());
 }

@@ -9,7 +9,7 @@
 //! - `render`: volume rendering's weights, one unit per ray.
 //! - `ray_sums`: volume rendering's per-ray sums (colour, labels, opacity, depth).
 //! - `routed`: a part net's routed rows put back into the batch.
-//! - `skin`: inverse skinning's softmax blend over each sample's candidate bones.
+//! - `skin`: inverse skinning over each sample's candidate bones (their points, logits, blend).
 //! - `adam`: Adam, one elementwise kernel per parameter.
 //! - `mlp`: a ReLU MLP without skips, a unit per row, its weights' gradients by chunks.
 

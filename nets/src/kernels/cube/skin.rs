@@ -1,10 +1,11 @@
-//! Inverse skinning's softmax blend as one device op with its own backward: per sample,
-//! the logits of its candidate bones (a trilinear read of the weight volume plus the
-//! posed-space prior), their softmax and the blended canonical point. Composed of burn
-//! ops this was a gather of eight volume rows a pair (their rows and weights laid out and
-//! uploaded by the host), a padded `[n, K]` softmax and a gather of the points, forward
-//! and back; here forward is one launch and backward one (the volume's gradient by
-//! atomic adds) after a fill.
+//! Inverse skinning as one device op with its own backward: per sample, each candidate
+//! bone's canonical point (the bone's transform of the sample), its logit (a trilinear
+//! read of the weight volume plus the posed-space prior), their softmax and the blended
+//! canonical point. Composed of burn ops this was a gather of eight volume rows a pair
+//! (their rows and weights laid out and uploaded by the host), a padded `[n, K]` softmax
+//! and a gather of the points, forward and back; here forward is one launch and backward
+//! one (the volume's and the transforms' gradients by atomic adds) after a fill, and the
+//! host uploads each sample once with its candidate bones' mask instead of each pair.
 
 use burn::backend::AutodiffBackend;
 use burn::backend::autodiff::Autodiff;
@@ -24,189 +25,253 @@ use burn_cubecl::ops::numeric::{empty_device_dtype, zeros_client};
 use burn_cubecl::tensor::CubeTensor;
 
 use super::launch_shape;
-pub(crate) use super::skin_kernels::{GRID_PARAMS, PAIR_PARAMS};
-use super::skin_kernels::{blend_backward_kernel, blend_kernel};
+pub(crate) use super::skin_kernels::{
+    CAPSULE_PARAMS, CAPSULE_STARTS, FINGER_TAU, FIRST_FINGER, FRAME_HEAD, MASK_BITS, N_JOINTS, TAU,
+};
+use super::skin_kernels::{warp_backward_kernel, warp_kernel};
 
-/// The blend and its gradients on a backend.
+/// The warp and its gradients on a backend.
 #[backend_extension(Cube: cfg(feature = "wgpu"), Fusion: cfg(feature = "wgpu"), Autodiff)]
-pub trait SkinBlendOps: Backend {
-    /// `[n, 3]` canonical points from the weight `volume` `[C R^3]`, the pairs' canonical
-    /// points `xb` `[m, 3]`, their numbers `pairs` `[m 5 + 7]` (see `skin_kernels`) and
-    /// `slots` `[n, K]` (sample `s`'s `j`-th pair, or `m` for none).
-    #[fusion(meta = blend_meta)]
-    fn skin_blend(
+pub trait SkinWarpOps: Backend {
+    /// `[n, 3]` canonical points from the weight `volume` `[C R^3]`, the joints'
+    /// `transforms` `[55, 12]`, the posed `points` `[n, 3]`, the `frame`'s numbers and
+    /// each sample's candidate bones `masks` `[n, 2]` (see `skin_kernels`).
+    #[fusion(meta = warp_meta)]
+    fn skin_warp(
         volume: FloatTensor<Self>,
-        xb: FloatTensor<Self>,
-        pairs: FloatTensor<Self>,
-        slots: IntTensor<Self>,
+        transforms: FloatTensor<Self>,
+        points: FloatTensor<Self>,
+        frame: FloatTensor<Self>,
+        masks: IntTensor<Self>,
     ) -> FloatTensor<Self>;
 
-    /// The volume's `[C R^3]` and the pairs' points' `[m, 3]` gradients for the output's
-    /// `grad` `[n, 3]`.
-    #[fusion(meta = |volume, xb, _pairs, _slots, _grad| (volume.clone(), xb.clone()))]
-    fn skin_blend_backward(
+    /// The volume's `[C R^3]` and the transforms' `[55, 12]` gradients for the output's
+    /// `grad` `[n, 3]`; the transforms' only with `with_transforms` (else not written).
+    #[fusion(meta = |volume, transforms, _points, _frame, _masks, _grad, _with| {
+        (volume.clone(), transforms.clone())
+    })]
+    fn skin_warp_backward(
         volume: FloatTensor<Self>,
-        xb: FloatTensor<Self>,
-        pairs: FloatTensor<Self>,
-        slots: IntTensor<Self>,
+        transforms: FloatTensor<Self>,
+        points: FloatTensor<Self>,
+        frame: FloatTensor<Self>,
+        masks: IntTensor<Self>,
         grad: FloatTensor<Self>,
+        with_transforms: u32,
     ) -> (FloatTensor<Self>, FloatTensor<Self>);
 }
 
-fn blend_meta(
+fn warp_meta(
     _volume: &TensorSpec,
-    xb: &TensorSpec,
-    _pairs: &TensorSpec,
-    slots: &TensorSpec,
+    _transforms: &TensorSpec,
+    points: &TensorSpec,
+    _frame: &TensorSpec,
+    masks: &TensorSpec,
 ) -> TensorSpec {
-    TensorSpec::new([slots.shape[0], 3].into(), xb.dtype)
+    TensorSpec::new([masks.shape[0], 3].into(), points.dtype)
 }
 
-impl SkinBlendOps for CubeBackend {
-    fn skin_blend(
+impl SkinWarpOps for CubeBackend {
+    fn skin_warp(
         volume: CubeTensor,
-        xb: CubeTensor,
-        pairs: CubeTensor,
-        slots: CubeTensor,
+        transforms: CubeTensor,
+        points: CubeTensor,
+        frame: CubeTensor,
+        masks: CubeTensor,
     ) -> CubeTensor {
-        let [volume, xb, pairs, slots] = [volume, xb, pairs, slots].map(into_contiguous);
-        let n = slots.meta.shape()[0];
-        let client = xb.client.clone();
-        let out = empty_device_dtype(client.clone(), xb.device.clone(), [n, 3].into(), DType::F32);
+        let [volume, transforms, points, frame, masks] =
+            [volume, transforms, points, frame, masks].map(into_contiguous);
+        let n = masks.meta.shape()[0];
+        let client = points.client.clone();
+        let out = empty_device_dtype(
+            client.clone(),
+            points.device.clone(),
+            [n, 3].into(),
+            DType::F32,
+        );
         let (count, dim) = launch_shape(&client, n.max(1));
-        let int = dtype_to_storage_type(slots.dtype);
-        blend_kernel::launch(
+        let int = dtype_to_storage_type(masks.dtype);
+        warp_kernel::launch(
             &client,
             count,
             dim,
             volume.into_tensor_arg(),
-            xb.into_tensor_arg(),
-            pairs.into_tensor_arg(),
-            slots.into_tensor_arg(),
+            transforms.into_tensor_arg(),
+            points.into_tensor_arg(),
+            frame.into_tensor_arg(),
+            masks.into_tensor_arg(),
             out.clone().into_tensor_arg(),
             int,
         );
         out
     }
 
-    fn skin_blend_backward(
+    fn skin_warp_backward(
         volume: CubeTensor,
-        xb: CubeTensor,
-        pairs: CubeTensor,
-        slots: CubeTensor,
+        transforms: CubeTensor,
+        points: CubeTensor,
+        frame: CubeTensor,
+        masks: CubeTensor,
         grad: CubeTensor,
+        with_transforms: u32,
     ) -> (CubeTensor, CubeTensor) {
-        let [volume, xb, pairs, slots, grad] =
-            [volume, xb, pairs, slots, grad].map(into_contiguous);
-        let n = slots.meta.shape()[0];
-        let client = xb.client.clone();
+        let [volume, transforms, points, frame, masks, grad] =
+            [volume, transforms, points, frame, masks, grad].map(into_contiguous);
+        let n = masks.meta.shape()[0];
+        let client = points.client.clone();
+        let shape = |like: &CubeTensor| like.meta.shape().clone();
         let grad_volume = zeros_client(
             client.clone(),
             volume.device.clone(),
-            volume.meta.shape().clone(),
+            shape(&volume),
             DType::F32,
         );
-        // Every pair sits in one slot, so its gradient is written exactly once.
-        let grad_xb = empty_device_dtype(
-            client.clone(),
-            xb.device.clone(),
-            xb.meta.shape().clone(),
-            DType::F32,
-        );
+        // Unread without `with_transforms`, so not zeroed (a fill kernel less).
+        let grad_transforms = if with_transforms != 0 {
+            zeros_client(
+                client.clone(),
+                transforms.device.clone(),
+                shape(&transforms),
+                DType::F32,
+            )
+        } else {
+            empty_device_dtype(
+                client.clone(),
+                transforms.device.clone(),
+                shape(&transforms),
+                DType::F32,
+            )
+        };
         let (count, dim) = launch_shape(&client, n.max(1));
-        let int = dtype_to_storage_type(slots.dtype);
-        blend_backward_kernel::launch(
+        let int = dtype_to_storage_type(masks.dtype);
+        warp_backward_kernel::launch(
             &client,
             count,
             dim,
             volume.into_tensor_arg(),
-            xb.into_tensor_arg(),
-            pairs.into_tensor_arg(),
-            slots.into_tensor_arg(),
+            transforms.into_tensor_arg(),
+            points.into_tensor_arg(),
+            frame.into_tensor_arg(),
+            masks.into_tensor_arg(),
             grad.into_tensor_arg(),
             grad_volume.clone().into_tensor_arg(),
-            grad_xb.clone().into_tensor_arg(),
+            grad_transforms.clone().into_tensor_arg(),
+            with_transforms != 0,
             int,
         );
-        (grad_volume, grad_xb)
+        (grad_volume, grad_transforms)
     }
 }
 
 #[derive(Debug)]
-struct SkinBlendBackward;
+struct SkinWarpBackward;
 
-impl<B: SkinBlendOps> Backward<B, 2> for SkinBlendBackward {
-    /// The volume, the pairs' points, their numbers and the slots.
-    type State = (FloatTensor<B>, FloatTensor<B>, FloatTensor<B>, IntTensor<B>);
+impl<B: SkinWarpOps> Backward<B, 2> for SkinWarpBackward {
+    /// The volume, the transforms, the points, the frame's numbers and the masks.
+    type State = (
+        FloatTensor<B>,
+        FloatTensor<B>,
+        FloatTensor<B>,
+        FloatTensor<B>,
+        IntTensor<B>,
+    );
 
     fn backward(self, ops: Ops<Self::State, 2>, grads: &mut Gradients, _: &mut Checkpointer) {
-        let [volume_node, xb_node] = ops.parents;
+        let [volume_node, transforms_node] = ops.parents;
         let grad = grads.consume::<B>(&ops.node);
-        let (volume, xb, pairs, slots) = ops.state;
-        let (grad_volume, grad_xb) = B::skin_blend_backward(volume, xb, pairs, slots, grad);
+        let (volume, transforms, points, frame, masks) = ops.state;
+        let with_transforms = transforms_node.is_some() as u32;
+        let (grad_volume, grad_transforms) = B::skin_warp_backward(
+            volume,
+            transforms,
+            points,
+            frame,
+            masks,
+            grad,
+            with_transforms,
+        );
         if let Some(node) = volume_node {
             grads.register::<B>(node.id, grad_volume);
         }
-        if let Some(node) = xb_node {
-            grads.register::<B>(node.id, grad_xb);
+        if let Some(node) = transforms_node {
+            grads.register::<B>(node.id, grad_transforms);
         }
     }
 }
 
-impl<B: SkinBlendOps, C: CheckpointStrategy> SkinBlendOps for Autodiff<B, C> {
-    fn skin_blend(
+impl<B: SkinWarpOps, C: CheckpointStrategy> SkinWarpOps for Autodiff<B, C> {
+    fn skin_warp(
         volume: FloatTensor<Self>,
-        xb: FloatTensor<Self>,
-        pairs: FloatTensor<Self>,
-        slots: IntTensor<Self>,
+        transforms: FloatTensor<Self>,
+        points: FloatTensor<Self>,
+        frame: FloatTensor<Self>,
+        masks: IntTensor<Self>,
     ) -> FloatTensor<Self> {
         let (volume, volume_node) = volume.into_parts();
-        let (xb, xb_node) = xb.into_parts();
-        let pairs = pairs.into_primitive();
-        match SkinBlendBackward
-            .prepare::<C>([volume_node, xb_node])
+        let (transforms, transforms_node) = transforms.into_parts();
+        let points = points.into_primitive();
+        let frame = frame.into_primitive();
+        match SkinWarpBackward
+            .prepare::<C>([volume_node, transforms_node])
             .compute_bound()
             .stateful()
         {
             OpsKind::Tracked(prep) => {
-                let out = B::skin_blend(volume.clone(), xb.clone(), pairs.clone(), slots.clone());
-                prep.finish((volume, xb, pairs, slots), out)
+                let out = B::skin_warp(
+                    volume.clone(),
+                    transforms.clone(),
+                    points.clone(),
+                    frame.clone(),
+                    masks.clone(),
+                );
+                prep.finish((volume, transforms, points, frame, masks), out)
             }
-            OpsKind::UnTracked(prep) => prep.finish(B::skin_blend(volume, xb, pairs, slots)),
+            OpsKind::UnTracked(prep) => {
+                prep.finish(B::skin_warp(volume, transforms, points, frame, masks))
+            }
         }
     }
 
     /// The gradients as constants (they are not differentiated again).
-    fn skin_blend_backward(
+    fn skin_warp_backward(
         volume: FloatTensor<Self>,
-        xb: FloatTensor<Self>,
-        pairs: FloatTensor<Self>,
-        slots: IntTensor<Self>,
+        transforms: FloatTensor<Self>,
+        points: FloatTensor<Self>,
+        frame: FloatTensor<Self>,
+        masks: IntTensor<Self>,
         grad: FloatTensor<Self>,
+        with_transforms: u32,
     ) -> (FloatTensor<Self>, FloatTensor<Self>) {
-        let (grad_volume, grad_xb) = B::skin_blend_backward(
+        let (grad_volume, grad_transforms) = B::skin_warp_backward(
             volume.into_primitive(),
-            xb.into_primitive(),
-            pairs.into_primitive(),
-            slots,
+            transforms.into_primitive(),
+            points.into_primitive(),
+            frame.into_primitive(),
+            masks,
             grad.into_primitive(),
+            with_transforms,
         );
-        (Self::from_inner(grad_volume), Self::from_inner(grad_xb))
+        (
+            Self::from_inner(grad_volume),
+            Self::from_inner(grad_transforms),
+        )
     }
 }
 
-/// The blended canonical points `[n, 3]` of `n = slots.dims()[0]` samples (see
-/// [`SkinBlendOps::skin_blend`]). Only for tensors on a CubeCL device.
-pub(crate) fn blend(
+/// The canonical points `[n, 3]` of `n = masks.dims()[0]` samples (see
+/// [`SkinWarpOps::skin_warp`]). Only for tensors on a CubeCL device.
+pub(crate) fn warp(
     volume: Tensor<1>,
-    xb: Tensor<2>,
-    pairs: Tensor<1>,
-    slots: Tensor<2, Int>,
+    transforms: Tensor<2>,
+    points: Tensor<2>,
+    frame: Tensor<1>,
+    masks: Tensor<2, Int>,
 ) -> Tensor<2> {
-    Tensor::from_dispatch(Dispatch::skin_blend(
+    Tensor::from_dispatch(Dispatch::skin_warp(
         volume.into_dispatch(),
-        xb.into_dispatch(),
-        pairs.into_dispatch(),
-        slots.into_dispatch(),
+        transforms.into_dispatch(),
+        points.into_dispatch(),
+        frame.into_dispatch(),
+        masks.into_dispatch(),
     ))
 }
