@@ -13,7 +13,10 @@ use crate::kernels::cube::skin::{
 use crate::util::{floats, ints};
 
 const _: () = assert!(N_JOINTS == N_SMPLX_JOINTS && FIRST_FINGER == super::FIRST_FINGER_JOINT);
-const _: () = assert!(2 * MASK_BITS >= N_SMPLX_JOINTS && MASK_BITS < 31);
+// Two words hold every joint, neither uses an int's sign bit, and the fingers start in
+// the first (the kernel's finger test reads the first word's top bits and all the second).
+const _: () =
+    assert!(2 * MASK_BITS >= N_SMPLX_JOINTS && MASK_BITS < 31 && FIRST_FINGER < MASK_BITS);
 
 impl BlendWeightVolume {
     /// The warp on a CubeCL device (`kernels::cube::skin`): one unit per sample over its

@@ -225,7 +225,6 @@ struct Candidate {
 }
 
 #[cube]
-#[allow(clippy::too_many_arguments)]
 fn candidate(
     volume: &Tensor<f32>,
     transforms: &Tensor<f32>,
