@@ -223,9 +223,9 @@ mod tests {
         assert!((got - 2e4).abs() < 1.0, "{got}");
     }
     /// The device op's pixel loss (`kernels::cube::pixel_loss`) against the CPU's
-    /// composition of the same terms, both on the device: labels of the background and the person, silhouette
-    /// weights of 0, 1/2 and 1, opacities of 0 and 1, logits of 1e4; the loss, its MSE
-    /// and the colour's, opacity's and logits' gradients.
+    /// composition of the same terms, both on the device: labels of the background and
+    /// the person, silhouette weights of 0, 1/2 and 1, opacities of 0 and 1, logits of
+    /// 1e4; the loss, its MSE and the colour's, opacity's and logits' gradients.
     #[cfg(feature = "wgpu")]
     #[test]
     #[ignore = "needs a Vulkan adapter (lavapipe will do): \

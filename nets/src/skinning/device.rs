@@ -5,7 +5,7 @@
 use burn::prelude::*;
 use rayon::prelude::*;
 
-use super::{BlendWeightVolume, BoneCapsule, FINGER_TAU_FRACTION, N_SMPLX_JOINTS, skinned_joint};
+use super::{BlendWeightVolume, BoneCapsule, FINGER_TAU_FRACTION, N_SMPLX_JOINTS};
 use crate::kernels::cube::skin::{
     CAPSULE_PARAMS, CAPSULE_STARTS, FINGER_TAU, FIRST_FINGER, FRAME_HEAD, MASK_BITS, N_JOINTS, TAU,
     warp,
@@ -64,10 +64,7 @@ impl BlendWeightVolume {
     /// The kernel's `frame`: the volume's grid, the posed prior's temperatures (0 when
     /// off) and each skinned joint's capsules (see `skin_kernels`).
     fn frame_numbers(&self, bone_capsules: &[BoneCapsule]) -> Vec<f32> {
-        let mut by_bone: [Vec<&BoneCapsule>; N_SMPLX_JOINTS] = std::array::from_fn(|_| vec![]);
-        for c in bone_capsules {
-            by_bone[skinned_joint(c.bone, self.finger_bones)].push(c);
-        }
+        let by_bone = self.capsules_by_bone(bone_capsules);
         let mut frame = vec![0.0; FRAME_HEAD];
         let r = self.resolution;
         frame[..3].copy_from_slice(&self.aabb[..3]);

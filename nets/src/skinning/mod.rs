@@ -251,6 +251,18 @@ impl BlendWeightVolume {
         skinned_candidates(mask, self.finger_bones)
     }
 
+    /// The frame's posed capsules grouped by the skinned joint whose prior they make.
+    fn capsules_by_bone<'c>(
+        &self,
+        bone_capsules: &'c [BoneCapsule],
+    ) -> [Vec<&'c BoneCapsule>; N_SMPLX_JOINTS] {
+        let mut by_bone: [Vec<&BoneCapsule>; N_SMPLX_JOINTS] = std::array::from_fn(|_| vec![]);
+        for c in bone_capsules {
+            by_bone[skinned_joint(c.bone, self.finger_bones)].push(c);
+        }
+        by_bone
+    }
+
     /// Maps observation-space samples to canonical space (see the module docs).
     ///
     /// # Shapes
@@ -328,8 +340,8 @@ impl BlendWeightVolume {
             let transforms = match transforms {
                 Some(rows) => rows.clone(),
                 None => {
-                    let rows = canonical_from_posed.iter().flat_map(|m| m[..12].to_vec());
-                    floats(rows.collect(), [N_SMPLX_JOINTS, 12], device)
+                    let rows = canonical_from_posed.iter().flat_map(|m| &m[..12]);
+                    floats(rows.copied().collect(), [N_SMPLX_JOINTS, 12], device)
                 }
             };
             let (x_canonical, n_pairs) =

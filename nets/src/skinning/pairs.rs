@@ -10,7 +10,6 @@
 use rayon::prelude::*;
 
 use super::prior::{NO_CAPSULE_LOGIT, capsule_distance};
-use super::skinned_joint;
 use super::{BlendWeightVolume, BoneCapsule, FINGER_MASK, FINGER_TAU_FRACTION, N_SMPLX_JOINTS};
 
 /// Samples a rayon task lays out.
@@ -29,8 +28,6 @@ pub(crate) struct Pairs {
     pub weights: Vec<f32>,
     /// `[m]` the posed-space prior's logit (0 when off).
     pub posed: Vec<f32>,
-    /// `[n + 1]` where each sample's pairs start (the last entry is `m`).
-    pub start: Vec<usize>,
 }
 
 /// One task's stretch of every output column.
@@ -81,14 +78,12 @@ impl BlendWeightVolume {
         canonical_from_posed: &[[f32; 16]],
         bone_capsules: &[BoneCapsule],
     ) -> Pairs {
-        let mut by_bone: [Vec<&BoneCapsule>; N_SMPLX_JOINTS] = std::array::from_fn(|_| vec![]);
-        for c in bone_capsules {
-            by_bone[skinned_joint(c.bone, self.finger_bones)].push(c);
-        }
+        let by_bone = self.capsules_by_bone(bone_capsules);
         let candidates: Vec<u64> = bone_masks
             .par_iter()
             .map(|&mask| self.candidates(mask))
             .collect();
+        // Where each sample's pairs start (the last entry is `m`).
         let mut start = Vec::with_capacity(candidates.len() + 1);
         start.push(0);
         for c in &candidates {
@@ -102,7 +97,6 @@ impl BlendWeightVolume {
             rows: vec![0; 8 * m],
             weights: vec![0.0; 8 * m],
             posed: vec![0.0; m],
-            start,
         };
 
         // Cut every column at the tasks' first pairs.
@@ -112,7 +106,7 @@ impl BlendWeightVolume {
         let mut posed = &mut p.posed[..];
         for first in (0..points.len()).step_by(SAMPLES_PER_TASK) {
             let end = (first + SAMPLES_PER_TASK).min(points.len());
-            let k = p.start[end] - p.start[first];
+            let k = start[end] - start[first];
             let s;
             (s, sample) = sample.split_at_mut(k);
             let b;

@@ -215,12 +215,13 @@ fn sample_tau<I: Int>(frame: &Tensor<f32>, masks: &Tensor<I>, s: usize) -> f32 {
     tau
 }
 
-/// One candidate: its canonical point and its logit (the trilinear read of its channel,
-/// then the prior: in that order, as on the CPU, where a bone without a capsule adds
-/// -1e4, of which an f32 holds only a thousandth).
+/// One candidate: its canonical point, where it reads the volume and its logit (the
+/// trilinear read of its channel, then the prior: in that order, as on the CPU, where a
+/// bone without a capsule adds -1e4, of which an f32 holds only a thousandth).
 #[derive(CubeType)]
 struct Candidate {
     xb: Point,
+    corners: Corners,
     logit: f32,
 }
 
@@ -243,6 +244,7 @@ fn candidate(
     }
     Candidate {
         xb,
+        corners: c,
         logit: l + posed_logit(frame, b, x, tau),
     }
 }
@@ -380,11 +382,10 @@ pub(crate) fn warp_backward_kernel<I: Int>(
             let w = f32::exp(c.logit - sm.max) * inv;
             let g_dot_xb = gx * c.xb.x + gy * c.xb.y + gz * c.xb.z;
             let dl = w * (g_dot_xb - g_dot_x);
-            let corners = corners_of(&c.xb, u32::cast_from(b), &grid);
             #[unroll]
             for corner in 0..8u32 {
-                grad_volume[corner_row(&corners, corner, grid.res)]
-                    .fetch_add(corner_weight(&corners, corner) * dl);
+                grad_volume[corner_row(&c.corners, corner, grid.res)]
+                    .fetch_add(corner_weight(&c.corners, corner) * dl);
             }
             if with_transforms {
                 let m = b * 12;
