@@ -281,10 +281,7 @@ fn softmax_of<I: Int>(
     #[unroll]
     for word in 0..2usize {
         let mut bits = u32::cast_from(masks[s * 2 + word]);
-        loop {
-            if bits == 0 {
-                break;
-            }
+        while bits != 0 {
             let b = word * MASK_BITS + usize::cast_from(bits.trailing_zeros());
             bits &= bits - 1;
             let c = candidate(volume, transforms, frame, b, x, tau, grid);
@@ -372,10 +369,7 @@ pub(crate) fn warp_backward_kernel<I: Int>(
     #[unroll]
     for word in 0..2usize {
         let mut bits = u32::cast_from(masks[s * 2 + word]);
-        loop {
-            if bits == 0 {
-                break;
-            }
+        while bits != 0 {
             let b = word * MASK_BITS + usize::cast_from(bits.trailing_zeros());
             bits &= bits - 1;
             let c = candidate(volume, transforms, frame, b, &x, tau, &grid);
