@@ -18,6 +18,9 @@ use crate::rows::add_rows;
 use crate::util::{floats, ints};
 use burn::prelude::*;
 
+mod distortion;
+pub use distortion::distortion;
+
 /// Per-sample optical depth cap (see the module docs).
 pub const MAX_OPTICAL_DEPTH: f32 = 50.0;
 
