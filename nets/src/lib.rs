@@ -47,7 +47,7 @@ pub use device::{
 };
 pub use error::NetsError;
 pub use field::{
-    FieldConfig, FieldInput, FieldOutput, FrameConditions, PoseGrads, PoseLeaves, TalkinField,
-    UnitMap,
+    FieldConfig, FieldInput, FieldOutput, FrameCodes, FrameConditions, PoseGrads, PoseLeaves,
+    TalkinField, UnitMap,
 };
 pub use render::{RaySamples, RenderedRays, render_packed};

@@ -47,6 +47,7 @@ pub fn frame_conditions(
         jaw,
         hand_pose: params.hand_condition().to_vec(),
         bone_capsules: skinning_cores(&scene.capsules, shells, finger_bones),
+        frame_code: None,
     }
 }
 

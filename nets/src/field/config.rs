@@ -85,10 +85,28 @@ pub struct FieldConfig {
     /// Condition F_face on `e = [psi; jaw]` (13); false: psi only (10).
     #[config(default = true)]
     pub face_uses_jaw: bool,
+    /// Per-frame latent codes ([`FrameCodes`]); `None` (checkpoints written before the
+    /// codes existed, and runs without them): none.
+    #[config(default = "None")]
+    pub frame_codes: Option<FrameCodes>,
     /// How canonical points map into the nets' unit cube; `None` (checkpoints written
     /// before the choice existed) is [`UnitMap::PerAxis`].
     #[config(default = "None")]
     pub unit_map: Option<UnitMap>,
+}
+
+/// Per-frame latent codes: one per training frame, read by F_body (and by D_nr with
+/// `deform`) beside the identity code, so that what changes from frame to frame need not
+/// be averaged into the canonical body; frames the run did not train on read the codes'
+/// mean.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub struct FrameCodes {
+    /// Codes (the run's training frames, in order).
+    pub count: usize,
+    /// Width of a code.
+    pub dim: usize,
+    /// D_nr reads the code too (a deformation code).
+    pub deform: bool,
 }
 
 /// How canonical points map into the unit cube the encodings and deformation nets see.
@@ -211,16 +229,23 @@ impl FieldConfig {
                 encoding,
             }
         };
+        let codes = self.frame_codes.filter(|c| c.count > 0 && c.dim > 0);
+        let code_dim = codes.map_or(0, |c| c.dim);
+        let deform_code_dim = codes.filter(|c| c.deform).map_or(0, |c| c.dim);
         let non_rigid = self
             .non_rigid_start_step
-            .map(|_| deform(self.non_rigid_window, self.pose_dim, rng));
-        let body = radiance(body_encoding, &self.body, 0, 4 + N_SEG_CLASSES, rng);
+            .map(|_| deform(self.non_rigid_window, self.pose_dim + deform_code_dim, rng));
+        let body = radiance(body_encoding, &self.body, code_dim, 4 + N_SEG_CLASSES, rng);
         let face = face_encoding.map(|e| radiance(e, &self.face, self.expression_dim(), 4, rng));
         let hand_deform = (self.has_hands && self.use_d_hands)
             .then(|| deform(self.hand_window, HAND_POSE_DIM, rng));
         let hands = hands_encoding.map(|e| radiance(e, &self.hands, 0, 4, rng));
+        // Zeros, not drawn: a seed gives the rest of the field it gave without codes.
+        let frame_codes =
+            codes.map(|c| Param::from_tensor(Tensor::zeros([c.count, c.dim], device)));
         Ok(TalkinField {
             identity: Param::from_tensor(identity),
+            frame_codes,
             skinning,
             non_rigid,
             body,
@@ -236,6 +261,7 @@ impl FieldConfig {
                 unit_map: self.unit_map.unwrap_or(UnitMap::PerAxis),
                 pose_dim: self.pose_dim,
                 n_identities: self.n_identities.max(1),
+                frame_code_deform: deform_code_dim > 0,
             },
         })
     }

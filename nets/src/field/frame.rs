@@ -22,6 +22,9 @@ pub struct FrameConditions {
     /// The posed solid cores of the bones, each labelled with its SMPL-X joint, for the
     /// skinning's posed-space prior (see [`crate::skinning`]); unused without it.
     pub bone_capsules: Vec<BoneCapsule>,
+    /// The training frame's latent code (a row of [`crate::TalkinField::frame_codes`]);
+    /// `None`, every frame the run did not train on: the mean of the codes.
+    pub frame_code: Option<usize>,
 }
 
 impl FrameConditions {
@@ -41,6 +44,7 @@ impl FrameConditions {
             jaw: [0.2, 0.0, 0.0],
             hand_pose: vec![0.0; HAND_POSE_DIM],
             bone_capsules: vec![],
+            frame_code: None,
         }
     }
 }

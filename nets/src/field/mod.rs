@@ -23,7 +23,7 @@ mod frame;
 pub mod leaves;
 mod routing;
 
-pub use config::{FieldConfig, PART_LOG2_ENTRIES, POSED_TAU_M, UnitMap};
+pub use config::{FieldConfig, FrameCodes, PART_LOG2_ENTRIES, POSED_TAU_M, UnitMap};
 pub use frame::FrameConditions;
 pub use leaves::{PoseGrads, PoseLeaves};
 pub use routing::Routing;
@@ -106,6 +106,7 @@ struct FieldSettings {
     unit_map: UnitMap,
     pose_dim: usize,
     n_identities: usize,
+    frame_code_deform: bool,
 }
 
 impl FieldSettings {
@@ -182,6 +183,12 @@ pub struct FieldOutput {
 }
 
 impl FieldOutput {
+    /// The distortion of every ray's body pass ([`crate::render::distortion`]): how far
+    /// each ray's weight is spread along it. `[r]`
+    pub fn distortion(&self, samples: &RaySamples) -> Result<Tensor<1>, NetsError> {
+        crate::render::distortion(self.sigma.clone(), samples)
+    }
+
     /// Volume-renders the batch: pass 1 composites every sample's body/face output;
     /// with hand samples, pass 2 composites them in ray order in front of pass 1's colour.
     pub fn render(&self, samples: &RaySamples) -> Result<RenderedRays, NetsError> {
@@ -206,6 +213,8 @@ impl FieldOutput {
 pub struct TalkinField {
     /// Identity codes. `[n_identities, identity_dim]`
     pub identity: Param<Tensor<2>>,
+    /// Per-frame codes (`FieldConfig::frame_codes`). `[frames, frame_code_dim]`
+    pub frame_codes: Option<Param<Tensor<2>>>,
     /// D_r's weight volume.
     pub skinning: BlendWeightVolume,
     /// D_nr (absent when the config never starts it).
@@ -249,6 +258,14 @@ fn seg_logits_of(raw: Tensor<2>) -> Tensor<2> {
         return columns(raw, 4, N_SEG_CLASSES, Activation::None);
     }
     raw.narrow(1, 4, N_SEG_CLASSES)
+}
+
+/// F_body's condition row: the frame code (if any) and the identity code. `[1, d]`
+fn body_condition(code: Option<&Tensor<2>>, identity: &Tensor<2>) -> Tensor<2> {
+    match code {
+        Some(c) => Tensor::cat(vec![c.clone(), identity.clone()], 1),
+        None => identity.clone(),
+    }
 }
 
 /// `base` with rows `idx` replaced by `values` (unique indices; gradients exact).
@@ -409,15 +426,17 @@ impl TalkinField {
                 stats,
             });
         }
-        let x = self.deform(warp.x_canonical, input, leaves, &mut stats); // [n, 3]
+        let code = self.frame_code(frame)?; // [1, code] or none
+        let x = self.deform(warp.x_canonical, input, code.as_ref(), leaves, &mut stats); // [n, 3]
         let identity = gather_rows(
             self.identity.val(),
             ints(vec![frame.identity as i32], &device),
         ); // [1, id]
+        let body_condition = body_condition(code.as_ref(), &identity);
         let raw = self.body.forward(
             self.to_unit(x.clone()),
             frame.identity,
-            identity.clone(),
+            body_condition,
             step,
         ); // [n, 9]
         let (mut sigma, mut rgb) = activate(&raw);
@@ -457,11 +476,66 @@ impl TalkinField {
         })
     }
 
+    /// F_body's condition row for a subject's identity row `[1, id]` (`[id]`'s row of
+    /// [`TalkinField::identity`]) at a frame the run did not train on: the codes' mean
+    /// beside it, or the identity alone without codes. `[1, d]`
+    pub fn body_condition_unseen(&self, identity: Tensor<2>) -> Tensor<2> {
+        let mean = self.frame_codes.as_ref().map(|c| c.val().mean_dim(0));
+        body_condition(mean.as_ref(), &identity)
+    }
+
+    /// Frames with codes (0 without them).
+    pub fn n_frame_codes(&self) -> usize {
+        self.frame_codes.as_ref().map_or(0, |c| c.val().dims()[0])
+    }
+
+    /// The frame's code row `[1, d]`: its own, or for a frame without one the mean of
+    /// the codes; `None` for a field without codes.
+    fn frame_code(&self, frame: &FrameConditions) -> Result<Option<Tensor<2>>, NetsError> {
+        let Some(codes) = &self.frame_codes else {
+            return Ok(None);
+        };
+        let codes = codes.val();
+        Ok(Some(match frame.frame_code {
+            Some(i) if i < codes.dims()[0] => {
+                gather_rows(codes, ints(vec![i as i32], &self.device()))
+            }
+            Some(i) => {
+                return Err(NetsError::Index {
+                    what: "frame code",
+                    index: i,
+                    limit: codes.dims()[0],
+                });
+            }
+            None => codes.mean_dim(0),
+        }))
+    }
+
+    /// The squared norm of the frame's own code (`[1]`), for its prior; `None` for a
+    /// frame without a code or a field without codes.
+    pub fn frame_code_norm2(&self, frame: &FrameConditions) -> Option<Tensor<1>> {
+        let codes = self.frame_codes.as_ref()?.val();
+        let i = frame.frame_code.filter(|&i| i < codes.dims()[0])?;
+        let row = gather_rows(codes, ints(vec![i as i32], &self.device()));
+        Some(row.powi_scalar(2).sum())
+    }
+
+    /// The field with `n` frame codes, each the mean of its current ones (a run that
+    /// goes on training on other frames: an adaptation); unchanged without codes.
+    pub fn reset_frame_codes(mut self, n: usize) -> TalkinField {
+        if let Some(codes) = &self.frame_codes {
+            let mean = codes.val().mean_dim(0).detach(); // [1, d]
+            self.frame_codes = Some(Param::from_tensor(mean.repeat_dim(0, n.max(1))));
+        }
+        self
+    }
+
     /// D_nr on the rigidly warped canonical points, once its start step is reached.
     fn deform(
         &self,
         x: Tensor<2>,
         input: &FieldInput,
+        code: Option<&Tensor<2>>,
         leaves: Option<&PoseLeaves>,
         stats: &mut RoutingStats,
     ) -> Tensor<2> {
@@ -480,8 +554,12 @@ impl TalkinField {
                 &self.device(),
             ),
         };
+        let condition = match code {
+            Some(c) if self.settings.frame_code_deform => Tensor::cat(vec![pose, c.clone()], 1),
+            _ => pose,
+        };
         stats.non_rigid_rows = x.dims()[0];
-        x.clone() + nr.forward(self.to_unit(x), pose, input.step)
+        x.clone() + nr.forward(self.to_unit(x), condition, input.step)
     }
 
     /// The part's routed rows (candidate bit `bit`, label `label`) and their points of

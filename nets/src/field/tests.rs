@@ -431,6 +431,106 @@ fn non_rigid_switches_on_at_its_step() {
     assert_eq!(field.forward(&input).unwrap().stats.non_rigid_rows, n);
 }
 
+/// A frame with a code reads its own row, F_body and (with `frame_code_deform`) D_nr
+/// see it, a frame without one reads the codes' mean, a code past the last is refused,
+/// and codes drawn from no RNG leave the rest of a seeded field as it was.
+#[test]
+fn frame_codes_are_read_per_frame_and_their_mean_elsewhere() {
+    let device = Device::flex();
+    let config = |count: usize, deform: bool| FieldConfig {
+        frame_codes: Some(FrameCodes {
+            count,
+            dim: 4,
+            deform,
+        }),
+        ..tiny_fast()
+    };
+    let without = tiny_fast()
+        .init(&ladder_prior(), &device, &mut WeightRng::seeded(5))
+        .unwrap();
+    let mut field = config(3, true)
+        .init(&ladder_prior(), &device, &mut WeightRng::seeded(5))
+        .unwrap();
+    assert_eq!(field.n_frame_codes(), 3);
+    assert_eq!(without.n_frame_codes(), 0);
+    assert_eq!(
+        host(&field.identity.val()),
+        host(&without.identity.val()),
+        "the codes draw nothing"
+    );
+    let codes = floats(
+        vec![1.0, 0.0, 0.0, 0.0, -1.0, 0.0, 0.5, 0.0, 0.0, 0.0, -0.5, 0.0],
+        [3, 4],
+        &device,
+    );
+    field.frame_codes = Some(Param::from_tensor(codes));
+    let (pts, _) = batch(3, 4);
+    let n = pts.len();
+    let (bones, parts) = (vec![1u64 << 3; n], vec![0u8; n]);
+    let render = |field: &TalkinField, code: Option<usize>| {
+        let frame = FrameConditions {
+            frame_code: code,
+            ..FrameConditions::still()
+        };
+        let input = FieldInput {
+            points: &pts,
+            bone_masks: &bones,
+            part_masks: &parts,
+            frame: &frame,
+            step: 100,
+        };
+        field
+            .forward(&input)
+            .map(|o| (host(&o.rgb), host(&o.x_canonical)))
+    };
+    let (rgb0, x0) = render(&field, Some(0)).unwrap();
+    let (rgb1, x1) = render(&field, Some(1)).unwrap();
+    assert_ne!(rgb0, rgb1, "F_body reads the code");
+    assert_ne!(x0, x1, "D_nr reads the code");
+    // A frame without a code renders as a field whose only code is the mean.
+    let mean = host(&field.frame_codes.as_ref().unwrap().val().mean_dim(0));
+    let mut single = field.clone();
+    single.frame_codes = Some(Param::from_tensor(floats(mean, [1, 4], &device)));
+    assert_eq!(
+        render(&field, None).unwrap(),
+        render(&single, Some(0)).unwrap()
+    );
+    assert!(matches!(
+        render(&field, Some(3)),
+        Err(NetsError::Index {
+            what: "frame code",
+            ..
+        })
+    ));
+    // Without the deformation code, D_nr does not read it.
+    let body_only = config(3, false)
+        .init(&ladder_prior(), &device, &mut WeightRng::seeded(5))
+        .unwrap();
+    let body_only = body_only.reset_frame_codes(2);
+    assert_eq!(body_only.n_frame_codes(), 2);
+    let mut body_only = body_only;
+    body_only.frame_codes = field.frame_codes.clone();
+    assert_eq!(
+        render(&body_only, Some(0)).unwrap().1,
+        render(&body_only, Some(1)).unwrap().1
+    );
+    assert_ne!(
+        render(&body_only, Some(0)).unwrap().0,
+        render(&body_only, Some(1)).unwrap().0
+    );
+    // Its prior term: the squared norm of the frame's own row, none for a mean frame.
+    let norm2 = |code| {
+        field
+            .frame_code_norm2(&FrameConditions {
+                frame_code: code,
+                ..FrameConditions::still()
+            })
+            .map(|t| host(&t))
+    };
+    assert_eq!(norm2(Some(0)), Some(vec![1.0]));
+    assert_eq!(norm2(None), None);
+}
+
 #[test]
 fn rejects_bad_conditions() {
     let device = Device::flex();
