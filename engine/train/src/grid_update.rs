@@ -108,9 +108,12 @@ fn canonical_density(
         Tensor::<1, Int>::from_data(TensorData::new(vec![subject as i32], [1]), &device),
     ); // [1, id]
     let host = |t: Tensor<2>| talkin_nets::read_floats(t).ok();
-    let body = field
-        .body
-        .forward(unit.clone(), subject, id.clone(), usize::MAX);
+    let body = field.body.forward(
+        unit.clone(),
+        subject,
+        field.body_condition_unseen(id.clone()),
+        usize::MAX,
+    );
     let (Some(body_sigma), Some(seg)) = (
         host(body.clone().narrow(1, 0, 1)),
         host(body.narrow(1, 4, N_SEG_CLASSES)),

@@ -26,6 +26,9 @@ use talkin_nets::kernels::grad_sum::sum_grads;
 pub const SEG_WEIGHT: f32 = 0.05;
 /// Weight of the MSE next to the perceptual term (the paper's 0.2).
 pub const MSE_WEIGHT: f32 = 0.2;
+/// Weight of the frame codes' Gaussian prior (their squared norm): it keeps a code near
+/// the others' mean, which is what frames without a code render with.
+pub const FRAME_CODE_PRIOR: f32 = 1e-2;
 
 /// One step's batch as the loss sees it.
 pub(crate) struct StepBatch<'a> {
@@ -44,6 +47,8 @@ pub(crate) struct StepBatch<'a> {
     pub background: [f32; 3],
     /// Weight of the opacity-against-mask term (0: off).
     pub mask_weight: f32,
+    /// Weight of the distortion term (0: off).
+    pub distortion: f32,
     /// Differentiate with respect to the frame's pose too (pose refinement).
     pub pose_grads: bool,
 }
@@ -184,11 +189,15 @@ fn half(
     let leaves = batch
         .pose_grads
         .then(|| PoseLeaves::new(batch.frame, &device));
-    let rendered = match &leaves {
+    let out = match &leaves {
         Some(l) => field.forward_with_leaves(&input, l)?,
         None => field.forward(&input)?,
-    }
-    .render(&layout.view())?;
+    };
+    let rendered = out.render(&layout.view())?;
+    let distortion = (batch.distortion > 0.0)
+        .then(|| out.distortion(&layout.view()))
+        .transpose()?
+        .map(|d| d.mean().mul_scalar(batch.distortion));
     let target = Tensor::<2>::from_data(
         TensorData::new(
             batch.rgb[3 * range.start..3 * range.end].to_vec(),
@@ -227,7 +236,14 @@ fn half(
         silhouette: sure.as_ref().map(|sure| (sure, batch.mask_weight)),
         weights,
     });
-    let pixel = pixel.mul_scalar(weight);
+    let code_prior = field
+        .frame_code_norm2(batch.frame)
+        .map(|n2| n2.mul_scalar(FRAME_CODE_PRIOR));
+    let pixel = [distortion, code_prior]
+        .into_iter()
+        .flatten()
+        .fold(pixel, |sum, term| sum + term)
+        .mul_scalar(weight);
     let loss = match perceptual {
         Some(p) if with_patches && range.start == 0 => {
             let (k, side) = (batch.patches, batch.patch_side);
@@ -384,6 +400,7 @@ mod tests {
                 step: 0,
                 background: [1.0; 3],
                 mask_weight: 0.1,
+                distortion: 0.0,
                 pose_grads: false,
             };
             let whole_batch = batch();

@@ -19,8 +19,35 @@ use crate::refine::RefineOptions;
 /// Where `talkin lpips-weights` puts the converted LPIPS weights (a per-user cache).
 pub use talkin_nets::loss::DEFAULT_LPIPS_DIR;
 
+/// The widest frame code `--frame-codes` takes (the identity code is 32 wide).
+pub const MAX_FRAME_CODE_DIM: usize = 64;
+
 /// The widest mask edge `--mask-edge` takes (a wider one leaves thin limbs no rays).
 pub const MAX_MASK_EDGE_PX: u32 = 16;
+
+/// What a camera capture trains with where the command line names nothing else, by
+/// the option's clap id, each measured on a real capture (docs/results.md, "A real
+/// capture"): 512 random rays a step and no LPIPS patches (a 1024-ray step with one
+/// AlexNet patch fits half the steps and paints a glowing sheath over black), every pixel
+/// trained, the mask's edge included (scored over black the outline then gains), a
+/// random background colour each step, and a code per training frame read by F_body and
+/// D_nr.
+pub const CAPTURE_RECIPE: [(&str, fn(&mut TrainOptions)); 6] = [
+    ("batch_rays", |o| o.batch_rays = 512),
+    ("patches", |o| o.patches = 0),
+    ("mask_edge_px", |o| o.mask_edge_px = Some(0)),
+    ("random_background", |o| o.random_background = true),
+    ("frame_code_dim", |o| {
+        o.frame_code_dim = CAPTURE_FRAME_CODE_DIM
+    }),
+    // After the width: codes named off (`--frame-codes 0`) leave D_nr without one.
+    ("frame_code_deform", |o| {
+        o.frame_code_deform = o.frame_code_dim > 0
+    }),
+];
+
+/// The width of a camera capture's frame codes.
+pub const CAPTURE_FRAME_CODE_DIM: usize = 16;
 
 /// Everything a run is told.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, Args)]
@@ -75,6 +102,31 @@ pub struct TrainOptions {
     // Runs recorded before the term existed read as 0.
     #[serde(default)]
     pub mask_weight: f32,
+    /// Weight of the distortion loss (Mip-NeRF 360's, on the body pass, distances in
+    /// metres): it draws each ray's weight into one short stretch, a surface, instead of
+    /// a cloud spread through the shells' depth; 0: off.
+    #[arg(long, default_value_t = TrainOptions::default().distortion, help_heading = "Loss")]
+    // Runs recorded before the term existed read as 0.
+    #[serde(default)]
+    pub distortion: f32,
+    /// Width of a per-frame latent code read by F_body beside the identity code (one
+    /// code per training frame, with a Gaussian prior; every other frame renders with
+    /// their mean); 0: no codes.
+    #[arg(long = "frame-codes", value_name = "DIM", default_value_t = TrainOptions::default().frame_code_dim, help_heading = "Model and device")]
+    // Runs recorded before the codes existed had none.
+    #[serde(default)]
+    pub frame_code_dim: usize,
+    /// D_nr reads the frame code too (a deformation code): `on` or `off`.
+    #[arg(long = "frame-code-deform", value_name = "on|off", default_value = "off", value_parser = PossibleValuesParser::new(["on", "off"]).map(|s| s == "on"), action = clap::ArgAction::Set, help_heading = "Model and device")]
+    #[serde(default)]
+    pub frame_code_deform: bool,
+    /// Composite each step's targets and render over a random colour instead of the
+    /// dataset's background (HumanNeRF, InstantAvatar), on a dataset composited by its
+    /// masks (camera frames; a matted one keeps its background): `on` or `off`.
+    #[arg(long = "random-background", value_name = "on|off", default_value = "off", value_parser = PossibleValuesParser::new(["on", "off"]).map(|s| s == "on"), action = clap::ArgAction::Set, help_heading = "Loss")]
+    // Runs recorded before the option existed trained over the dataset's background.
+    #[serde(default)]
+    pub random_background: bool,
     /// Leave the mask's edge out of the random rays: pixels within PX of the mask's cut,
     /// on either side, where a matting tool's mask is often a pixel or two off (Neural
     /// Body leaves out 2 px). Default: 0 on a matted dataset (exact masks), and on a
@@ -125,6 +177,10 @@ pub struct TrainOptions {
 
 fn one() -> f64 {
     1.0
+}
+
+fn yes() -> bool {
+    true
 }
 
 fn every_pixel() -> Option<u32> {
@@ -295,6 +351,13 @@ pub struct Ablation {
     /// on the demo `off` scored higher in the same minutes (docs/results.md).
     #[arg(long = "hand-deform", value_name = "on|off", default_value = "on", value_parser = PossibleValuesParser::new(["on", "off"]).map(|s| s == "on"), action = clap::ArgAction::Set, help_heading = "Model and device")]
     pub use_d_hands: bool,
+    /// D_nr, the non-rigid offset of every body sample from the body pose: `on` or `off`
+    /// (inverse skinning alone carries the body; the pose-dependent folds of clothes are
+    /// then averaged into one canonical body).
+    #[arg(long = "non-rigid", value_name = "on|off", default_value = "on", value_parser = PossibleValuesParser::new(["on", "off"]).map(|s| s == "on"), action = clap::ArgAction::Set, help_heading = "Model and device")]
+    // Runs recorded before the switch existed had D_nr.
+    #[serde(default = "yes")]
+    pub non_rigid: bool,
     /// The body's rendered colour is the hands' background (off: "w/o background").
     #[arg(skip = true)]
     pub hand_background: bool,
@@ -307,6 +370,7 @@ impl Default for Ablation {
     fn default() -> Self {
         Ablation {
             use_d_hands: true,
+            non_rigid: true,
             hand_background: true,
             face_uses_jaw: true,
         }
@@ -328,6 +392,10 @@ impl Default for TrainOptions {
             lr: None,
             bbox_fraction: 0.8,
             mask_weight: 1.0,
+            distortion: 0.0,
+            random_background: false,
+            frame_code_dim: 0,
+            frame_code_deform: false,
             mask_edge_px: None,
             non_rigid_lr_scale: 0.1,
             occ_every: 64,
@@ -350,6 +418,21 @@ impl TrainOptions {
     /// The perceptual term's weights directory, if the recipe has the term at all.
     pub fn perceptual_dir(&self) -> Option<&PathBuf> {
         self.perceptual.as_ref().filter(|_| self.patches > 0)
+    }
+
+    /// This recipe for `dataset`. On a camera capture (`"matting": "by_mask"`, what
+    /// `import` writes) every option of [`CAPTURE_RECIPE`] the command line did not name
+    /// (`named(id)` false for its clap id) takes the capture's value; the built-in scene
+    /// and matted data keep the recipe as given.
+    pub fn for_dataset(mut self, dataset: &Dataset, named: impl Fn(&str) -> bool) -> Self {
+        if dataset.matting == Matting::ByMask {
+            for (id, set) in CAPTURE_RECIPE {
+                if !named(id) {
+                    set(&mut self);
+                }
+            }
+        }
+        self
     }
 
     /// The mask edge left out of frame `i`'s random rays (`--mask-edge`), in pixels.
@@ -389,6 +472,21 @@ impl TrainOptions {
         }
         if !(self.mask_weight.is_finite() && self.mask_weight >= 0.0) {
             return bad("--mask-weight", "must be a finite number >= 0");
+        }
+        if self.frame_code_dim > MAX_FRAME_CODE_DIM {
+            return bad(
+                "--frame-codes",
+                &format!("must be at most {MAX_FRAME_CODE_DIM}"),
+            );
+        }
+        if self.frame_code_deform && self.frame_code_dim == 0 {
+            return bad(
+                "--frame-code-deform",
+                "needs codes: give --frame-codes DIM > 0",
+            );
+        }
+        if !(self.distortion.is_finite() && self.distortion >= 0.0) {
+            return bad("--distortion", "must be a finite number >= 0");
         }
         if let Some(px) = self.mask_edge_px
             && px > MAX_MASK_EDGE_PX
@@ -464,7 +562,22 @@ mod tests {
                 ..TrainOptions::default()
             };
             assert_eq!(flag_of(opts), "--mask-weight");
+            let opts = TrainOptions {
+                distortion: w,
+                ..TrainOptions::default()
+            };
+            assert_eq!(flag_of(opts), "--distortion");
         }
+        let opts = TrainOptions {
+            frame_code_deform: true,
+            ..TrainOptions::default()
+        };
+        assert_eq!(flag_of(opts), "--frame-code-deform");
+        let opts = TrainOptions {
+            frame_code_dim: MAX_FRAME_CODE_DIM + 1,
+            ..TrainOptions::default()
+        };
+        assert_eq!(flag_of(opts), "--frame-codes");
         let opts = TrainOptions {
             lr: Some(0.0),
             ..TrainOptions::default()
@@ -572,5 +685,51 @@ mod tests {
         old.as_object_mut().unwrap().remove("skin_fingers");
         let old: TrainOptions = serde_json::from_value(old).unwrap();
         assert_eq!(old.skin_fingers, FingerSkinning::Wrist);
+    }
+
+    /// A camera capture takes the capture recipe wherever the command line named nothing,
+    /// and every id in it is a real option's (a renamed field would leave it unapplied).
+    #[test]
+    fn a_capture_takes_the_capture_recipe_where_nothing_was_named() {
+        use clap::CommandFactory;
+        let ids: Vec<String> = Cli::command()
+            .get_arguments()
+            .map(|a| a.get_id().to_string())
+            .collect();
+        for (id, _) in CAPTURE_RECIPE {
+            assert!(ids.iter().any(|i| i == id), "`{id}` is no option's id");
+        }
+        let dataset = |matting| Dataset {
+            root: PathBuf::new(),
+            background: [1.0; 3],
+            matting,
+            subjects: vec![],
+            frames: vec![],
+        };
+        let given = TrainOptions::default();
+        let matted = given
+            .clone()
+            .for_dataset(&dataset(Matting::Matted), |_| false);
+        assert_eq!(matted, given);
+        let capture = given
+            .clone()
+            .for_dataset(&dataset(Matting::ByMask), |_| false);
+        assert_eq!((capture.batch_rays, capture.patches), (512, 0));
+        assert_eq!(capture.mask_edge_px, Some(0));
+        assert!(capture.random_background && capture.frame_code_deform);
+        assert_eq!(capture.frame_code_dim, CAPTURE_FRAME_CODE_DIM);
+        assert!(capture.check().is_ok());
+        // What the command line named stays as given.
+        let named = parse(&["--batch", "2048", "--mask-edge", "2"])
+            .unwrap()
+            .for_dataset(&dataset(Matting::ByMask), |id| {
+                id == "batch_rays" || id == "mask_edge_px"
+            });
+        assert_eq!((named.batch_rays, named.patches), (2048, 0));
+        assert_eq!(named.mask_edge_px, Some(2));
+        let without_codes = parse(&["--frame-codes", "0"])
+            .unwrap()
+            .for_dataset(&dataset(Matting::ByMask), |id| id == "frame_code_dim");
+        assert!(!without_codes.frame_code_deform && without_codes.check().is_ok());
     }
 }

@@ -16,6 +16,7 @@ use crate::rays::{Batch, BatchSpec, CacheError, FrameCache, PATCH, draw_batch};
 use crate::refine::chain::correction_gradient;
 use crate::schedule;
 use crate::trainer::Trainer;
+use talkin_data::dataset::Matting;
 use talkin_nets::PoseGrads;
 use talkin_nets::skinning::skinned_candidates;
 
@@ -37,7 +38,11 @@ impl Trainer<'_> {
             .refiner
             .as_ref()
             .is_some_and(|r| r.learning_at(self.step));
-        let batch = self.draw_rays(frame, vstep)?;
+        let mut batch = self.draw_rays(frame, vstep)?;
+        let background = self.step_background();
+        if background != self.dataset.background {
+            batch.recomposite(self.dataset.background, background);
+        }
 
         // Samples along each ray, by the run's sampler (timed for the log).
         let sampling_start = Instant::now();
@@ -52,7 +57,7 @@ impl Trainer<'_> {
             values,
             grads,
             pose,
-        } = self.field_loss(frame, &batch, samples, vstep, refining)?;
+        } = self.field_loss(frame, &batch, background, samples, vstep, refining)?;
         if let LossValues::Read { loss, .. } = values
             && !loss.is_finite()
         {
@@ -141,7 +146,10 @@ impl Trainer<'_> {
 
     /// A seeded training frame, cached with its decoded images and sampler on first use.
     fn pick_frame(&mut self) -> Result<usize, TrainError> {
-        let i = self.frames[self.rng.below(self.frames.len() as u64) as usize];
+        let k = self.rng.below(self.frames.len() as u64) as usize;
+        let i = self.frames[k];
+        // A run's frame codes are its training frames', in order.
+        let code = (k < self.field().n_frame_codes()).then_some(k);
         if let std::collections::hash_map::Entry::Vacant(entry) = self.cache.entry(i) {
             let subject = self.dataset.frames[i].subject;
             let slot = self.slot_of[subject].expect("training frames belong to trained subjects");
@@ -151,7 +159,7 @@ impl Trainer<'_> {
                 .expect("a trained subject has a model");
             let mask_edge = self.opts.mask_edge_in(self.dataset, i);
             let fingers = self.config.skinning.skins_fingers();
-            let cached = FrameCache::new(self.dataset, i, slot, model, mask_edge, fingers)
+            let cached = FrameCache::new(self.dataset, i, slot, model, mask_edge, fingers, code)
                 .map_err(|e| match e {
                     CacheError::Dataset(e) => TrainError::Dataset(e),
                     CacheError::Grid(source) => grid_error(self.dataset, i, source),
@@ -159,6 +167,18 @@ impl Trainer<'_> {
             entry.insert(cached);
         }
         Ok(i)
+    }
+
+    /// The colour this step's targets and render are composited over: with
+    /// `--random-background` on a dataset composited by its masks a seeded random one
+    /// (the field cannot then paint the background into the person's edge or hide a
+    /// fog in front of it), else the dataset's.
+    fn step_background(&mut self) -> [f32; 3] {
+        if self.opts.random_background && self.dataset.matting == Matting::ByMask {
+            std::array::from_fn(|_| self.rng.next_f32())
+        } else {
+            self.dataset.background
+        }
     }
 
     /// The step's rays: LPIPS patches (when the perceptual term is on) and part-aware
@@ -264,6 +284,7 @@ impl Trainer<'_> {
         &self,
         frame: usize,
         batch: &Batch,
+        background: [f32; 3],
         samples: PackedSamples,
         vstep: usize,
         pose_grads: bool,
@@ -281,8 +302,9 @@ impl Trainer<'_> {
                 patch_side: PATCH as usize,
                 frame: &self.cache[&frame].conditions,
                 step: vstep,
-                background: self.dataset.background,
+                background,
                 mask_weight: self.opts.mask_weight,
+                distortion: self.opts.distortion,
                 pose_grads,
             },
         )

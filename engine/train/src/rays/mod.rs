@@ -42,7 +42,7 @@ pub(crate) enum CacheError {
 impl FrameCache {
     /// Frame `i` of `dataset`, its subject being identity `slot` with `model`, posed as
     /// its fit; random rays stay `mask_edge` px off the mask's cut; for a field that
-    /// skins the finger joints (`finger_bones`) or not.
+    /// skins the finger joints (`finger_bones`) or not, and reads frame code `code`.
     pub fn new(
         dataset: &Dataset,
         i: usize,
@@ -50,6 +50,7 @@ impl FrameCache {
         model: &SubjectModel,
         mask_edge: u32,
         finger_bones: bool,
+        code: Option<usize>,
     ) -> Result<FrameCache, CacheError> {
         let frame = &dataset.frames[i];
         let images = dataset.images(i).map_err(CacheError::Dataset)?;
@@ -65,7 +66,10 @@ impl FrameCache {
             );
         }
         let pixels = PixelPool::new(&images.mask, &images.segmentation, mask_edge);
-        let conditions = frame_conditions(slot, &frame.params, &scene, &model.shells, finger_bones);
+        let conditions = FrameConditions {
+            frame_code: code,
+            ..frame_conditions(slot, &frame.params, &scene, &model.shells, finger_bones)
+        };
         let sampler = FrameSampler::new(scene, &model.shells, &rays, finger_bones)
             .map_err(CacheError::Grid)?;
         Ok(FrameCache {
@@ -89,7 +93,10 @@ impl FrameCache {
         finger_bones: bool,
     ) -> Result<(), GridError> {
         let scene = FrameScene::new(&model.skeleton, &model.canonical, params);
-        let conditions = frame_conditions(slot, params, &scene, &model.shells, finger_bones);
+        let conditions = FrameConditions {
+            frame_code: self.conditions.frame_code,
+            ..frame_conditions(slot, params, &scene, &model.shells, finger_bones)
+        };
         self.sampler =
             FrameSampler::new(scene, &model.shells, &self.foreground_rays, finger_bones)?;
         self.conditions = conditions;
@@ -107,6 +114,9 @@ pub(crate) struct Batch {
     /// 1 where the mask is sure of the pixel (off its cut), 0 on the cut: the weight of
     /// the ray's silhouette term. `[r]`
     pub silhouette: Vec<f32>,
+    /// The mask's coverage of the pixel (mask / 255), what the target was composited
+    /// with. `[r]`
+    pub alpha: Vec<f32>,
     /// The first `patches * PATCH * PATCH` rays are row-major patches.
     pub patches: usize,
 }
@@ -160,6 +170,7 @@ pub(crate) fn draw_batch(
         rgb: Vec::with_capacity(3 * pixels.len()),
         labels: Vec::with_capacity(pixels.len()),
         silhouette: Vec::with_capacity(pixels.len()),
+        alpha: Vec::with_capacity(pixels.len()),
         patches,
     };
     for (x, y) in pixels {
@@ -169,7 +180,9 @@ pub(crate) fn draw_batch(
             .push(Ray::new(o.as_vec3(), d.as_vec3(), 0.0, f32::INFINITY)?);
         let c = fc.images.rgb.get_pixel(x, y).0;
         batch.rgb.extend(c.iter().map(|&v| f32::from(v) / 255.0));
-        let person = fc.images.mask.get_pixel(x, y).0[0] >= 128;
+        let coverage = fc.images.mask.get_pixel(x, y).0[0];
+        batch.alpha.push(f32::from(coverage) / 255.0);
+        let person = coverage >= 128;
         let label = fc.images.segmentation.get_pixel(x, y).0[0];
         // A person pixel labelled background counts as body (labels are validated on
         // decode, so every label is below N_LABELS).
@@ -181,4 +194,40 @@ pub(crate) fn draw_batch(
         batch.silhouette.push(if cut { 0.0 } else { 1.0 });
     }
     Ok(batch)
+}
+
+impl Batch {
+    /// Moves the targets from over `from` to over `to`: a target composited as
+    /// `image x alpha + from x (1 - alpha)` becomes `image x alpha + to x (1 - alpha)`.
+    pub fn recomposite(&mut self, from: [f32; 3], to: [f32; 3]) {
+        for (rgb, a) in self.rgb.chunks_exact_mut(3).zip(&self.alpha) {
+            for c in 0..3 {
+                rgb[c] = (rgb[c] + (to[c] - from[c]) * (1.0 - a)).clamp(0.0, 1.0);
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A target moved to another background keeps the person and swaps only the
+    /// uncovered share of the old background.
+    #[test]
+    fn recompositing_swaps_only_the_background_share() {
+        let mut batch = Batch {
+            rays: vec![],
+            rgb: vec![0.2, 0.4, 0.6, 1.0, 1.0, 1.0, 0.6, 0.7, 0.8],
+            labels: vec![1, 0, 1],
+            silhouette: vec![1.0; 3],
+            alpha: vec![1.0, 0.0, 0.5],
+            patches: 0,
+        };
+        batch.recomposite([1.0; 3], [0.0, 0.5, 1.0]);
+        let want = [0.2, 0.4, 0.6, 0.0, 0.5, 1.0, 0.1, 0.45, 0.8];
+        for (g, w) in batch.rgb.iter().zip(want) {
+            assert!((g - w).abs() < 1e-6, "{:?}", batch.rgb);
+        }
+    }
 }

@@ -11,7 +11,7 @@ use talkin_data::dataset::Dataset;
 use talkin_grids::OccUpdateOpts;
 use talkin_nets::init::WeightRng;
 use talkin_nets::loss::{Backbone, PerceptualLoss};
-use talkin_nets::{ComputeDevice, FieldConfig, TalkinField};
+use talkin_nets::{ComputeDevice, FieldConfig, FrameCodes, TalkinField};
 
 use crate::error::TrainError;
 use crate::log::{LOG_FILE, TrainLog};
@@ -36,9 +36,17 @@ impl<'a> Trainer<'a> {
         let n_subjects = dataset.subjects.len();
         let mut config = opts.preset.field_config(n_subjects);
         config.use_d_hands = opts.ablation.use_d_hands;
+        if !opts.ablation.non_rigid {
+            config.non_rigid_start_step = None;
+        }
         config.hand_background = opts.ablation.hand_background;
         config.face_uses_jaw = opts.ablation.face_uses_jaw;
         config.skinning.finger_bones = Some(opts.skin_fingers.finger_bones());
+        config.frame_codes = (opts.frame_code_dim > 0).then_some(FrameCodes {
+            count: frames.len(),
+            dim: opts.frame_code_dim,
+            deform: opts.frame_code_deform,
+        });
         let subjects = fit_subjects(dataset, &frames, opts.grid_resolution)?;
         fit_field_box(&mut config, &subjects);
         let device = open_device(opts.device)?;
@@ -127,6 +135,11 @@ impl<'a> Trainer<'a> {
             }
         };
         config.n_identities = field.n_identities();
+        // The clip's frames are not the base run's: each starts from the codes' mean.
+        if let Some(codes) = &mut config.frame_codes {
+            field = field.reset_frame_codes(frames.len());
+            codes.count = field.n_frame_codes();
+        }
         let mut slot_of = vec![None; dataset.subjects.len()];
         slot_of[s] = Some(slot);
         Trainer::start(dataset, out, opts, config, field, subjects, frames, slot_of)
