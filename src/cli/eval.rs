@@ -8,6 +8,9 @@ use talkin_render::sequence::split_frames;
 use super::train::DEFAULT_LPIPS_DIR;
 use crate::progress::Progress;
 
+/// What a dataset composited by its masks is scored over unless told otherwise.
+const OVER_BLACK: [f32; 3] = [0.0; 3];
+
 #[derive(clap::Args, Debug)]
 pub struct EvalArgs {
     /// The trained run (its newest checkpoint is evaluated).
@@ -32,12 +35,14 @@ pub struct EvalArgs {
     /// Smooth poses and cameras over time (Gaussian, window 5, sigma 1) before rendering.
     #[arg(long)]
     pub smooth: bool,
-    /// Score over this colour instead of the dataset's background: three numbers in
-    /// [0, 1] (`0,0,0` is black, what Neural Body's protocol scores over). Every frame's
-    /// truth is its camera frame composited by its mask over the colour and the field
-    /// renders over it. Only for datasets composited by their masks (`"matting":
-    /// "by_mask"`, what `import` writes): a matted frame's edge keeps its old background.
-    #[arg(long, value_name = "R,G,B")]
+    /// The colour truth and render are composited over: three numbers in [0, 1], or
+    /// `declared` for the dataset's own background. Every frame's truth is its camera
+    /// frame composited by its mask over the colour and the field renders over it. The
+    /// default: black (`0,0,0`, Neural Body's protocol, which the systems compared with
+    /// on real captures follow) for a dataset composited by its masks (`"matting":
+    /// "by_mask"`, what `import` writes), the declared background for a matted one,
+    /// whose edge pixels keep their old background and so cannot be scored over another.
+    #[arg(long, value_name = "R,G,B|declared")]
     pub background: Option<String>,
     #[command(flatten)]
     pub device: super::DeviceArg,
@@ -45,13 +50,21 @@ pub struct EvalArgs {
 
 pub fn run(args: EvalArgs) -> anyhow::Result<()> {
     let split: Split = args.split.parse().map_err(anyhow::Error::msg)?;
-    let background = args
-        .background
-        .as_deref()
-        .map(super::parse_rgb)
-        .transpose()?;
     let device = args.device.open()?;
     let mut dataset = super::load_dataset(&args.data)?;
+    let (background, note) = match args.background.as_deref() {
+        Some("declared") => (None, None),
+        Some(text) => (Some(super::parse_rgb(text)?), None),
+        None if dataset.matting == Matting::ByMask => (
+            Some(OVER_BLACK),
+            Some(
+                "scored over black (a dataset composited by its masks: Neural Body's protocol); \
+                 --background declared scores over the dataset's own background"
+                    .to_string(),
+            ),
+        ),
+        None => (None, None),
+    };
     if let Some(rgb) = background {
         if dataset.matting == Matting::Matted {
             anyhow::bail!(
@@ -94,6 +107,7 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
         )
     })?;
     report.run = Some(args.run.clone());
+    report.notes.extend(note);
     if let Some(dir) = args.json.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     }

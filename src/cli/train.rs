@@ -43,6 +43,8 @@ pub struct GivenFlags {
     pub budget: bool,
     /// Any other recipe option (ignored by `--resume`, which keeps the run's).
     pub other: bool,
+    /// The ids of every recipe option the command line named.
+    pub named: Vec<String>,
 }
 
 impl FromArgMatches for GivenFlags {
@@ -52,13 +54,16 @@ impl FromArgMatches for GivenFlags {
             "data", "out", "resume", "force", "run", "subject", DEVICE_ARG,
         ];
         let given = |id: &str| m.value_source(id) == Some(ValueSource::CommandLine);
+        let named: Vec<String> = m
+            .ids()
+            .map(|id| id.as_str())
+            .filter(|id| !own.contains(id) && given(id))
+            .map(str::to_string)
+            .collect();
         Ok(GivenFlags {
             budget: Budget::ARGS.into_iter().any(given),
-            other: m
-                .ids()
-                .map(|id| id.as_str())
-                .filter(|id| !own.contains(id) && !Budget::ARGS.contains(id))
-                .any(given),
+            other: named.iter().any(|id| !Budget::ARGS.contains(&id.as_str())),
+            named,
         })
     }
 
@@ -101,7 +106,11 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
         }
         trainer
     } else {
-        Trainer::new(&dataset, &args.out, &args.recipe)
+        let recipe = args
+            .recipe
+            .clone()
+            .for_dataset(&dataset, |id| args.given.named.iter().any(|n| n == id));
+        Trainer::new(&dataset, &args.out, &recipe)
             .with_context(|| format!("training on {}", args.data.display()))?
     };
     run_trainer(trainer, &args.data, &args.out, &signals)
