@@ -25,6 +25,9 @@ pub const MAX_FRAME_CODE_DIM: usize = 64;
 /// The widest mask edge `--mask-edge` takes (a wider one leaves thin limbs no rays).
 pub const MAX_MASK_EDGE_PX: u32 = 16;
 
+/// Sets one option of a recipe.
+pub type SetOption = fn(&mut TrainOptions);
+
 /// What a camera capture trains with where the command line names nothing else, by
 /// the option's clap id, each measured on a real capture (docs/results.md, "A real
 /// capture"): 512 random rays a step and no LPIPS patches (a 1024-ray step with one
@@ -32,7 +35,7 @@ pub const MAX_MASK_EDGE_PX: u32 = 16;
 /// trained, the mask's edge included (scored over black the outline then gains), a
 /// random background colour each step, and a code per training frame read by F_body and
 /// D_nr.
-pub const CAPTURE_RECIPE: [(&str, fn(&mut TrainOptions)); 6] = [
+pub const CAPTURE_RECIPE: [(&str, SetOption); 6] = [
     ("batch_rays", |o| o.batch_rays = 512),
     ("patches", |o| o.patches = 0),
     ("mask_edge_px", |o| o.mask_edge_px = Some(0)),
