@@ -252,10 +252,20 @@ fn eval_over_black_composites_the_truth_and_the_render() {
         assert_eq!(res.status.code(), Some(0), "{}", stderr(&res));
         serde_json::from_str::<serde_json::Value>(&std::fs::read_to_string(json).unwrap()).unwrap()
     };
-    let white = report("white", &[]);
+    let white = report("white", &["--background", "declared"]);
     let black = report("black", &["--background", "0,0,0"]);
     assert_eq!(white["background"], serde_json::json!([1.0, 1.0, 1.0]));
     assert_eq!(black["background"], serde_json::json!([0.0, 0.0, 0.0]));
+    // Such a dataset is scored over black unless told otherwise, and the report says so.
+    let default = report("default", &[]);
+    assert_eq!(default["background"], black["background"]);
+    assert_eq!(default["psnr_person"], black["psnr_person"]);
+    let says = |r: &serde_json::Value| r["notes"].to_string().contains("scored over black");
+    assert!(
+        says(&default) && !says(&black) && !says(&white),
+        "{}",
+        default["notes"]
+    );
     for report in [&white, &black] {
         let psnr = report["psnr"].as_f64().unwrap();
         assert!(psnr > 8.0 && psnr < PSNR_CAP_DB, "{report}");
