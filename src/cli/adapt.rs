@@ -3,7 +3,7 @@ use std::path::PathBuf;
 use anyhow::Context;
 use talkin_train::{Identities, TrainOptions, Trainer};
 
-use super::train::{StopSignals, refuse_existing_run, run_trainer};
+use super::train::{GivenFlags, StopSignals, refuse_existing_run, run_trainer};
 
 #[derive(clap::Args, Debug, Clone)]
 pub struct AdaptArgs {
@@ -24,6 +24,9 @@ pub struct AdaptArgs {
     /// and recipe replaced.
     #[arg(long)]
     pub force: bool,
+    /// Read before `recipe`, whose parser takes its values out of the matches.
+    #[command(flatten)]
+    pub given: GivenFlags,
     #[command(flatten)]
     pub recipe: TrainOptions,
 }
@@ -33,7 +36,11 @@ pub fn run(args: AdaptArgs) -> anyhow::Result<()> {
     let signals = StopSignals::install()?;
     refuse_existing_run(&args.out, args.force)?;
     let dataset = super::load_dataset(&args.data)?;
-    let mut opts = args.recipe;
+    // A clip from a camera takes the capture recipe where nothing is named (the field's
+    // own architecture, frame codes included, comes from the base run).
+    let mut opts = args
+        .recipe
+        .for_dataset(&dataset, |id| args.given.named.iter().any(|n| n == id));
     if opts.lr.is_none() {
         opts.lr = Some(opts.initial_lr() * opts.preset.adapt_lr_ratio());
     }

@@ -140,6 +140,12 @@ impl<'a> Trainer<'a> {
             field = field.reset_frame_codes(frames.len());
             codes.count = field.n_frame_codes();
         }
+        // The field's codes are the base run's: the recipe records them as they are.
+        let opts = &TrainOptions {
+            frame_code_dim: config.frame_codes.map_or(0, |c| c.dim),
+            frame_code_deform: config.frame_codes.is_some_and(|c| c.deform),
+            ..opts.clone()
+        };
         let mut slot_of = vec![None; dataset.subjects.len()];
         slot_of[s] = Some(slot);
         Trainer::start(dataset, out, opts, config, field, subjects, frames, slot_of)
