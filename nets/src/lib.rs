@@ -1,7 +1,8 @@
 //! talkin-nets: the burn side of talkin. Owns the encodings (sinusoidal with a Hann
 //! window, multiresolution hash grid), the TalkinNeRF field (inverse LBS with a learned
 //! weight volume, D_nr, F_body with segmentation, F_face, D_hands + F_hands with hard
-//! routing), volume rendering of packed samples, and the losses.
+//! routing, optional per-frame codes), volume rendering of packed samples, and the losses
+//! (the distortion of a ray's weights among them).
 //!
 //! It must not know about the acceleration structures (`grids`) or the pipeline
 //! (`engine`): samples, candidate masks and per-frame transforms come in as plain slices.

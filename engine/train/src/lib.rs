@@ -4,7 +4,8 @@
 //! fused kernel), the [`grid_update`]; [`step`] strings them together and [`trainer`] runs steps until
 //! the budget is spent, writing the [`log`] (on a GPU a few steps' losses at a time, read
 //! in one transfer by `pending`) and the avatar's checkpoints. A run is told
-//! its [`recipe`], whose [`preset`] names the architecture and optimiser settings; with
+//! its [`recipe`] (on a camera capture, the capture recipe wherever the command line
+//! named nothing), whose [`preset`] names the architecture and optimiser settings; with
 //! [`refine`] it also learns per-frame corrections of the training fits.
 //!
 //! Must not know about rendering whole frames, evaluation, the server or the
