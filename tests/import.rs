@@ -574,6 +574,14 @@ fn training_on_an_imported_dataset_matches_its_source() {
             "512",
             "--mask-weight",
             "0",
+            // The same recipe for both: the import is a camera capture to `train`, which
+            // would give it the capture recipe (and `eval` black) unless told.
+            "--mask-edge",
+            "0",
+            "--random-background",
+            "off",
+            "--frame-codes",
+            "0",
         ]);
         assert!(o.status.success(), "{}", stderr(&o));
         let json = root.join(format!("eval_{name}.json"));
@@ -587,6 +595,8 @@ fn training_on_an_imported_dataset_matches_its_source() {
             "test_same",
             "--json",
             p(&json),
+            "--background",
+            "declared",
         ]);
         assert!(o.status.success(), "{}", stderr(&o));
         let report: serde_json::Value =
