@@ -240,7 +240,8 @@ impl FieldConfig {
         let hand_deform = (self.has_hands && self.use_d_hands)
             .then(|| deform(self.hand_window, HAND_POSE_DIM, rng));
         let hands = hands_encoding.map(|e| radiance(e, &self.hands, 0, 4, rng));
-        // Zeros, not drawn: a seed gives the rest of the field it gave without codes.
+        // Zeros, not drawn: the codes take nothing from the RNG (what a wider first layer
+        // of F_body and D_nr draws still differs).
         let frame_codes =
             codes.map(|c| Param::from_tensor(Tensor::zeros([c.count, c.dim], device)));
         Ok(TalkinField {

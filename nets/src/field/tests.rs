@@ -433,7 +433,7 @@ fn non_rigid_switches_on_at_its_step() {
 
 /// A frame with a code reads its own row, F_body and (with `frame_code_deform`) D_nr
 /// see it, a frame without one reads the codes' mean, a code past the last is refused,
-/// and codes drawn from no RNG leave the rest of a seeded field as it was.
+/// and the codes draw nothing from the RNG (the identity codes, drawn first, are a seed's).
 #[test]
 fn frame_codes_are_read_per_frame_and_their_mean_elsewhere() {
     let device = Device::flex();
