@@ -193,11 +193,9 @@ fn half(
         Some(l) => field.forward_with_leaves(&input, l)?,
         None => field.forward(&input)?,
     };
-    let rendered = out.render(&layout.view())?;
-    let distortion = (batch.distortion > 0.0)
-        .then(|| out.distortion(&layout.view()))
-        .transpose()?
-        .map(|d| d.mean().mul_scalar(batch.distortion));
+    let (rendered, distortion) =
+        out.render_with_distortion(&layout.view(), batch.distortion > 0.0)?;
+    let distortion = distortion.map(|d| d.mean().mul_scalar(batch.distortion));
     let target = Tensor::<2>::from_data(
         TensorData::new(
             batch.rgb[3 * range.start..3 * range.end].to_vec(),

@@ -12,7 +12,10 @@ use burn::tensor::activation::sigmoid;
 use crate::encoding::{Encoding, FrequencyEncoding};
 use crate::error::{NetsError, check_len};
 use crate::mlp::Mlp;
-use crate::render::{OwnedRaySamples, RaySamples, RenderedRays, render_in_front, render_packed};
+use crate::render::{
+    OwnedRaySamples, RaySamples, RenderWeights, RenderedRays, distortion, render_in_front,
+    render_weighted,
+};
 use crate::rows::{add_rows, gather_rows};
 use crate::skinning::{BlendWeightVolume, N_SMPLX_JOINTS, RigidWarp};
 use crate::util::{floats, ints, softplus};
@@ -183,28 +186,33 @@ pub struct FieldOutput {
 }
 
 impl FieldOutput {
-    /// The distortion of every ray's body pass ([`crate::render::distortion`]): how far
-    /// each ray's weight is spread along it. `[r]`
-    pub fn distortion(&self, samples: &RaySamples) -> Result<Tensor<1>, NetsError> {
-        crate::render::distortion(self.sigma.clone(), samples)
-    }
-
     /// Volume-renders the batch: pass 1 composites every sample's body/face output;
     /// with hand samples, pass 2 composites them in ray order in front of pass 1's colour.
     pub fn render(&self, samples: &RaySamples) -> Result<RenderedRays, NetsError> {
-        let body = render_packed(
-            self.sigma.clone(),
-            self.rgb.clone(),
-            self.seg_logits.clone(),
-            samples,
-        )?;
-        match &self.hands {
-            None => Ok(body),
+        Ok(self.render_with_distortion(samples, false)?.0)
+    }
+
+    /// [`FieldOutput::render`], and with `with_distortion` the distortion of every ray's
+    /// body pass ([`crate::render::distortion`]: how far each ray's weight is spread
+    /// along it, `[r]`) from the same compositing weights.
+    pub fn render_with_distortion(
+        &self,
+        samples: &RaySamples,
+        with_distortion: bool,
+    ) -> Result<(RenderedRays, Option<Tensor<1>>), NetsError> {
+        let weights = RenderWeights::new(self.sigma.clone(), samples)?;
+        let distortion = with_distortion
+            .then(|| distortion(&weights, samples))
+            .transpose()?;
+        let body = render_weighted(&weights, self.rgb.clone(), self.seg_logits.clone(), samples)?;
+        let rendered = match &self.hands {
+            None => body,
             Some(h) => {
                 let front = OwnedRaySamples::subset(samples, &h.indices);
-                render_in_front(h.sigma.clone(), h.rgb.clone(), &front.view(), &body)
+                render_in_front(h.sigma.clone(), h.rgb.clone(), &front.view(), &body)?
             }
-        }
+        };
+        Ok((rendered, distortion))
     }
 }
 

@@ -11,22 +11,21 @@ use burn::prelude::*;
 
 use super::{RaySamples, RenderWeights, exclusive_segmented_scan};
 use crate::error::{NetsError, check_len};
-use crate::rows::add_rows;
-use crate::util::{floats, ints};
+use crate::util::floats;
 
-/// The distortion of every ray of a packed batch (0 for a ray without samples).
+/// The distortion of every ray of a packed batch (0 for a ray without samples), from the
+/// batch's compositing `weights` (the render's own: nothing is composited twice).
 ///
 /// # Shapes
-/// - `sigma`: `[n]` densities of `samples`; output `[r]`
-pub fn distortion(sigma: Tensor<1>, samples: &RaySamples) -> Result<Tensor<1>, NetsError> {
+/// - output `[r]`
+pub fn distortion(weights: &RenderWeights, samples: &RaySamples) -> Result<Tensor<1>, NetsError> {
     let n = samples.n_samples();
-    let r = samples.n_rays();
-    check_len("sigma", sigma.dims()[0], n)?;
-    let device = sigma.device();
+    let w = weights.weights.clone(); // [n]
+    check_len("weights", w.dims()[0], n)?;
     if n == 0 {
-        return Ok(Tensor::zeros([r], &device));
+        return Ok(weights.opacity());
     }
-    let w = RenderWeights::new(sigma, samples)?.weights; // [n]
+    let device = w.device();
     let (mid, delta): (Vec<f32>, Vec<f32>) = samples
         .t_start
         .iter()
@@ -37,10 +36,13 @@ pub fn distortion(sigma: Tensor<1>, samples: &RaySamples) -> Result<Tensor<1>, N
     let delta = floats(delta, [n], &device);
     let w_before = exclusive_segmented_scan(w.clone(), samples.offsets);
     let wm_before = exclusive_segmented_scan(w.clone() * mid.clone(), samples.offsets);
-    let cross = (w.clone() * (mid * w_before - wm_before)).mul_scalar(2.0);
-    let own = (w.clone() * w * delta).mul_scalar(1.0 / 3.0);
-    let ray = ints(samples.ray_indices(), &device);
-    Ok(add_rows(Tensor::zeros([r], &device), ray, cross + own))
+    // What multiplies each sample's own weight, 2 (m_i W_i - S_i) + w_i delta_i / 3: the
+    // render's per-ray weighted sum adds them up.
+    let per_weight =
+        (mid * w_before - wm_before).mul_scalar(2.0) + (w * delta).mul_scalar(1.0 / 3.0);
+    Ok(weights
+        .integrate(per_weight.unsqueeze_dim::<2>(1))
+        .squeeze_dim::<1>(1))
 }
 
 #[cfg(test)]
@@ -87,7 +89,9 @@ mod tests {
         let sigma = [
             2.876_821, 4.054_651, 6.931_472, 100.0, 0.0, 80.0, 0.0, 0.5, 1e9,
         ];
-        let got = distortion(Tensor::<1>::from_floats(sigma, &device), &owned.view())
+        let weights =
+            RenderWeights::new(Tensor::<1>::from_floats(sigma, &device), &owned.view()).unwrap();
+        let got = distortion(&weights, &owned.view())
             .unwrap()
             .try_to_vec_as::<f32>()
             .unwrap();

@@ -363,11 +363,23 @@ pub fn render_packed(
     seg_logits: Tensor<2>,
     samples: &RaySamples,
 ) -> Result<RenderedRays, NetsError> {
+    let weights = RenderWeights::new(sigma, samples)?;
+    render_weighted(&weights, rgb, seg_logits, samples)
+}
+
+/// [`render_packed`] with the batch's compositing weights already computed (they also
+/// give the [`distortion`]).
+pub fn render_weighted(
+    weights: &RenderWeights,
+    rgb: Tensor<2>,
+    seg_logits: Tensor<2>,
+    samples: &RaySamples,
+) -> Result<RenderedRays, NetsError> {
     let n = samples.n_samples();
     check_len("rgb rows", rgb.dims()[0], n)?;
     check_len("seg_logits rows", seg_logits.dims()[0], n)?;
+    check_len("weights", weights.weights.dims()[0], n)?;
     let device = rgb.device();
-    let weights = RenderWeights::new(sigma, samples)?;
     Ok(RenderedRays {
         rgb: weights.integrate(rgb),
         seg_logits: weights.integrate(seg_logits),
