@@ -221,8 +221,9 @@ fn eval_json_has_the_keys_and_renders_that_rescore_the_same() {
 
 /// `eval --background`: truth and render both over the colour. Were the truth left on the
 /// dataset's white while the field renders over black, every background pixel would be
-/// off by 1 and the frame would score a few dB (a matted dataset is refused:
-/// `bad_input_exits_1_naming_the_file_and_field`).
+/// off by 1 and the frame would score a few dB (a matted dataset with a matte is refused:
+/// `bad_input_exits_1_naming_the_file_and_field`). `synth`'s own matted frames, whose
+/// masks are coverage, score over black as their copy composited by the masks does.
 #[test]
 fn eval_over_black_composites_the_truth_and_the_render() {
     let (matted, run) = scene();
@@ -274,6 +275,22 @@ fn eval_over_black_composites_the_truth_and_the_render() {
         .unwrap()
         .to_rgb8();
     assert_eq!(png[(0, 0)].0, [0; 3]);
+    // The matted original, shown over black by its coverage: the same truth but on the
+    // outline, where the copy read as camera frames keeps a share of the white (the
+    // synth test checks the recomposited pixels themselves).
+    let json = out.join("matted_black.json");
+    let mut args = vec!["eval", "--run", s(run), "--data", s(matted)];
+    args.extend(["--split", "test_same", "--json", s(&json)]);
+    let res = talkin(&[args, vec!["--background", "0,0,0"]].concat());
+    assert_eq!(res.status.code(), Some(0), "{}", stderr(&res));
+    let matted_black: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(json).unwrap()).unwrap();
+    let (a, b) = (
+        matted_black["psnr_person"].as_f64().unwrap(),
+        black["psnr_person"].as_f64().unwrap(),
+    );
+    assert_eq!(matted_black["background"], black["background"]);
+    assert!((a - b).abs() < 1.0, "matted {a} by_mask {b}");
 }
 
 #[test]
@@ -573,18 +590,26 @@ fn bad_input_exits_1_naming_the_file_and_field() {
     };
     // Unknown split.
     eval("test_nope", &[], &["test_nope", "test_same"]);
-    // Scored over another colour: a bad colour, and a matted dataset, whose binary masks
-    // cannot take the white out of its edge pixels.
+    // Scored over another colour: a bad colour, and a matted dataset whose masks are a
+    // matte (not `synth`'s coverage), which cannot take the white out of its edge pixels.
     eval(
         "test_same",
         &["--background", "0,0"],
         &["--background", "R,G,B"],
     );
-    eval(
-        "test_same",
-        &["--background", "0,0,0"],
-        &["dataset.json", "\"matting\" is \"matted\""],
-    );
+    let matte = dir.join("matte");
+    common::copy_dir(data, &matte);
+    let doc = matte.join("dataset.json");
+    let mut v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&doc).unwrap()).unwrap();
+    assert_eq!(v["masks"], "coverage", "synth writes coverage masks");
+    v.as_object_mut().unwrap().remove("masks");
+    std::fs::write(&doc, v.to_string()).unwrap();
+    let mut args = vec!["eval", "--run", s(run), "--data", s(&matte)];
+    args.extend(["--split", "test_same", "--json", s(&json)]);
+    args.extend(["--background", "0,0,0"]);
+    check(&args, &["dataset.json", "masks", "coverage"]);
+    assert!(!json.exists(), "no report for a failed evaluation");
     // Unknown subject.
     check(
         &[

@@ -40,8 +40,10 @@ pub struct EvalArgs {
     /// frame composited by its mask over the colour and the field renders over it. The
     /// default: black (`0,0,0`, Neural Body's protocol, which the systems compared with
     /// on real captures follow) for a dataset composited by its masks (`"matting":
-    /// "by_mask"`, what `import` writes), the declared background for a matted one,
-    /// whose edge pixels keep their old background and so cannot be scored over another.
+    /// "by_mask"`, what `import` writes), the declared background for a matted one. A
+    /// matted dataset is shown over another colour only if its masks are exact coverage
+    /// (`"masks": "coverage"`, what `synth` writes): a matte's edge pixels keep the old
+    /// colour.
     #[arg(long, value_name = "R,G,B|declared")]
     pub background: Option<String>,
     #[command(flatten)]
@@ -66,17 +68,9 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
         None => (None, None),
     };
     if let Some(rgb) = background {
-        if dataset.matting == Matting::Matted {
-            anyhow::bail!(
-                "--background: {}: \"matting\" is \"matted\" (the frames already show the person over {:?}); \
-                 its binary masks cannot take the old background out of the edge pixels, so only a \
-                 dataset composited by its masks (\"by_mask\") is scored over another colour",
-                args.data.join("dataset.json").display(),
-                dataset.background
-            );
-        }
-        dataset.background = rgb;
-        dataset.matting = Matting::ByMask;
+        dataset
+            .show_over(rgb)
+            .context("--background: the truth cannot be shown over another colour")?;
     }
     let mut avatar = super::load_avatar(&args.run, &device)?;
     if let Some(rgb) = background {

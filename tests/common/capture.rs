@@ -113,7 +113,7 @@ impl Capture {
         clip.with_pixels(self.frames(&clip.pixels))
     }
 
-    /// The camera-like version of `frames` (persons over white with exact 0/255 masks,
+    /// The camera-like version of `frames` (persons over white with exact coverage masks,
     /// all of one size), of their size: the frame as stored (and its JPEG, when the
     /// camera's pixels are the scene's) and the matting tool's mask.
     pub fn frames(&self, frames: &[FramePixels]) -> Vec<FramePixels> {
@@ -142,10 +142,15 @@ impl Capture {
         let (mut rng, mut mask_rng) = (Rng::new(frame_seed), Rng::new(!frame_seed));
         let rgb = RgbImage::from_fn(w, h, |x, y| {
             let clean = f.rgb.get_pixel(x, y).0.map(|c| f32::from(c) / 255.0);
-            let person = f.mask.get_pixel(x, y).0[0] >= 128;
-            let seen = match room {
-                Some(room) if !person => room[(y * w + x) as usize],
-                _ => clean,
+            // The scene's pixel is a x person + (1 - a) x white, a its coverage: the room
+            // takes the white's place, exactly.
+            let a = f32::from(f.mask.get_pixel(x, y).0[0]) / 255.0;
+            let seen: [f32; 3] = match room {
+                Some(room) => {
+                    let r = room[(y * w + x) as usize];
+                    std::array::from_fn(|c| clean[c] + (1.0 - a) * (r[c] - 1.0))
+                }
+                None => clean,
             };
             image::Rgb(seen.map(|c| {
                 let v = 255.0 * c * self.gain + self.noise * rng.normal();
@@ -212,11 +217,16 @@ impl MaskFlaws {
     /// Frame `i`'s mask as the matting tool gives it, from the exact `mask`.
     fn apply(&self, i: usize, mask: &GrayImage, rng: &mut Rng) -> GrayImage {
         let (w, h) = mask.dimensions();
-        let mut person: Vec<bool> = mask.iter().map(|&m| m >= 128).collect();
+        let holed = self.hole_px > 0 && self.holes_every > 0 && i.is_multiple_of(self.holes_every);
         let grow = match self.grow_px.len() {
             0 => 0,
             n => self.grow_px[i % n],
         };
+        if grow == 0 && !holed && self.soft_px == 0.0 {
+            // No flaw on this frame: the exact coverage.
+            return mask.clone();
+        }
+        let mut person: Vec<bool> = mask.iter().map(|&m| m >= 128).collect();
         person = if grow >= 0 {
             dilate(&person, w, h, grow as u32)
         } else {
@@ -226,7 +236,7 @@ impl MaskFlaws {
                 .map(|o| !o)
                 .collect()
         };
-        if self.hole_px > 0 && self.holes_every > 0 && i.is_multiple_of(self.holes_every) {
+        if holed {
             // Deep enough: the hole and a pixel around it lie inside the person and the
             // frame.
             let margin = self.hole_px + 1;

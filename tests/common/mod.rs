@@ -132,6 +132,7 @@ pub fn write_tiny_dataset(dir: &Path) -> Dataset {
         root: dir.to_path_buf(),
         background: [1.0, 1.0, 1.0],
         matting: talkin_data::dataset::Matting::Matted,
+        masks: Default::default(),
         subjects: vec![Subject {
             name: "tiny".into(),
             skeleton: t_pose_skeleton(),

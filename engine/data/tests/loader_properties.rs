@@ -55,6 +55,7 @@ fn valid_document() -> Value {
         root: ".".into(),
         background: [1.0, 1.0, 1.0],
         matting: talkin_data::dataset::Matting::Matted,
+        masks: Default::default(),
         subjects: vec![Subject {
             name: "ada".into(),
             skeleton: Skeleton { rest_joints: rest },

@@ -5,7 +5,7 @@
 
 use std::path::Path;
 
-use talkin_data::dataset::{Composited, Dataset, Frame, Matting, Split, Subject};
+use talkin_data::dataset::{Composited, Dataset, Frame, Masks, Matting, Split, Subject};
 use talkin_data::inspect::summarize;
 use talkin_human::body::{FrameParams, Skeleton};
 use talkin_human::camera::Camera;
@@ -64,6 +64,7 @@ fn dataset(dir: &Path, matting: Matting, first: [u8; 3]) -> Dataset {
         root: dir.to_path_buf(),
         background: [1.0, 1.0, 1.0],
         matting,
+        masks: Default::default(),
         subjects: vec![Subject {
             name: "ada".into(),
             skeleton: Skeleton { rest_joints: rest },
@@ -143,6 +144,75 @@ fn matting_is_optional_and_checked() {
         .to_string();
     assert!(
         err.contains("matting") && err.contains("by_mask") && err.contains("alpha"),
+        "{err}"
+    );
+}
+
+/// A matted dataset with coverage masks is shown over another colour exactly; one with a
+/// matte is refused, naming the field.
+#[test]
+fn coverage_masks_show_a_matted_person_over_another_colour() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut d = dataset(dir.path(), Matting::Matted, [255, 255, 255]);
+    // Frame 1's person pixel (15, 15) half covered: half person, half white.
+    let mut rgb = image::open(dir.path().join("images/1.png"))
+        .unwrap()
+        .to_rgb8();
+    let half: [u8; 3] = std::array::from_fn(|c| ((u16::from(PERSON[c]) + 255) / 2) as u8);
+    rgb.put_pixel(15, 15, image::Rgb(half));
+    rgb.save(dir.path().join("images/1.png")).unwrap();
+    let mut mask = image::open(dir.path().join("masks/1.png"))
+        .unwrap()
+        .to_luma8();
+    mask.put_pixel(15, 15, image::Luma([128]));
+    mask.save(dir.path().join("masks/1.png")).unwrap();
+
+    let err = d.clone().show_over([0.0; 3]).unwrap_err().to_string();
+    assert!(err.contains("masks") && err.contains("coverage"), "{err}");
+    d.masks = Masks::Coverage;
+    d.save_index().unwrap();
+    let mut d = Dataset::load(dir.path()).unwrap();
+    assert_eq!(d.masks, Masks::Coverage);
+    d.show_over([0.0; 3]).unwrap();
+    let images = d.images(1).unwrap();
+    assert_eq!(images.composited, Composited::Reshown);
+    assert_eq!(images.rgb.get_pixel(0, 0).0, [0, 0, 0]);
+    assert_eq!(images.rgb.get_pixel(20, 20).0, PERSON);
+    let got = images.rgb.get_pixel(15, 15).0;
+    for c in 0..3 {
+        let want = f32::from(half[c]) - 127.0 / 255.0 * 255.0;
+        assert!((f32::from(got[c]) - want).abs() <= 1.0, "{got:?} {half:?}");
+    }
+    // Written back, it is the dataset on disk: matted over white.
+    let text = d.to_json().to_string();
+    assert!(
+        text.contains("\"matted\"") && text.contains("\"coverage\""),
+        "{text}"
+    );
+    assert_eq!(
+        Dataset::from_json_str(&text, dir.path())
+            .unwrap()
+            .background,
+        [1.0; 3]
+    );
+}
+
+#[test]
+fn masks_are_optional_and_checked() {
+    let dir = tempfile::tempdir().unwrap();
+    dataset(dir.path(), Matting::Matted, [255, 255, 255]);
+    let text = std::fs::read_to_string(dir.path().join("dataset.json")).unwrap();
+    assert!(
+        !text.contains("\"masks\""),
+        "a matte is the default, not written"
+    );
+    let mut doc: serde_json::Value = serde_json::from_str(&text).unwrap();
+    doc["masks"] = serde_json::json!("exact");
+    let err = Dataset::from_json_str(&doc.to_string(), dir.path())
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("masks") && err.contains("coverage") && err.contains("exact"),
         "{err}"
     );
 }

@@ -188,6 +188,9 @@ pub fn generate(
         root: out.to_path_buf(),
         background: BACKGROUND,
         matting: talkin_data::dataset::Matting::Matted,
+        // The renderer knows each pixel's covered fraction: the person can be shown
+        // over any colour, as camera captures are scored.
+        masks: talkin_data::dataset::Masks::Coverage,
         subjects,
         frames,
     };

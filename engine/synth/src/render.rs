@@ -2,8 +2,10 @@
 //! engine's samplers (no capsule BVH). Primitives are smooth-unioned in order; the
 //! material and segmentation label at a hit are those of the nearest primitive.
 //!
-//! Per pixel: one centre ray decides mask, segmentation and depth; RGB is supersampled
-//! 2x2 where the centre rays of neighbouring pixels disagree (silhouettes, part borders).
+//! Per pixel: one centre ray decides segmentation and depth; RGB is supersampled 2x2
+//! where the centre rays of neighbouring pixels disagree (silhouettes, part borders), and
+//! the mask is the pixel's covered fraction: the share of those four rays that hit, the
+//! centre ray elsewhere.
 //! Per ray, primitives are culled by their bounding spheres; per SDF evaluation, by the
 //! distance to their bounding sphere.
 
@@ -21,6 +23,8 @@ const MAX_STEPS: usize = 160;
 /// One frame's rendered buffers (row-major, camera size).
 pub struct Rendered {
     pub rgb: Vec<[u8; 3]>,
+    /// The pixel's covered fraction x 255: the share of its rays that hit the figure.
+    pub coverage: Vec<u8>,
     /// 0 = background, else the segmentation label 1..=4.
     pub label: Vec<u8>,
     /// Camera z of the centre ray's hit in metres, 0 where background.
@@ -200,7 +204,7 @@ impl<'a> Scene<'a> {
             .collect();
         let key = |x: usize, y: usize| rows[y][x].0.map(|h| h.prim);
         // Supersample RGB where neighbouring centre rays differ.
-        let rgb_rows: Vec<Vec<[u8; 3]>> = (0..h)
+        let rgb_rows: Vec<Vec<([u8; 3], u8)>> = (0..h)
             .into_par_iter()
             .map(|y| {
                 let mut cands = Vec::with_capacity(64);
@@ -211,33 +215,41 @@ impl<'a> Scene<'a> {
                             || (x + 1 < w && key(x + 1, y) != me)
                             || (y > 0 && key(x, y - 1) != me)
                             || (y + 1 < h && key(x, y + 1) != me);
-                        let c = if edge {
-                            let mut sum = Vec3::ZERO;
+                        let (c, hits) = if edge {
+                            let (mut sum, mut hits) = (Vec3::ZERO, 0u32);
                             for (dx, dy) in [(0.25, 0.25), (0.75, 0.25), (0.25, 0.75), (0.75, 0.75)]
                             {
                                 let (o, d) = ray(x as f64 + dx, y as f64 + dy);
                                 sum += match self.trace(o, d, &mut cands) {
-                                    Some(hit) => self.shade(o, d, hit, &cands),
+                                    Some(hit) => {
+                                        hits += 1;
+                                        self.shade(o, d, hit, &cands)
+                                    }
                                     None => self.background,
                                 };
                             }
-                            sum * 0.25
+                            (sum * 0.25, hits)
                         } else {
-                            Vec3::from(rows[y][x].1)
+                            (Vec3::from(rows[y][x].1), 4 * u32::from(me.is_some()))
                         };
-                        c.to_array()
-                            .map(|v| (v.clamp(0.0, 1.0) * 255.0).round() as u8)
+                        let rgb = c
+                            .to_array()
+                            .map(|v| (v.clamp(0.0, 1.0) * 255.0).round() as u8);
+                        // 0, 64, 128, 191 or 255: a quarter of 255 per ray, rounded.
+                        (rgb, ((hits * 255 + 2) / 4) as u8)
                     })
                     .collect()
             })
             .collect();
         let mut out = Rendered {
             rgb: Vec::with_capacity(w * h),
+            coverage: Vec::with_capacity(w * h),
             label: Vec::with_capacity(w * h),
             depth: Vec::with_capacity(w * h),
         };
         for y in 0..h {
-            out.rgb.extend_from_slice(&rgb_rows[y]);
+            out.rgb.extend(rgb_rows[y].iter().map(|p| p.0));
+            out.coverage.extend(rgb_rows[y].iter().map(|p| p.1));
             for (hit, _, z) in &rows[y] {
                 out.label
                     .push(hit.map_or(0, |hit| self.fig.prims[hit.prim].label));

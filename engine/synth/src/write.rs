@@ -1,4 +1,4 @@
-//! Writing one rendered frame in the dataset format: the RGB image, the binary mask, the
+//! Writing one rendered frame in the dataset format: the RGB image, the coverage mask, the
 //! segmentation labels and the 16-bit depth (in `DEPTH_UNIT_M` steps, 0 = background).
 
 use std::path::{Path, PathBuf};
@@ -42,17 +42,10 @@ pub(crate) fn write_frame(
         .save_with_format(&file, image::ImageFormat::Png)
         .map_err(png_err(&file))?;
     let file = out.join(rel("masks"));
-    image::GrayImage::from_raw(
-        w,
-        h,
-        img.label
-            .iter()
-            .map(|&l| if l > 0 { 255 } else { 0 })
-            .collect(),
-    )
-    .expect("buffer matches the camera")
-    .save_with_format(&file, image::ImageFormat::Png)
-    .map_err(png_err(&file))?;
+    image::GrayImage::from_raw(w, h, img.coverage.clone())
+        .expect("buffer matches the camera")
+        .save_with_format(&file, image::ImageFormat::Png)
+        .map_err(png_err(&file))?;
     let file = out.join(rel("segmentation"));
     image::GrayImage::from_raw(w, h, img.label.clone())
         .expect("buffer matches the camera")

@@ -125,7 +125,8 @@ pub struct TrainOptions {
     pub frame_code_deform: bool,
     /// Composite each step's targets and render over a random colour instead of the
     /// dataset's background (HumanNeRF, InstantAvatar), on a dataset composited by its
-    /// masks (camera frames; a matted one keeps its background): `on` or `off`.
+    /// masks (camera frames) or matted with coverage masks (`synth`'s); a matted one with
+    /// a matte keeps its background: `on` or `off`.
     #[arg(long = "random-background", value_name = "on|off", default_value = "off", value_parser = PossibleValuesParser::new(["on", "off"]).map(|s| s == "on"), action = clap::ArgAction::Set, help_heading = "Loss")]
     // Runs recorded before the option existed trained over the dataset's background.
     #[serde(default)]
@@ -441,7 +442,7 @@ impl TrainOptions {
     /// The mask edge left out of frame `i`'s random rays (`--mask-edge`), in pixels.
     pub fn mask_edge_in(&self, dataset: &Dataset, i: usize) -> u32 {
         self.mask_edge_px.unwrap_or_else(|| match dataset.matting {
-            Matting::Matted => 0,
+            Matting::Matted | Matting::Reshown { .. } => 0,
             Matting::ByMask => {
                 let camera = &dataset.frames[i].camera;
                 mask_edge_px(camera.width, camera.height)
@@ -706,6 +707,7 @@ mod tests {
             root: PathBuf::new(),
             background: [1.0; 3],
             matting,
+            masks: Default::default(),
             subjects: vec![],
             frames: vec![],
         };

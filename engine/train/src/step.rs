@@ -170,11 +170,12 @@ impl Trainer<'_> {
     }
 
     /// The colour this step's targets and render are composited over: with
-    /// `--random-background` on a dataset composited by its masks a seeded random one
-    /// (the field cannot then paint the background into the person's edge or hide a
-    /// fog in front of it), else the dataset's.
+    /// `--random-background` on a dataset whose person can be shown over another colour
+    /// (composited by its masks, or matted with coverage masks) a seeded random one (the
+    /// field cannot then paint the background into the person's edge or hide a fog in
+    /// front of it), else the dataset's.
     fn step_background(&mut self) -> [f32; 3] {
-        if self.opts.random_background && self.dataset.matting == Matting::ByMask {
+        if self.opts.random_background && self.dataset.can_show_over() {
             std::array::from_fn(|_| self.rng.next_f32())
         } else {
             self.dataset.background

@@ -6,7 +6,7 @@ use std::path::Path;
 
 use image::{DynamicImage, GrayImage, ImageFormat, ImageReader, RgbImage};
 
-use super::matting::{Composited, Matting, Surroundings, composite, surroundings};
+use super::matting::{Composited, Matting, Surroundings, composite, recomposite, surroundings};
 use super::{Dataset, DatasetError, derived_segmentation};
 
 /// Number of segmentation labels: 0 background, 1 body, 2 arms, 3 hands, 4 head.
@@ -95,6 +95,14 @@ fn over_background(img: DynamicImage, background: [f32; 3]) -> RgbImage {
 }
 
 impl Dataset {
+    /// The colour a matted dataset's files show around the person.
+    fn files_over(&self) -> [f32; 3] {
+        match self.matting {
+            Matting::Reshown { files_over } => files_over,
+            _ => self.background,
+        }
+    }
+
     /// Frame `index`'s image file as RGB, not composited by its mask (an alpha channel is
     /// still composited over the background): what overlays draw on.
     pub fn file_rgb(&self, index: usize) -> Result<RgbImage, DatasetError> {
@@ -102,7 +110,7 @@ impl Dataset {
         let size = (frame.camera.width, frame.camera.height);
         Ok(over_background(
             decode_png(&self.root, &frame.image, size)?,
-            self.background,
+            self.files_over(),
         ))
     }
 
@@ -116,7 +124,7 @@ impl Dataset {
         let size = (frame.camera.width, frame.camera.height);
         let file_rgb = self.file_rgb(index)?;
         let mask = decode_png(&self.root, &frame.mask, size)?.into_luma8();
-        let around = surroundings(&file_rgb, &mask, self.background);
+        let around = surroundings(&file_rgb, &mask, self.files_over());
         Ok((file_rgb, mask, around))
     }
 
@@ -130,11 +138,17 @@ impl Dataset {
         let (file_rgb, mask, around) = self.file_and_mask(index)?;
         let composited = match self.matting {
             Matting::ByMask => Composited::Declared,
-            Matting::Matted if around.contradicts() => Composited::Contradicted,
+            Matting::Matted | Matting::Reshown { .. } if around.contradicts() => {
+                Composited::Contradicted
+            }
             Matting::Matted => Composited::No,
+            Matting::Reshown { .. } => Composited::Reshown,
         };
         let rgb = match composited {
             Composited::No => file_rgb,
+            Composited::Reshown => {
+                recomposite(&file_rgb, &mask, self.files_over(), self.background)
+            }
             _ => composite(&file_rgb, &mask, self.background),
         };
         let Some(rel) = &frame.segmentation else {

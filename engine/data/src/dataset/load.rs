@@ -6,7 +6,9 @@ use std::path::{Component, Path, PathBuf};
 use glam::DVec3;
 use serde_json::Value;
 
-use super::{Dataset, DatasetError, FORMAT, Frame, INDEX_FILE, Matting, Split, Subject, VERSION};
+use super::{
+    Dataset, DatasetError, FORMAT, Frame, INDEX_FILE, Masks, Matting, Split, Subject, VERSION,
+};
 use crate::json_shape::{self, ShapeError};
 use crate::params_json::ParamsJson;
 use talkin_human::body::{FrameParams, N_JOINTS, Skeleton};
@@ -57,6 +59,7 @@ impl Dataset {
         })?;
         let background = r.header(&doc)?;
         let matting = r.matting(&doc)?;
+        let masks = r.masks(&doc)?;
         let subjects = r.subjects(&doc)?;
         let frames_json = json_shape::member(&doc, "", "frames").map_err(|e| r.shape(e))?;
         let Some(frames_json) = frames_json.as_array().filter(|a| !a.is_empty()) else {
@@ -71,6 +74,7 @@ impl Dataset {
             root: root.to_path_buf(),
             background,
             matting,
+            masks,
             subjects,
             frames,
         })
@@ -223,6 +227,22 @@ impl Reader {
                 "matting",
                 format!(
                     "expected \"matted\" (the images show the person over `background`) or \"by_mask\" (camera frames, composited by their masks), found {name:?}"
+                ),
+            )
+        })
+    }
+
+    /// `masks`: absent (a matte, as every dataset before the field), "matte" or "coverage".
+    fn masks(&self, doc: &Value) -> Result<Masks, DatasetError> {
+        let Some(v) = doc.get("masks") else {
+            return Ok(Masks::Matte);
+        };
+        let name = json_shape::string(v, "masks").map_err(|e| self.shape(e))?;
+        Masks::from_name(name).ok_or_else(|| {
+            self.invalid(
+                "masks",
+                format!(
+                    "expected \"matte\" (a matting tool's or your masks) or \"coverage\" (each pixel's exact covered fraction, what `synth` writes), found {name:?}"
                 ),
             )
         })

@@ -5,7 +5,7 @@
 use image::{GrayImage, RgbImage};
 
 /// How a dataset's image files relate to its `background`.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub enum Matting {
     /// The files already show the person over `background` (what `synth` writes, and the
     /// default of a dataset.json without `matting`). A frame whose surroundings contradict
@@ -16,18 +16,53 @@ pub enum Matting {
     /// The files are camera frames (what `import` writes): every frame is composited by
     /// its mask when it is decoded; the file stays as it was for overlays.
     ByMask,
+    /// Matted files with coverage masks ([`Masks::Coverage`]) shown over `background`
+    /// instead of `files_over`, the colour they were written over: every frame is
+    /// recomposited when it is decoded ([`recomposite`]). What [`super::Dataset::show_over`]
+    /// makes of a `synth` dataset; it is written to dataset.json as what it was, matted
+    /// over `files_over`.
+    Reshown { files_over: [f32; 3] },
 }
 
 impl Matting {
     pub const fn name(self) -> &'static str {
         match self {
-            Matting::Matted => "matted",
+            Matting::Matted | Matting::Reshown { .. } => "matted",
             Matting::ByMask => "by_mask",
         }
     }
 
     pub fn from_name(name: &str) -> Option<Matting> {
         [Matting::Matted, Matting::ByMask]
+            .into_iter()
+            .find(|m| m.name() == name)
+    }
+}
+
+/// What a dataset's masks are.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Masks {
+    /// A matte, from a matting tool or a renderer: its value is the alpha compositing
+    /// uses, soft edges kept, but a matted file's edge pixel cannot be split into the
+    /// person and the background it was written over (the default).
+    #[default]
+    Matte,
+    /// Each pixel's exact covered fraction (`"masks": "coverage"`, what `synth` writes):
+    /// a matted file's pixel is mask x person + (1 - mask) x background, so the person can
+    /// be shown over another colour ([`recomposite`]), as camera captures are scored.
+    Coverage,
+}
+
+impl Masks {
+    pub const fn name(self) -> &'static str {
+        match self {
+            Masks::Matte => "matte",
+            Masks::Coverage => "coverage",
+        }
+    }
+
+    pub fn from_name(name: &str) -> Option<Masks> {
+        [Masks::Matte, Masks::Coverage]
             .into_iter()
             .find(|m| m.name() == name)
     }
@@ -43,6 +78,9 @@ pub enum Composited {
     /// The dataset declares its images matted, but this frame's surroundings contradict
     /// the background: composited by its mask, and every command that trains says so.
     Contradicted,
+    /// A matted file with coverage masks shown over another background
+    /// ([`Matting::Reshown`]).
+    Reshown,
 }
 
 /// A channel farther than this from the background (in [0, 1]) makes a pixel "off".
@@ -106,6 +144,23 @@ pub fn composite(rgb: &RgbImage, mask: &GrayImage, background: [f32; 3]) -> RgbI
         let p = rgb.get_pixel(x, y).0;
         image::Rgb(std::array::from_fn(|c| {
             (f32::from(p[c]) * a + bg[c] * (1.0 - a))
+                .round()
+                .clamp(0.0, 255.0) as u8
+        }))
+    })
+}
+
+/// A matted frame over `to` instead of `from`, by its coverage mask `a` = mask / 255: a
+/// pixel written as a x person + (1 - a) x from becomes a x person + (1 - a) x to, that
+/// is rgb + (1 - a) x (to - from). Exact for coverage masks (up to the files' 8 bits);
+/// a matte's edge would keep some of `from`.
+pub fn recomposite(rgb: &RgbImage, mask: &GrayImage, from: [f32; 3], to: [f32; 3]) -> RgbImage {
+    let shift: [f32; 3] = std::array::from_fn(|c| (to[c] - from[c]) * 255.0);
+    RgbImage::from_fn(rgb.width(), rgb.height(), |x, y| {
+        let a = f32::from(mask.get_pixel(x, y).0[0]) / 255.0;
+        let p = rgb.get_pixel(x, y).0;
+        image::Rgb(std::array::from_fn(|c| {
+            (f32::from(p[c]) + (1.0 - a) * shift[c])
                 .round()
                 .clamp(0.0, 255.0) as u8
         }))

@@ -20,8 +20,8 @@ pub use images::{FrameImages, LABEL_NAMES, N_LABELS};
 pub use load::camera_field;
 pub use load::parse_camera;
 pub use matting::{
-    Composited, EDGE_BAND_PX, MAX_OFF_SHARE, Matting, OFF_BY, Surroundings, composite, dilate,
-    mask_edge_band, mask_edge_px, on_mask_cut, surroundings,
+    Composited, EDGE_BAND_PX, MAX_OFF_SHARE, Masks, Matting, OFF_BY, Surroundings, composite,
+    dilate, mask_edge_band, mask_edge_px, on_mask_cut, recomposite, surroundings,
 };
 pub use write::write_atomic;
 
@@ -125,6 +125,8 @@ pub struct Dataset {
     /// Whether the image files already show the person over `background`, or are camera
     /// frames that every command composites by their masks ([`Dataset::images`]).
     pub matting: Matting,
+    /// Whether the masks are exact coverage (what `synth` writes) or a matte.
+    pub masks: Masks,
     pub subjects: Vec<Subject>,
     pub frames: Vec<Frame>,
 }
@@ -144,6 +146,43 @@ impl Dataset {
             .collect();
         frames.sort_by(|&a, &b| self.frames[a].time.total_cmp(&self.frames[b].time));
         frames
+    }
+
+    /// Every frame's target shown over `background` (RGB in [0, 1]) instead of the
+    /// declared colour, as camera captures are scored (over black): a `by_mask` dataset
+    /// composites its frames over it, a matted one with coverage masks recomposites them
+    /// ([`Matting::Reshown`]). A matted dataset with a matte cannot: its edge pixels keep
+    /// the colour they were written over.
+    pub fn show_over(&mut self, background: [f32; 3]) -> Result<(), DatasetError> {
+        if !self.can_show_over() {
+            return Err(DatasetError::Invalid {
+                file: self.root.join(INDEX_FILE),
+                field: "masks".into(),
+                problem: format!(
+                    "the frames are matted over {:?} and the masks are a matte, which cannot \
+                     take that colour out of the edge pixels: only a dataset composited by its \
+                     masks (\"matting\": \"by_mask\") or one with exact coverage masks \
+                     (\"masks\": \"coverage\", what `synth` writes) is shown over another colour",
+                    self.background
+                ),
+            });
+        }
+        self.matting = match (self.matting, self.masks) {
+            (Matting::ByMask, _) => Matting::ByMask,
+            (Matting::Reshown { files_over }, _) => Matting::Reshown { files_over },
+            (Matting::Matted, Masks::Coverage) => Matting::Reshown {
+                files_over: self.background,
+            },
+            (Matting::Matted, Masks::Matte) => unreachable!("checked above"),
+        };
+        self.background = background;
+        Ok(())
+    }
+
+    /// Whether every frame's person can be shown over another colour
+    /// ([`Dataset::show_over`]): composited by its masks, or matted with coverage masks.
+    pub fn can_show_over(&self) -> bool {
+        self.matting != Matting::Matted || self.masks == Masks::Coverage
     }
 
     /// Index of a subject by name.

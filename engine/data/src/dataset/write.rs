@@ -4,7 +4,7 @@ use std::path::Path;
 
 use serde_json::{Value, json};
 
-use super::{Dataset, DatasetError, FORMAT, INDEX_FILE, VERSION};
+use super::{Dataset, DatasetError, FORMAT, INDEX_FILE, Masks, Matting, VERSION};
 use crate::params_json::ParamsJson;
 
 impl Dataset {
@@ -50,14 +50,23 @@ impl Dataset {
                 frame
             })
             .collect();
-        json!({
+        // A dataset shown over another colour is written as it is on disk.
+        let background = match self.matting {
+            Matting::Reshown { files_over } => files_over,
+            _ => self.background,
+        };
+        let mut doc = json!({
             "format": FORMAT,
             "version": VERSION,
-            "background": self.background.map(|c| round9(c as f64)),
+            "background": background.map(|c| round9(c as f64)),
             "matting": self.matting.name(),
             "subjects": subjects,
             "frames": frames,
-        })
+        });
+        if self.masks != Masks::Matte {
+            doc["masks"] = json!(self.masks.name());
+        }
+        doc
     }
 
     /// Writes `root/dataset.json` atomically (temp file + rename): a crash never leaves a

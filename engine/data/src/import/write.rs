@@ -110,6 +110,7 @@ pub(crate) fn write(
         root: tmp.path().to_path_buf(),
         background: [1.0, 1.0, 1.0],
         matting: crate::dataset::Matting::ByMask,
+        masks: crate::dataset::Masks::Matte,
         subjects: vec![Subject {
             name: subject.clone(),
             skeleton: Skeleton {

@@ -138,7 +138,7 @@ pub fn summarize(
         matting: dataset.matting,
         contradicting_frames: checks
             .iter()
-            .filter(|c| dataset.matting == Matting::Matted && c.surroundings.contradicts())
+            .filter(|c| dataset.matting != Matting::ByMask && c.surroundings.contradicts())
             .map(|c| c.frame)
             .collect(),
         frames: checks,
@@ -278,11 +278,13 @@ impl std::fmt::Display for Summary {
                 f,
                 "matting \"by_mask\": every frame is composited over the background by its mask"
             ),
-            Matting::Matted if self.contradicting_frames.is_empty() => write!(
-                f,
-                "matting \"matted\": the images show the person over the background"
-            ),
-            Matting::Matted => write!(
+            Matting::Matted | Matting::Reshown { .. } if self.contradicting_frames.is_empty() => {
+                write!(
+                    f,
+                    "matting \"matted\": the images show the person over the background"
+                )
+            }
+            Matting::Matted | Matting::Reshown { .. } => write!(
                 f,
                 "matting \"matted\", but {} frames are not over the background: {}",
                 self.contradicting_frames.len(),

@@ -33,6 +33,7 @@ fn dataset(n: usize, params: &FrameParams) -> Dataset {
         root: PathBuf::from("/nonexistent"),
         background: [1.0; 3],
         matting: talkin_data::dataset::Matting::Matted,
+        masks: Default::default(),
         subjects: vec![Subject {
             name: "ada".into(),
             skeleton,
