@@ -16,6 +16,7 @@ use talkin_avatar::field_inputs::packed_layout;
 use talkin_grids::{PackedSamples, Ray};
 use talkin_nets::field::leaves::zero_grads;
 use talkin_nets::loss::{PerceptualLoss, PixelInputs, PixelLoss, PixelWeights, pixel_loss};
+use talkin_nets::render::RenderedRays;
 use talkin_nets::{
     FieldInput, FrameConditions, NetsError, PoseGrads, PoseLeaves, TalkinField, is_cpu,
 };
@@ -151,9 +152,10 @@ pub(crate) fn loss_and_grads(
     })
 }
 
-/// Rays `range` of the batch (sampled as `samples`): their loss and MSE weighted by
-/// their share of the rays, and the gradients. `fork`: run on a fork of the field (needed when another thread runs
-/// the other half at the same time).
+/// Rays `range` of the batch (sampled as `samples`), in three stages: the field's render
+/// of them, their loss (weighted by their share of the rays) and its backward. `fork`:
+/// run on a fork of the field (needed when another thread runs the other half at the
+/// same time).
 fn half(
     field: &TalkinField,
     fork: bool,
@@ -162,7 +164,6 @@ fn half(
     range: std::ops::Range<usize>,
     samples: &PackedSamples,
 ) -> Result<StepLoss<Tensor<1>>, NetsError> {
-    let device = field.identity.val().device();
     let forked;
     let field = if fork {
         forked = field.fork_leaves();
@@ -170,9 +171,30 @@ fn half(
     } else {
         field
     };
-    let n_rays = range.len();
-    let weight = n_rays as f32 / batch.rays.len() as f32;
-    let rays = &batch.rays[range.clone()];
+    let rendered = render_rays(field, batch, range.clone(), samples)?;
+    let loss = rays_loss(field, perceptual, batch, range, &rendered);
+    Ok(backward(field, batch, loss, rendered.leaves.as_ref()))
+}
+
+/// What the field rendered of a range of rays.
+struct RaysRender {
+    rendered: RenderedRays,
+    /// The distortion term, weighted (with `--distortion`).
+    distortion: Option<Tensor<1>>,
+    /// The frame's conditions as autodiff leaves (pose refinement).
+    leaves: Option<PoseLeaves>,
+}
+
+/// The field's forward on the rays' samples (through pose leaves when the pose is
+/// refined) and its volume render.
+fn render_rays(
+    field: &TalkinField,
+    batch: &StepBatch,
+    range: std::ops::Range<usize>,
+    samples: &PackedSamples,
+) -> Result<RaysRender, NetsError> {
+    let device = field.identity.val().device();
+    let rays = &batch.rays[range];
     let points: Vec<[f32; 3]> = samples
         .midpoints_in_world(rays)
         .into_iter()
@@ -195,7 +217,33 @@ fn half(
     };
     let (rendered, distortion) =
         out.render_with_distortion(&layout.view(), batch.distortion > 0.0)?;
-    let distortion = distortion.map(|d| d.mean().mul_scalar(batch.distortion));
+    Ok(RaysRender {
+        rendered,
+        distortion: distortion.map(|d| d.mean().mul_scalar(batch.distortion)),
+        leaves,
+    })
+}
+
+/// A range of rays' loss, weighted by their share of the batch, and `[loss, mse]`
+/// detached for the log.
+struct RaysLoss {
+    loss: Tensor<1>,
+    values: Tensor<1>,
+}
+
+/// The pixel terms (MSE or 0.2 MSE, seg CE, the silhouette), the distortion and the
+/// frame code's prior, weighted by the rays' share; the LPIPS patches on the first half.
+fn rays_loss(
+    field: &TalkinField,
+    perceptual: Option<&PerceptualLoss>,
+    batch: &StepBatch,
+    range: std::ops::Range<usize>,
+    render: &RaysRender,
+) -> RaysLoss {
+    let device = field.identity.val().device();
+    let n_rays = range.len();
+    let weight = n_rays as f32 / batch.rays.len() as f32;
+    let rendered = &render.rendered;
     let target = Tensor::<2>::from_data(
         TensorData::new(
             batch.rgb[3 * range.start..3 * range.end].to_vec(),
@@ -227,7 +275,7 @@ fn half(
         mse: l_mse,
         rgb,
     } = pixel_loss(PixelInputs {
-        rendered: &rendered,
+        rendered,
         background: batch.background,
         target: &target,
         labels: &labels,
@@ -237,7 +285,7 @@ fn half(
     let code_prior = field
         .frame_code_norm2(batch.frame)
         .map(|n2| n2.mul_scalar(FRAME_CODE_PRIOR));
-    let pixel = [distortion, code_prior]
+    let pixel = [render.distortion.clone(), code_prior]
         .into_iter()
         .flatten()
         .fold(pixel, |sum, term| sum + term)
@@ -261,21 +309,32 @@ fn half(
         vec![loss.clone().detach(), l_mse.detach().mul_scalar(weight)],
         0,
     );
+    RaysLoss { loss, values }
+}
+
+/// The loss's gradients w.r.t. the field's parameters and, through `leaves`, the frame's
+/// pose.
+fn backward(
+    field: &TalkinField,
+    batch: &StepBatch,
+    loss: RaysLoss,
+    leaves: Option<&PoseLeaves>,
+) -> StepLoss<Tensor<1>> {
     // A half whose rays all missed every capsule (e.g. an LPIPS patch beside the person)
     // has no samples: its loss is a constant, with no gradient to take.
-    let (grads, pose) = if loss.is_tracked() {
-        let g = loss.backward();
-        let pose = leaves.as_ref().map(|l| l.grads(&g));
+    let (grads, pose) = if loss.loss.is_tracked() {
+        let g = loss.loss.backward();
+        let pose = leaves.map(|l| l.grads(&g));
         (GradientsParams::from_grads(g, field), pose)
     } else {
         let pose = batch.pose_grads.then(|| zero_grads(field.pose_dim()));
         (GradientsParams::new(), pose)
     };
-    Ok(StepLoss {
-        values,
+    StepLoss {
+        values: loss.values,
         grads,
         pose,
-    })
+    }
 }
 
 #[cfg(test)]
