@@ -27,7 +27,7 @@
 #      the bench's fresh field's are not);
 #   6. `bench device`, paper preset at 32,768 rays a step (the paper's batch);
 #   7. with GPU_CHECK_COMPOSED=1, stage 5 again with the MLPs as composed burn ops
-#      (`TALKIN_MLP_FUSED=0`), the baseline of the fused MLP kernels in the same run.
+#      (`--mlp-fused off`), the baseline of the fused MLP kernels in the same run.
 #
 # Everything lands in OUT (default out/gpu-check); OUT/gpu-check.json gathers the
 # numbers, and each stage's log is beside it. A stage that fails or runs out of time is
@@ -136,9 +136,9 @@ stage bench-fast 70 "$BIN" -q bench device --data "$data" --out "$OUT/bench-fast
 stage bench-paper 120 "$BIN" -q bench device --data "$data" --out "$OUT/bench-paper" \
   --devices "$DEVICE" --presets paper --batch 32768 --warmup 3 --steps 5 --renders 2
 if [ "$COMPOSED" = 1 ]; then
-  stage bench-fast-composed 60 env TALKIN_MLP_FUSED=0 "$BIN" -q bench device --data "$data" \
+  stage bench-fast-composed 60 "$BIN" -q bench device --data "$data" \
     --out "$OUT/bench-fast-composed" --devices "$DEVICE" --presets fast --batch "$BATCH" --warmup 30 \
-    --steps 20 --renders 3
+    --steps 20 --renders 3 --mlp-fused off
 fi
 
 adapter=$(nvidia-smi --query-gpu=name,driver_version --format=csv,noheader 2>/dev/null | head -n 1)

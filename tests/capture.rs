@@ -283,7 +283,10 @@ fn capture_is_seeded_and_each_flaw_acts_alone() {
             assert!((0..3).all(|k| px[k] <= c[k]), "{px:?} {c:?} {m}");
         }
     }
-    assert!(clean[0].mask.iter().any(|&m| m > 0 && m < 255), "coverage masks");
+    assert!(
+        clean[0].mask.iter().any(|&m| m > 0 && m < 255),
+        "coverage masks"
+    );
 
     // Exposure: a gain on every pixel.
     let exposed = only("exposure");

@@ -52,6 +52,30 @@ impl MlpConfig {
                 .copied()
                 .filter(|&s| s > 0 && s < self.depth)
                 .collect(),
+            fused_on_device: MlpPath::default().fused_on_device,
+            slice_rows: MlpPath::default().slice_rows,
+        }
+    }
+}
+
+/// Which products an MLP runs off the CPU (the CPU always takes the fused kernel where
+/// it applies): a choice of the field's configuration, saved with every checkpoint, so
+/// that comparing the paths is comparing two configurations, never a process's state.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub struct MlpPath {
+    /// MLPs without skips take the fused device op (`kernels::cube::mlp`); false: the
+    /// composed burn ops (the baseline it is measured against).
+    pub fused_on_device: bool,
+    /// Rows a slice of the composed ops' batched products ([`Mlp::sliced`]); 0: no
+    /// slicing.
+    pub slice_rows: usize,
+}
+
+impl Default for MlpPath {
+    fn default() -> Self {
+        MlpPath {
+            fused_on_device: true,
+            slice_rows: 256,
         }
     }
 }
@@ -62,9 +86,20 @@ pub struct Mlp {
     pub(crate) hidden: Vec<Linear>,
     pub(crate) output: Linear,
     skips: Vec<usize>,
+    /// [`MlpPath::fused_on_device`] (not saved: the configuration says it).
+    fused_on_device: bool,
+    /// [`MlpPath::slice_rows`].
+    slice_rows: usize,
 }
 
 impl Mlp {
+    /// This MLP taking `path` off the CPU.
+    pub fn with_path(mut self, path: MlpPath) -> Mlp {
+        self.fused_on_device = path.fused_on_device;
+        self.slice_rows = path.slice_rows;
+        self
+    }
+
     /// # Shapes
     /// - `x`: `[n, d_input]`
     /// - output: `[n, d_output]`
@@ -90,7 +125,7 @@ impl Mlp {
     /// [`Mlp::forward_with_row`] as burn tensor ops (every backend, skips). Off the CPU,
     /// a batch of at least two slices goes through [`Mlp::sliced`].
     fn composed(&self, x: Tensor<2>, row: Option<Tensor<2>>) -> Tensor<2> {
-        let rows = split_rows();
+        let rows = self.slice_rows;
         if rows > 0 && x.dims()[0] >= 2 * rows && !is_cpu(&x.device()) {
             return self.sliced(x, row, rows);
         }
@@ -140,12 +175,12 @@ impl Mlp {
 impl Mlp {
     /// The fused op where it applies: no skips, every layer with a bias, a non-empty
     /// batch; on the CPU backend `kernels::mlp`, on a CubeCL device `kernels::cube::mlp`
-    /// (where its sizes fit and [`fused_on_device`]). On the CPU the shared row's product
+    /// (where its sizes fit and [`MlpPath::fused_on_device`]). On the CPU the shared row's product
     /// and the first bias become one `[1, width]` bias, composed here so their gradients
     /// flow as usual; the device op folds the row itself.
     fn fused(&self, x: &Tensor<2>, row: Option<&Tensor<2>>) -> Option<Tensor<2>> {
         let [n, d_x] = x.dims();
-        if !self.skips.is_empty() || n == 0 || (!is_cpu(&x.device()) && !fused_on_device()) {
+        if !self.skips.is_empty() || n == 0 || (!is_cpu(&x.device()) && !self.fused_on_device) {
             return None;
         }
         let mut params = Vec::with_capacity(2 * (self.hidden.len() + 1));
@@ -211,26 +246,6 @@ fn linear_with_row<const D: usize>(
             }
         }
     }
-}
-
-/// Whether MLPs without skips take the fused device op (`kernels::cube::mlp`) off the
-/// CPU: yes, unless `TALKIN_MLP_FUSED=0` (read once), a knob for measuring the op
-/// against the composed ops on a GPU.
-fn fused_on_device() -> bool {
-    static FUSED: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
-    *FUSED.get_or_init(|| std::env::var("TALKIN_MLP_FUSED").map_or(true, |v| v.trim() != "0"))
-}
-
-/// Rows a slice of [`Mlp::sliced`]: 256, or `TALKIN_MLP_SLICE_ROWS` (0 turns slicing
-/// off; read once), a knob for measuring the split against the plain products on a GPU.
-fn split_rows() -> usize {
-    static ROWS: std::sync::OnceLock<usize> = std::sync::OnceLock::new();
-    *ROWS.get_or_init(|| {
-        std::env::var("TALKIN_MLP_SLICE_ROWS")
-            .ok()
-            .and_then(|v| v.parse().ok())
-            .unwrap_or(256)
-    })
 }
 
 #[cfg(test)]

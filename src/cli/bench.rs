@@ -2,6 +2,7 @@ use std::path::PathBuf;
 use std::sync::Arc;
 
 use anyhow::Context;
+use clap::builder::TypedValueParser;
 use talkin_benches::sampling;
 use talkin_data::dataset::Dataset;
 use talkin_data::params_json::ParamsJson;
@@ -108,6 +109,10 @@ pub struct DeviceBenchArgs {
     /// Seed of the fields and the ray choice.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
+    /// Off the CPU, the fused MLP op (`on`) or burn's composed ops (`off`), to measure
+    /// one against the other.
+    #[arg(long = "mlp-fused", value_name = "on|off", default_value = "on", value_parser = clap::builder::PossibleValuesParser::new(["on", "off"]).map(|s| s == "on"), action = clap::ArgAction::Set)]
+    pub mlp_fused: bool,
 }
 
 #[derive(clap::Args, Debug)]
@@ -278,6 +283,7 @@ fn device_bench(args: DeviceBenchArgs) -> anyhow::Result<()> {
             batch_rays: args.batch_rays,
             patches: args.patches,
             seed: args.seed,
+            mlp_fused: args.mlp_fused,
             ..TrainOptions::default()
         },
     };

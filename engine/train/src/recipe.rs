@@ -11,6 +11,7 @@ use serde::{Deserialize, Serialize};
 use talkin_data::dataset::{Dataset, Matting, mask_edge_px};
 use talkin_grids::SamplerKind;
 use talkin_nets::ComputeDevice;
+use talkin_nets::mlp::MlpPath;
 
 use crate::error::TrainError;
 use crate::preset::Preset;
@@ -75,6 +76,18 @@ pub struct TrainOptions {
     // Runs recorded before finger skinning moved the fingers with their wrist.
     #[serde(default = "FingerSkinning::recorded_before")]
     pub skin_fingers: FingerSkinning,
+    /// Off the CPU, whether the MLPs take the fused device op (`on`) or burn's composed
+    /// ops (`off`: the baseline it is measured against). Recorded in the field's
+    /// configuration; the CPU always takes its fused kernel.
+    #[arg(long = "mlp-fused", value_name = "on|off", default_value = "on", value_parser = PossibleValuesParser::new(["on", "off"]).map(|s| s == "on"), action = clap::ArgAction::Set, help_heading = "Model and device")]
+    // Runs recorded before the option existed took the fused op.
+    #[serde(default = "yes")]
+    pub mlp_fused: bool,
+    /// Off the CPU, rows a slice of the composed MLP products (0: no slicing). Recorded in
+    /// the field's configuration.
+    #[arg(long = "mlp-slice-rows", value_name = "N", default_value_t = MlpPath::default().slice_rows, help_heading = "Model and device")]
+    #[serde(default = "default_slice_rows")]
+    pub mlp_slice_rows: usize,
     #[command(flatten, next_help_heading = "Run")]
     pub budget: Budget,
     /// Seed of the initialisation, the frame and ray choice and the sample jitter.
@@ -181,6 +194,23 @@ pub struct TrainOptions {
 
 fn one() -> f64 {
     1.0
+}
+
+/// The most rows a slice of the composed MLP products may take (a batch is rarely more).
+const MAX_SLICE_ROWS: usize = 1 << 20;
+
+/// The MLP path these options choose ([`TrainOptions::mlp_fused`], `mlp_slice_rows`).
+impl TrainOptions {
+    pub fn mlp_path(&self) -> MlpPath {
+        MlpPath {
+            fused_on_device: self.mlp_fused,
+            slice_rows: self.mlp_slice_rows,
+        }
+    }
+}
+
+fn default_slice_rows() -> usize {
+    MlpPath::default().slice_rows
 }
 
 fn yes() -> bool {
@@ -388,6 +418,8 @@ impl Default for TrainOptions {
             preset: Preset::Fast,
             sampler: SamplerKind::Accelerated,
             skin_fingers: FingerSkinning::Bones,
+            mlp_fused: true,
+            mlp_slice_rows: MlpPath::default().slice_rows,
             budget: Budget::default(),
             seed: 0,
             identities: Identities::All,
@@ -473,6 +505,12 @@ impl TrainOptions {
         }
         if !(self.initial_lr().is_finite() && self.initial_lr() > 0.0) {
             return bad("--lr", "must be a positive number");
+        }
+        if self.mlp_slice_rows > MAX_SLICE_ROWS {
+            return bad(
+                "--mlp-slice-rows",
+                &format!("must be at most {MAX_SLICE_ROWS} (0 turns slicing off)"),
+            );
         }
         if !(self.mask_weight.is_finite() && self.mask_weight >= 0.0) {
             return bad("--mask-weight", "must be a finite number >= 0");
@@ -582,6 +620,11 @@ mod tests {
             ..TrainOptions::default()
         };
         assert_eq!(flag_of(opts), "--frame-codes");
+        let opts = TrainOptions {
+            mlp_slice_rows: MAX_SLICE_ROWS + 1,
+            ..TrainOptions::default()
+        };
+        assert_eq!(flag_of(opts), "--mlp-slice-rows");
         let opts = TrainOptions {
             lr: Some(0.0),
             ..TrainOptions::default()

@@ -16,7 +16,6 @@ use crate::rays::{Batch, BatchSpec, CacheError, FrameCache, PATCH, draw_batch};
 use crate::refine::chain::correction_gradient;
 use crate::schedule;
 use crate::trainer::Trainer;
-use talkin_data::dataset::Matting;
 use talkin_nets::PoseGrads;
 use talkin_nets::skinning::skinned_candidates;
 

@@ -16,7 +16,7 @@ use crate::encoding::{
 };
 use crate::error::NetsError;
 use crate::init::WeightRng;
-use crate::mlp::MlpConfig;
+use crate::mlp::{MlpConfig, MlpPath};
 use crate::skinning::{BoneSegment, SkinningConfig};
 
 /// Entries per level (log2) of the `fast` preset's F_face and F_hands tables. The head
@@ -93,6 +93,10 @@ pub struct FieldConfig {
     /// before the choice existed) is [`UnitMap::PerAxis`].
     #[config(default = "None")]
     pub unit_map: Option<UnitMap>,
+    /// Which products the MLPs run off the CPU; `None` (checkpoints written before the
+    /// choice was recorded) is the default [`MlpPath`].
+    #[config(default = "None")]
+    pub mlp_path: Option<MlpPath>,
 }
 
 /// Per-frame latent codes: one per training frame, read by F_body (and by D_nr with
@@ -205,6 +209,7 @@ impl FieldConfig {
             device,
         );
         let part_encoding = self.part_encoding.as_ref().unwrap_or(&self.encoding);
+        let mlp_path = self.mlp_path.unwrap_or_default();
         let body_encoding = self.encoding.init(device, rng);
         let face_encoding = self.has_face.then(|| part_encoding.init(device, rng));
         let hands_encoding = self.has_hands.then(|| part_encoding.init(device, rng));
@@ -215,7 +220,7 @@ impl FieldConfig {
                         rng: &mut WeightRng| {
             let d_in = encoding.output_dim() + d_cond + self.identity_dim;
             RadianceNet {
-                mlp: mlp.init(d_in, d_out, None, device, rng),
+                mlp: mlp.init(d_in, d_out, None, device, rng).with_path(mlp_path),
                 encoding,
             }
         };
@@ -225,7 +230,10 @@ impl FieldConfig {
                 .init();
             let d_in = encoding.output_dim(3) + d_cond;
             DeformNet {
-                mlp: self.deform.init(d_in, 3, Some(1e-5), device, rng),
+                mlp: self
+                    .deform
+                    .init(d_in, 3, Some(1e-5), device, rng)
+                    .with_path(mlp_path),
                 encoding,
             }
         };

@@ -42,6 +42,7 @@ impl<'a> Trainer<'a> {
         config.hand_background = opts.ablation.hand_background;
         config.face_uses_jaw = opts.ablation.face_uses_jaw;
         config.skinning.finger_bones = Some(opts.skin_fingers.finger_bones());
+        config.mlp_path = Some(opts.mlp_path());
         config.frame_codes = (opts.frame_code_dim > 0).then_some(FrameCodes {
             count: frames.len(),
             dim: opts.frame_code_dim,
