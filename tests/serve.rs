@@ -2,7 +2,8 @@
 //! the avatar's own renders, concurrent clients, every class of bad input answered with a
 //! JSON error naming the field (and the server still serving), a full queue's 503, render
 //! timeouts, graceful shutdown by call and by SIGTERM, the connection limits (`limits`),
-//! posted BEAT2/AMASS motion files (`motion`),
+//! posted BEAT2/AMASS motion files (`motion`), readiness for a load balancer and the load
+//! benchmark against a URL (`readiness`),
 //! and (ignored: needs chromium) the page in a headless browser.
 
 mod common;
@@ -10,6 +11,8 @@ mod common;
 mod limits;
 #[path = "serve/motion.rs"]
 mod motion;
+#[path = "serve/readiness.rs"]
+mod readiness;
 
 use std::io::{BufRead, BufReader, Read};
 use std::net::SocketAddr;
@@ -760,7 +763,23 @@ fn spawn_cli_with(run: &Path, extra: &[&str]) -> (CliServer, SocketAddr) {
         .unwrap_or_else(|| panic!("no address in {line:?}"));
     // Keep draining stderr so the child never blocks on a full pipe.
     std::thread::spawn(move || std::io::copy(&mut stderr, &mut std::io::sink()));
+    wait_until_ready(addr);
     (child, addr)
+}
+
+/// Waits until `/health` answers 200: the listener is up before the checkpoint loads.
+fn wait_until_ready(addr: SocketAddr) {
+    let start = Instant::now();
+    loop {
+        let r = client::request(addr, "GET", "/health", None, WAIT);
+        match r {
+            Ok(r) if r.status == 200 => return,
+            Ok(r) => assert_eq!(r.json()["status"], "loading", "{r:?}"),
+            Err(_) => {}
+        }
+        assert!(start.elapsed() < WAIT, "{addr} never became ready");
+        std::thread::sleep(Duration::from_millis(20));
+    }
 }
 
 /// Waits until the server has a job on a worker (or the request already finished).

@@ -366,6 +366,8 @@ fn the_cli_refuses_bad_options_naming_the_flag_without_panicking() {
         (&["--idle-timeout", "nan"], "--idle-timeout"),
         (&["--shutdown-grace=-0.5"], "--shutdown-grace"),
         (&["--shutdown-grace", "1e20"], "--shutdown-grace"),
+        (&["--drain-delay=-1"], "--drain-delay"),
+        (&["--drain-delay", "nan"], "--drain-delay"),
         (&["--max-connections", "0"], "--max-connections"),
         (&["--queue", "18446744073709551615"], "--queue"),
         (&["--workers", "0"], "--workers"),

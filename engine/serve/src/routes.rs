@@ -7,13 +7,14 @@ use std::time::{Duration, Instant};
 use axum::Router;
 use axum::body::{Body, Bytes};
 use axum::extract::State;
+use axum::middleware::Next;
 use axum::http::{HeaderMap, HeaderValue, Method, StatusCode, Uri, header};
 use axum::response::{Html, IntoResponse, Response};
 use axum::routing::{get, post};
 use serde_json::{Value, json};
 use tokio::sync::oneshot;
 
-use super::App;
+use super::{App, Readiness};
 use super::encode::{self, Encoded};
 use super::error::RequestError;
 use super::motion;
@@ -29,12 +30,28 @@ pub(super) fn router(app: Arc<App>) -> Router {
     Router::new()
         .route("/", get(page))
         .route("/health", get(health))
+        .route("/live", get(live))
         .route("/subjects", get(subjects))
         .route("/render", post(render))
         .route("/render/sequence", post(sequence))
         .fallback(not_found)
         .method_not_allowed_fallback(method_not_allowed)
+        .layer(axum::middleware::from_fn(echo_request_id))
         .with_state(app)
+}
+
+/// The request header a client may set to tell its answers apart; every answer carries
+/// it back unchanged (behind a load balancer that retries, the client can check that
+/// the answer it got is the one to its own request).
+pub const REQUEST_ID_HEADER: &str = "x-request-id";
+
+async fn echo_request_id(request: axum::extract::Request, next: Next) -> Response {
+    let id = request.headers().get(REQUEST_ID_HEADER).cloned();
+    let mut response = next.run(request).await;
+    if let Some(id) = id {
+        response.headers_mut().insert(REQUEST_ID_HEADER, id);
+    }
+    response
 }
 
 async fn page() -> Html<&'static str> {
@@ -44,7 +61,7 @@ async fn page() -> Html<&'static str> {
 async fn not_found() -> RequestError {
     RequestError::NotFound {
         field: None,
-        message: "no such route; try GET /, /health, /subjects or POST /render, \
+        message: "no such route; try GET /, /health, /live, /subjects or POST /render, \
                   /render/sequence"
             .into(),
     }
@@ -58,18 +75,38 @@ async fn method_not_allowed(method: Method, uri: Uri) -> RequestError {
     }
 }
 
+/// Readiness: 200 when the server wants requests, 503 with the reason while it loads or
+/// drains (what a load balancer's health check reads).
 async fn health(State(app): State<Arc<App>>) -> Response {
     let max = app.config.max_connections;
     let open = max.saturating_sub(app.connections.available_permits());
-    json_body(&json!({
-        "status": "ok",
+    let readiness = app.readiness();
+    let (code, status) = match readiness {
+        Readiness::Ready => (StatusCode::OK, "ok"),
+        Readiness::Loading => (StatusCode::SERVICE_UNAVAILABLE, "loading"),
+        Readiness::Draining => (StatusCode::SERVICE_UNAVAILABLE, "draining"),
+    };
+    let mut response = json_body(&json!({
+        "status": status,
+        "reason": readiness.reason(),
         "pool": app.pool.stats(),
         "connections": {"open": open, "max": max},
-    }))
+    }));
+    *response.status_mut() = code;
+    response
+}
+
+/// Liveness: 200 whenever the process answers HTTP at all, loading and draining included.
+async fn live() -> Response {
+    json_body(&json!({"status": "alive"}))
 }
 
 async fn subjects(State(app): State<Arc<App>>) -> Response {
-    let subjects: Vec<Value> = app
+    let loaded = match app.loaded() {
+        Ok(l) => l,
+        Err(e) => return e.into_response(),
+    };
+    let subjects: Vec<Value> = loaded
         .subjects
         .iter()
         .map(|s| {
@@ -107,12 +144,12 @@ async fn subjects(State(app): State<Arc<App>>) -> Response {
 
 async fn render(State(app): State<Arc<App>>, headers: HeaderMap, body: Body) -> Response {
     let result = async {
+        let subjects = &app.loaded()?.subjects;
         let bytes = read_body(&app, &headers, body, None).await?;
-        let req = request::parse_render(&bytes, &app.subjects, &app.config)?;
-        let worker_app = app.clone();
+        let req = request::parse_render(&bytes, subjects, &app.config)?;
+        let avatar = app.loaded()?.avatar.clone();
         let encoded = on_pool(&app, app.config.render_timeout, move |_| {
-            let frame = worker_app
-                .avatar
+            let frame = avatar
                 .render(req.subject, &req.params, &req.camera, None)?;
             Ok(match req.format {
                 Format::Png => encode::png(&frame)?,
@@ -189,7 +226,7 @@ async fn json_sequence(
     body: Body,
 ) -> Result<(Vec<u8>, Vec<String>), RequestError> {
     let bytes = read_body(&app, headers, body, None).await?;
-    let mut req = request::parse_sequence(&bytes, &app.subjects, &app.config)?;
+    let mut req = request::parse_sequence(&bytes, &app.loaded()?.subjects, &app.config)?;
     if req.smooth {
         req.frames = smooth(&req.frames, "frames")?;
     }
@@ -204,14 +241,15 @@ async fn motion_sequence(
     headers: &HeaderMap,
     body: Body,
 ) -> Result<(Vec<u8>, Vec<String>), RequestError> {
-    let q = motion::parse_query(query, &app.subjects, &app.config)?;
+    let q = motion::parse_query(query, &app.loaded()?.subjects, &app.config)?;
     let bytes = read_body(&app, headers, body, Some("motion")).await?;
     let reader = app.clone();
     let q2 = q.clone();
     // Reading and preparing touch the disk and the CPU: off the async threads.
     let (mut frames, notes) = tokio::task::spawn_blocking(move || {
         let motion = motion::read_bytes(&bytes, q2.layout)?;
-        let subject = reader.avatar.subjects[q2.subject]
+        let loaded = reader.loaded()?;
+        let subject = loaded.avatar.subjects[q2.subject]
             .model
             .as_ref()
             .ok_or_else(|| RequestError::Render("a served subject has no model".into()))?;
@@ -219,7 +257,7 @@ async fn motion_sequence(
             &motion,
             &q2,
             &subject.skeleton,
-            reader.body_model.as_deref(),
+            loaded.body_model.as_deref(),
             &reader.config,
         )
     })
@@ -252,7 +290,7 @@ async fn render_frames(
 ) -> Result<Vec<u8>, RequestError> {
     let n = frames.len();
     let timeout = app.config.render_timeout * n as u32;
-    let worker_app = app.clone();
+    let avatar = app.loaded()?.avatar.clone();
     on_pool(&app, timeout, move |job| {
         let mut pngs = Vec::with_capacity(n);
         for (i, params) in frames.iter().enumerate() {
@@ -262,8 +300,7 @@ async fn render_frames(
                     seconds: timeout.as_secs_f64(),
                 });
             }
-            let frame = worker_app
-                .avatar
+            let frame = avatar
                 .render(subject, params, &camera, None)
                 .map_err(|e| match RequestError::from(e) {
                     RequestError::Invalid { message, .. } => {
