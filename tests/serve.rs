@@ -3,10 +3,13 @@
 //! JSON error naming the field (and the server still serving), a full queue's 503, render
 //! timeouts, graceful shutdown by call and by SIGTERM, the connection limits (`limits`),
 //! posted BEAT2/AMASS motion files (`motion`), readiness for a load balancer and the load
-//! benchmark against a URL (`readiness`),
+//! benchmark against a URL (`readiness`), replicas behind HAProxy under faults (`deploy`,
+//! ignored: needs haproxy),
 //! and (ignored: needs chromium) the page in a headless browser.
 
 mod common;
+#[path = "serve/deploy.rs"]
+mod deploy;
 #[path = "serve/limits.rs"]
 mod limits;
 #[path = "serve/motion.rs"]

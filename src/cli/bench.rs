@@ -309,7 +309,10 @@ fn serve_bench(args: ServeBenchArgs) -> anyhow::Result<()> {
         "--clients: expected positive client counts, found {:?}",
         args.clients
     );
-    anyhow::ensure!(args.requests > 0, "--requests: expected at least 1, found 0");
+    anyhow::ensure!(
+        args.requests > 0,
+        "--requests: expected at least 1, found 0"
+    );
     let mut config = args.limits.config()?;
     // Every client's request waits and every client connects instead of being refused:
     // the bench measures latency under load, not the 503 paths.

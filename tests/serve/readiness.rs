@@ -15,7 +15,10 @@ fn assert_not_ready(r: &HttpResponse, status: &str) {
     assert_eq!(r.status, 503, "{r:?}");
     let json = r.json();
     assert_eq!(json["status"], status, "{json}");
-    assert!(json["reason"].as_str().is_some_and(|s| !s.is_empty()), "{json}");
+    assert!(
+        json["reason"].as_str().is_some_and(|s| !s.is_empty()),
+        "{json}"
+    );
 }
 
 #[test]
@@ -36,12 +39,15 @@ fn health_is_503_while_loading_and_while_draining_and_live_stays_200() {
     let refused = post(addr, "/render", &frame_body());
     assert_eq!(refused.status, 503, "{refused:?}");
     assert_eq!(refused.header("retry-after"), Some("1"));
-    assert!(refused.json()["error"].as_str().unwrap().contains("loading"));
+    assert!(
+        refused.json()["error"]
+            .as_str()
+            .unwrap()
+            .contains("loading")
+    );
     assert_eq!(get(addr, "/subjects").status, 503);
 
-    server
-        .serve_avatar(fixture().avatar.clone(), None)
-        .unwrap();
+    server.serve_avatar(fixture().avatar.clone(), None).unwrap();
     let health = get(addr, "/health");
     assert_eq!(health.status, 200);
     assert_eq!(health.json()["status"], "ok");
@@ -108,7 +114,11 @@ fn sigterm_drains_before_the_listener_closes() {
     assert_eq!(post(addr, "/render", &frame_body()).status, 200);
     let status = child.wait().unwrap();
     assert!(status.success(), "{status}");
-    assert!(t.elapsed() >= Duration::from_millis(900), "{:?}", t.elapsed());
+    assert!(
+        t.elapsed() >= Duration::from_millis(900),
+        "{:?}",
+        t.elapsed()
+    );
 }
 
 #[test]

@@ -7,19 +7,19 @@ use std::time::{Duration, Instant};
 use axum::Router;
 use axum::body::{Body, Bytes};
 use axum::extract::State;
-use axum::middleware::Next;
 use axum::http::{HeaderMap, HeaderValue, Method, StatusCode, Uri, header};
+use axum::middleware::Next;
 use axum::response::{Html, IntoResponse, Response};
 use axum::routing::{get, post};
 use serde_json::{Value, json};
 use tokio::sync::oneshot;
 
-use super::{App, Readiness};
 use super::encode::{self, Encoded};
 use super::error::RequestError;
 use super::motion;
 use super::pool::{Job, Refused};
 use super::request::{self, Format};
+use super::{App, Readiness};
 use crate::json::json_body;
 
 /// The web page at `/`: sliders for a few parameters, the rendered frame (no external
@@ -149,8 +149,7 @@ async fn render(State(app): State<Arc<App>>, headers: HeaderMap, body: Body) -> 
         let req = request::parse_render(&bytes, subjects, &app.config)?;
         let avatar = app.loaded()?.avatar.clone();
         let encoded = on_pool(&app, app.config.render_timeout, move |_| {
-            let frame = avatar
-                .render(req.subject, &req.params, &req.camera, None)?;
+            let frame = avatar.render(req.subject, &req.params, &req.camera, None)?;
             Ok(match req.format {
                 Format::Png => encode::png(&frame)?,
                 Format::Raw => encode::raw(&frame),
@@ -300,14 +299,15 @@ async fn render_frames(
                     seconds: timeout.as_secs_f64(),
                 });
             }
-            let frame = avatar
-                .render(subject, params, &camera, None)
-                .map_err(|e| match RequestError::from(e) {
-                    RequestError::Invalid { message, .. } => {
-                        RequestError::invalid(format!("{field}[{i}]"), message)
-                    }
-                    other => other,
-                })?;
+            let frame =
+                avatar.render(subject, params, &camera, None).map_err(
+                    |e| match RequestError::from(e) {
+                        RequestError::Invalid { message, .. } => {
+                            RequestError::invalid(format!("{field}[{i}]"), message)
+                        }
+                        other => other,
+                    },
+                )?;
             pngs.push(encode::png(&frame)?.bytes);
         }
         encode::zip_frames(&pngs)
