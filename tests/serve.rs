@@ -834,9 +834,11 @@ fn sigterm_stops_the_cli_server_after_its_requests() {
 }
 
 /// `cargo test --test serve -- --ignored page_in_headless_chromium`: loads the page in
-/// headless Chromium (`chromium` on PATH, or `$CHROMIUM`), which moves the jaw slider by an
-/// `input` event once the first frame shows (`?selftest`) and reports in the DOM whether a
-/// new frame arrived. Writes a screenshot to the target tmp dir.
+/// headless Chromium (`chromium` on PATH, or `$CHROMIUM`) with `?selftest`, which does
+/// what a user does and checks the pixels: moves the jaw slider, drags the view (the
+/// full-size frame after it must differ), then plays the motion the server offers and
+/// counts the distinct frames that arrive, in order. Writes screenshots of the orbited
+/// view (`?selftest=orbit`) and of a played motion's frame to the target tmp dir.
 #[test]
 #[ignore = "needs chromium"]
 fn page_in_headless_chromium() {
@@ -847,9 +849,13 @@ fn page_in_headless_chromium() {
         default_height: 96,
         ..config()
     });
-    let url = format!("http://{}/?selftest", server.addr());
+    // 60 frames at 30 fps: 8 frames at the 4 fps the self-test plays.
+    let (motion, _) = motion::beat2("page", 60);
+    let named = talkin::serve::motion::read_named(&[motion]).unwrap();
+    server.add_motions(named).unwrap();
     let profile = common::temp_dir("serve_chromium_profile");
-    let headless = |extra: &[&str]| {
+    let headless = |test: &str, extra: &[&str]| {
+        let url = format!("http://{}/?selftest={test}", server.addr());
         let out = Command::new(&chromium)
             .args([
                 "--headless",
@@ -859,7 +865,8 @@ fn page_in_headless_chromium() {
                 "--run-all-compositor-stages-before-draw",
                 // Virtual time only advances while nothing loads, so the render requests
                 // finish before the budget runs out.
-                "--virtual-time-budget=60000",
+                "--virtual-time-budget=120000",
+                "--window-size=900,760",
             ])
             .arg(format!("--user-data-dir={}", profile.display()))
             .args(extra)
@@ -873,20 +880,29 @@ fn page_in_headless_chromium() {
         );
         String::from_utf8_lossy(&out.stdout).into_owned()
     };
-    let dom = headless(&["--dump-dom"]);
-    let verdict = dom
-        .split("data-selftest=\"")
-        .nth(1)
-        .and_then(|s| s.split('"').next())
-        .unwrap_or_else(|| panic!("the self-test did not finish: {dom}"));
-    assert!(verdict.starts_with("pass"), "{verdict}");
-    assert!(dom.contains("data-frames=\"2\""), "{dom}");
-    let shot = Path::new(env!("CARGO_TARGET_TMPDIR")).join("serve_page.png");
-    headless(&[
-        &format!("--screenshot={}", shot.display()),
-        "--window-size=900,700",
-    ]);
-    assert!(std::fs::metadata(&shot).unwrap().len() > 0);
-    eprintln!("page self-test: {verdict}; screenshot {}", shot.display());
+    let verdict = |dom: &str| {
+        dom.split("data-selftest=\"")
+            .nth(1)
+            .and_then(|s| s.split('"').next())
+            .unwrap_or_else(|| panic!("the self-test did not finish: {dom}"))
+            .replace("&quot;", "\"")
+    };
+    let full = verdict(&headless("all", &["--dump-dom"]));
+    assert!(full.starts_with("pass"), "{full}");
+    let orbit = verdict(&headless("orbit", &["--dump-dom"]));
+    assert!(orbit.starts_with("pass"), "{orbit}");
+    let tmp = Path::new(env!("CARGO_TARGET_TMPDIR"));
+    let mut shots = Vec::new();
+    for (test, name) in [
+        ("orbit", "serve_page_orbit.png"),
+        ("all", "serve_page_motion.png"),
+    ] {
+        let shot = tmp.join(name);
+        let _ = std::fs::remove_file(&shot);
+        headless(test, &[&format!("--screenshot={}", shot.display())]);
+        assert!(std::fs::metadata(&shot).unwrap().len() > 0);
+        shots.push(shot.display().to_string());
+    }
+    eprintln!("page self-test: {full}\norbit: {orbit}\nscreenshots: {shots:?}");
     server.shutdown().unwrap();
 }

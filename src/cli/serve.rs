@@ -15,6 +15,10 @@ pub struct ServeArgs {
     /// as `render --motion --body-model` does. Loaded once at start.
     #[arg(long)]
     pub body_model: Option<PathBuf>,
+    /// A BEAT2 or AMASS `.npz` motion the page offers to play, by its file stem
+    /// (repeatable). Read once at start.
+    #[arg(long = "motion", value_name = "FILE")]
+    pub motions: Vec<PathBuf>,
     #[command(flatten)]
     pub limits: LimitArgs,
     #[command(flatten)]
@@ -132,7 +136,11 @@ pub fn run(args: ServeArgs) -> anyhow::Result<()> {
     }
     // Listening before the checkpoint loads: `/health` answers 503 (loading) meanwhile,
     // so a load balancer's checks see a replica that is starting, not one that is down.
+    // Motion files are small: read before binding, so a bad one never opens the port.
+    let motions = talkin_serve::motion::read_named(&args.motions)
+        .map_err(|e| anyhow::anyhow!("--motion: {e}"))?;
     let server = Server::bind(&args.addr, config)?;
+    server.add_motions(motions)?;
     tracing::info!(
         "listening on http://{} (loading {}; /health answers 503 until it is ready)",
         server.addr(),

@@ -368,6 +368,7 @@ fn the_cli_refuses_bad_options_naming_the_flag_without_panicking() {
         (&["--shutdown-grace", "1e20"], "--shutdown-grace"),
         (&["--drain-delay=-1"], "--drain-delay"),
         (&["--drain-delay", "nan"], "--drain-delay"),
+        (&["--motion", "/nonexistent/walk.npz"], "--motion"),
         (&["--max-connections", "0"], "--max-connections"),
         (&["--queue", "18446744073709551615"], "--queue"),
         (&["--workers", "0"], "--workers"),

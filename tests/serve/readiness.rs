@@ -6,6 +6,7 @@
 use std::process::Command;
 use std::time::{Duration, Instant};
 
+use talkin::data::params_json::ParamsJson;
 use talkin::serve::client::{self, HttpResponse};
 use talkin::serve::{REQUEST_ID_HEADER, Readiness, ServeConfig, Server};
 
@@ -164,4 +165,45 @@ fn bench_serve_benches_a_server_by_its_url() {
         assert!(stderr.contains(says), "{target}: {stderr}");
         assert!(!stderr.contains("panicked"), "{target}: {stderr}");
     }
+}
+
+#[test]
+fn a_job_whose_client_has_gone_is_skipped() {
+    use std::io::Write;
+    let server = super::start(ServeConfig {
+        workers: 1,
+        ..config()
+    });
+    let addr = server.addr();
+    let p = fixture().dataset.frames[0].params.to_json();
+    let long = serde_json::json!({"subject": super::subject(), "frames": vec![p; 8], "width": 48, "height": 48});
+    std::thread::scope(|s| {
+        let busy = s.spawn(|| post(addr, "/render/sequence", &long));
+        super::wait_until_busy(addr, &|| busy.is_finished());
+        // A render that queues behind it, whose client gives up (as the page's
+        // AbortController does): the connection closes with the request unanswered.
+        let body = serde_json::to_vec(&frame_body()).unwrap();
+        let mut gone = std::net::TcpStream::connect(addr).unwrap();
+        write!(
+            gone,
+            "POST /render HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\n\
+             Content-Length: {}\r\n\r\n",
+            body.len()
+        )
+        .unwrap();
+        gone.write_all(&body).unwrap();
+        let t = Instant::now();
+        while get(addr, "/health").json()["pool"]["queued"] != 1 {
+            assert!(t.elapsed() < WAIT, "the render never queued");
+            std::thread::sleep(Duration::from_millis(5));
+        }
+        drop(gone);
+        assert_eq!(busy.join().unwrap().status, 200);
+    });
+    let t = Instant::now();
+    while get(addr, "/health").json()["skipped_jobs"] != 1 {
+        assert!(t.elapsed() < WAIT, "{}", get(addr, "/health").json());
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    assert_eq!(get(addr, "/health").json()["pool"]["queued"], 0);
 }

@@ -28,6 +28,18 @@ pub enum ServeError {
         #[source]
         source: talkin_data::smplx_model::ModelError,
     },
+    #[error("reading the motion file {}: {source}", file.display())]
+    Motion {
+        file: PathBuf,
+        #[source]
+        source: Box<talkin_data::motion::MotionError>,
+    },
+    #[error(
+        "the motion file {} is named `{name}` (its file stem), which is empty or another \
+         motion's name",
+        file.display()
+    )]
+    MotionName { file: PathBuf, name: String },
     #[error("the avatar has no trained subject to serve")]
     NoSubjects,
     #[error("binding {addr}: {source}")]

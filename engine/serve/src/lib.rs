@@ -17,7 +17,8 @@
 //! 200 as long as the process serves HTTP at all.
 //!
 //! Routes: `GET /` (a page with sliders), `GET /health`, `GET /live`, `GET /subjects`,
-//! `POST /render`,
+//! `POST /render`, `GET /motions`, `GET`/`POST /motion/poses` (a motion's prepared poses,
+//! for the page's player),
 //! `POST /render/sequence` (a zip of PNGs, for a JSON list of poses or a posted BEAT2/AMASS
 //! motion file, see [`motion`]). `docs/server-api.md` has the request format.
 //!
@@ -39,8 +40,8 @@ mod subjects;
 
 use std::net::{SocketAddr, TcpListener};
 use std::path::Path;
-use std::sync::atomic::{AtomicBool, AtomicU8, Ordering};
-use std::sync::{Arc, OnceLock};
+use std::sync::atomic::{AtomicBool, AtomicU8, AtomicU64, Ordering};
+use std::sync::{Arc, OnceLock, RwLock};
 use std::thread::JoinHandle;
 use std::time::Instant;
 
@@ -48,6 +49,7 @@ use tokio::sync::{Notify, Semaphore};
 
 pub use config::{ConfigError, ServeConfig, checked_seconds};
 pub use error::{RequestError, ServeError};
+pub use motion::NamedMotion;
 pub use routes::REQUEST_ID_HEADER;
 pub use subjects::{ServedSubject, default_camera, served_subjects};
 
@@ -62,6 +64,10 @@ struct App {
     loaded: OnceLock<Loaded>,
     /// A [`Readiness`] as its `u8`.
     readiness: AtomicU8,
+    /// The motion files the server offers by name (`GET /motions`).
+    motions: RwLock<Vec<Arc<NamedMotion>>>,
+    /// Jobs a render thread skipped because their client had gone (cancelled, timed out).
+    skipped: Arc<AtomicU64>,
     config: ServeConfig,
     pool: Pool,
     /// One permit per connection the server may hold open.
@@ -213,6 +219,8 @@ impl Server {
         let app = Arc::new(App {
             loaded: OnceLock::new(),
             readiness: AtomicU8::new(Readiness::Loading as u8),
+            motions: RwLock::new(Vec::new()),
+            skipped: Arc::new(AtomicU64::new(0)),
             connections: Arc::new(Semaphore::new(config.max_connections)),
             config,
             pool,
@@ -310,6 +318,22 @@ impl Server {
                 Ordering::SeqCst,
             );
         }
+    }
+
+    /// Offers `motions` by name (`GET /motions`, `GET /motion/poses?name=`), beside any
+    /// offered before; a name already offered is refused.
+    pub fn add_motions(&self, motions: Vec<NamedMotion>) -> Result<(), ServeError> {
+        let mut offered = self.app.motions.write().unwrap_or_else(|p| p.into_inner());
+        for m in motions {
+            if offered.iter().any(|o| o.name == m.name) {
+                return Err(ServeError::MotionName {
+                    file: m.motion.file.clone(),
+                    name: m.name,
+                });
+            }
+            offered.push(Arc::new(m));
+        }
+        Ok(())
     }
 
     /// What `GET /health` reports now.

@@ -34,6 +34,8 @@ pub(super) fn router(app: Arc<App>) -> Router {
         .route("/subjects", get(subjects))
         .route("/render", post(render))
         .route("/render/sequence", post(sequence))
+        .route("/motions", get(motions))
+        .route("/motion/poses", get(served_poses).post(posted_poses))
         .fallback(not_found)
         .method_not_allowed_fallback(method_not_allowed)
         .layer(axum::middleware::from_fn(echo_request_id))
@@ -61,8 +63,8 @@ async fn page() -> Html<&'static str> {
 async fn not_found() -> RequestError {
     RequestError::NotFound {
         field: None,
-        message: "no such route; try GET /, /health, /live, /subjects or POST /render, \
-                  /render/sequence"
+        message: "no such route; try GET /, /health, /live, /subjects, /motions, \
+                  /motion/poses or POST /render, /render/sequence, /motion/poses"
             .into(),
     }
 }
@@ -90,6 +92,7 @@ async fn health(State(app): State<Arc<App>>) -> Response {
         "status": status,
         "reason": readiness.reason(),
         "pool": app.pool.stats(),
+        "skipped_jobs": app.skipped.load(std::sync::atomic::Ordering::Relaxed),
         "connections": {"open": open, "max": max},
     }));
     *response.status_mut() = code;
@@ -114,6 +117,7 @@ async fn subjects(State(app): State<Arc<App>>) -> Response {
             json!({
                 "name": s.name,
                 "index": s.index,
+                "orbit_target": s.orbit_target.to_array(),
                 "width": c.width,
                 "height": c.height,
                 "camera": {
@@ -269,6 +273,130 @@ async fn motion_sequence(
     Ok((zip, notes))
 }
 
+/// `GET /motions`: the motion files the server was started with.
+async fn motions(State(app): State<Arc<App>>) -> Response {
+    let offered = app.motions.read().unwrap_or_else(|p| p.into_inner());
+    let list: Vec<Value> = offered
+        .iter()
+        .map(|m| {
+            json!({
+                "name": m.name,
+                "frames": m.motion.frames.len(),
+                "fps": m.motion.fps,
+                "layout": format!("{:?}", m.motion.layout).to_ascii_lowercase(),
+            })
+        })
+        .collect();
+    json_body(&json!({ "motions": list }))
+}
+
+/// `GET /motion/poses?name=NAME&subject=...`: a served motion's poses, prepared for the
+/// subject as `/render/sequence` prepares a posted file.
+async fn served_poses(State(app): State<Arc<App>>, uri: Uri) -> Response {
+    let result = async {
+        let (name, rest) = motion::split_name(uri.query())?;
+        let name = name.ok_or_else(|| {
+            RequestError::invalid("name", "query parameter `name`: missing (see GET /motions)")
+        })?;
+        let found = app
+            .motions
+            .read()
+            .unwrap_or_else(|p| p.into_inner())
+            .iter()
+            .find(|m| m.name == name)
+            .cloned()
+            .ok_or_else(|| RequestError::NotFound {
+                field: Some("name".into()),
+                message: format!("no motion named `{name}`; GET /motions lists them"),
+            })?;
+        let q = motion::parse_query(Some(&rest), &app.loaded()?.subjects, &app.config)?;
+        poses(app, q, name, move |_| Ok(found.motion.clone())).await
+    }
+    .await;
+    result.unwrap_or_else(IntoResponse::into_response)
+}
+
+/// `POST /motion/poses?subject=...` with a BEAT2/AMASS `.npz` body: its poses, prepared.
+async fn posted_poses(
+    State(app): State<Arc<App>>,
+    uri: Uri,
+    headers: HeaderMap,
+    body: Body,
+) -> Response {
+    let result = async {
+        let (name, rest) = motion::split_name(uri.query())?;
+        if name.is_some() {
+            return Err(RequestError::invalid(
+                "name",
+                "query parameter `name` names a served motion (GET); a posted file has none",
+            ));
+        }
+        let content_type = headers
+            .get(header::CONTENT_TYPE)
+            .and_then(|v| v.to_str().ok());
+        if !motion::is_motion(content_type) {
+            return Err(RequestError::invalid(
+                "motion",
+                format!(
+                    "the body must be a motion file (.npz) sent as one of {}, not {}",
+                    motion::MOTION_CONTENT_TYPES.join(", "),
+                    content_type.unwrap_or("no Content-Type")
+                ),
+            ));
+        }
+        let q = motion::parse_query(Some(&rest), &app.loaded()?.subjects, &app.config)?;
+        let bytes = read_body(&app, &headers, body, Some("motion")).await?;
+        poses(app, q.clone(), "upload".into(), move |q| {
+            motion::read_bytes(&bytes, q.layout)
+        })
+        .await
+    }
+    .await;
+    result.unwrap_or_else(IntoResponse::into_response)
+}
+
+/// Reads a motion with `read` and prepares it per `q` off the async threads; the answer
+/// is `{name, fps, frames: [params], notes}`.
+async fn poses(
+    app: Arc<App>,
+    q: motion::MotionQuery,
+    name: String,
+    read: impl FnOnce(&motion::MotionQuery) -> Result<talkin_data::motion::Motion, RequestError>
+    + Send
+    + 'static,
+) -> Result<Response, RequestError> {
+    let q2 = q.clone();
+    let (frames, notes, fps) = tokio::task::spawn_blocking(move || {
+        let motion = read(&q2)?;
+        let loaded = app.loaded()?;
+        let subject = loaded.avatar.subjects[q2.subject]
+            .model
+            .as_ref()
+            .ok_or_else(|| RequestError::Render("a served subject has no model".into()))?;
+        let (mut frames, notes) = motion::prepare(
+            &motion,
+            &q2,
+            &subject.skeleton,
+            loaded.body_model.as_deref(),
+            &app.config,
+        )?;
+        if q2.smooth {
+            frames = smooth(&frames, "motion")?;
+        }
+        Ok::<_, RequestError>((frames, notes, q2.fps.or(motion.fps)))
+    })
+    .await
+    .map_err(|e| RequestError::Render(format!("reading the motion: {e}")))??;
+    use talkin_data::params_json::ParamsJson;
+    let frames: Vec<Value> = frames.iter().map(ParamsJson::to_json).collect();
+    Ok(json_body(&json!({
+        "name": name,
+        "fps": fps,
+        "frames": frames,
+        "notes": notes,
+    })))
+}
+
 /// The paper's test-time filter over a sequence (one camera).
 fn smooth(
     frames: &[talkin_human::body::FrameParams],
@@ -385,8 +513,10 @@ async fn on_pool<T: Send + 'static>(
 ) -> Result<T, RequestError> {
     let (tx, rx) = oneshot::channel();
     let deadline = Instant::now() + timeout;
+    let skipped = app.skipped.clone();
     let job: Job = Box::new(move || {
         if tx.is_closed() {
+            skipped.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
             return Box::new(|| {});
         }
         let result = work(&JobClock {
