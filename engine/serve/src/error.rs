@@ -28,7 +28,8 @@ pub enum ServeError {
         #[source]
         source: talkin_data::smplx_model::ModelError,
     },
-    #[error("reading the motion file {}: {source}", file.display())]
+    /// A motion file that does not read (its error names the file).
+    #[error("{source}")]
     Motion {
         file: PathBuf,
         #[source]
