@@ -2,14 +2,20 @@
 //! the avatar's own renders, concurrent clients, every class of bad input answered with a
 //! JSON error naming the field (and the server still serving), a full queue's 503, render
 //! timeouts, graceful shutdown by call and by SIGTERM, the connection limits (`limits`),
-//! posted BEAT2/AMASS motion files (`motion`),
+//! posted BEAT2/AMASS motion files (`motion`), readiness for a load balancer and the load
+//! benchmark against a URL (`readiness`), replicas behind HAProxy under faults (`deploy`,
+//! ignored: needs haproxy),
 //! and (ignored: needs chromium) the page in a headless browser.
 
 mod common;
+#[path = "serve/deploy.rs"]
+mod deploy;
 #[path = "serve/limits.rs"]
 mod limits;
 #[path = "serve/motion.rs"]
 mod motion;
+#[path = "serve/readiness.rs"]
+mod readiness;
 
 use std::io::{BufRead, BufReader, Read};
 use std::net::SocketAddr;
@@ -760,7 +766,23 @@ fn spawn_cli_with(run: &Path, extra: &[&str]) -> (CliServer, SocketAddr) {
         .unwrap_or_else(|| panic!("no address in {line:?}"));
     // Keep draining stderr so the child never blocks on a full pipe.
     std::thread::spawn(move || std::io::copy(&mut stderr, &mut std::io::sink()));
+    wait_until_ready(addr);
     (child, addr)
+}
+
+/// Waits until `/health` answers 200: the listener is up before the checkpoint loads.
+fn wait_until_ready(addr: SocketAddr) {
+    let start = Instant::now();
+    loop {
+        let r = client::request(addr, "GET", "/health", None, WAIT);
+        match r {
+            Ok(r) if r.status == 200 => return,
+            Ok(r) => assert_eq!(r.json()["status"], "loading", "{r:?}"),
+            Err(_) => {}
+        }
+        assert!(start.elapsed() < WAIT, "{addr} never became ready");
+        std::thread::sleep(Duration::from_millis(20));
+    }
 }
 
 /// Waits until the server has a job on a worker (or the request already finished).
@@ -812,9 +834,11 @@ fn sigterm_stops_the_cli_server_after_its_requests() {
 }
 
 /// `cargo test --test serve -- --ignored page_in_headless_chromium`: loads the page in
-/// headless Chromium (`chromium` on PATH, or `$CHROMIUM`), which moves the jaw slider by an
-/// `input` event once the first frame shows (`?selftest`) and reports in the DOM whether a
-/// new frame arrived. Writes a screenshot to the target tmp dir.
+/// headless Chromium (`chromium` on PATH, or `$CHROMIUM`) with `?selftest`, which does
+/// what a user does and checks the pixels: moves the jaw slider, drags the view (the
+/// full-size frame after it must differ), then plays the motion the server offers and
+/// counts the distinct frames that arrive, in order. Writes screenshots of the orbited
+/// view (`?selftest=orbit`) and of a played motion's frame to the target tmp dir.
 #[test]
 #[ignore = "needs chromium"]
 fn page_in_headless_chromium() {
@@ -825,9 +849,13 @@ fn page_in_headless_chromium() {
         default_height: 96,
         ..config()
     });
-    let url = format!("http://{}/?selftest", server.addr());
+    // 60 frames at 30 fps: 8 frames at the 4 fps the self-test plays.
+    let (motion, _) = motion::beat2("page", 60);
+    let named = talkin::serve::motion::read_named(&[motion]).unwrap();
+    server.add_motions(named).unwrap();
     let profile = common::temp_dir("serve_chromium_profile");
-    let headless = |extra: &[&str]| {
+    let headless = |test: &str, extra: &[&str]| {
+        let url = format!("http://{}/?selftest={test}", server.addr());
         let out = Command::new(&chromium)
             .args([
                 "--headless",
@@ -837,7 +865,8 @@ fn page_in_headless_chromium() {
                 "--run-all-compositor-stages-before-draw",
                 // Virtual time only advances while nothing loads, so the render requests
                 // finish before the budget runs out.
-                "--virtual-time-budget=60000",
+                "--virtual-time-budget=120000",
+                "--window-size=900,760",
             ])
             .arg(format!("--user-data-dir={}", profile.display()))
             .args(extra)
@@ -851,20 +880,29 @@ fn page_in_headless_chromium() {
         );
         String::from_utf8_lossy(&out.stdout).into_owned()
     };
-    let dom = headless(&["--dump-dom"]);
-    let verdict = dom
-        .split("data-selftest=\"")
-        .nth(1)
-        .and_then(|s| s.split('"').next())
-        .unwrap_or_else(|| panic!("the self-test did not finish: {dom}"));
-    assert!(verdict.starts_with("pass"), "{verdict}");
-    assert!(dom.contains("data-frames=\"2\""), "{dom}");
-    let shot = Path::new(env!("CARGO_TARGET_TMPDIR")).join("serve_page.png");
-    headless(&[
-        &format!("--screenshot={}", shot.display()),
-        "--window-size=900,700",
-    ]);
-    assert!(std::fs::metadata(&shot).unwrap().len() > 0);
-    eprintln!("page self-test: {verdict}; screenshot {}", shot.display());
+    let verdict = |dom: &str| {
+        dom.split("data-selftest=\"")
+            .nth(1)
+            .and_then(|s| s.split('"').next())
+            .unwrap_or_else(|| panic!("the self-test did not finish: {dom}"))
+            .replace("&quot;", "\"")
+    };
+    let full = verdict(&headless("all", &["--dump-dom"]));
+    assert!(full.starts_with("pass"), "{full}");
+    let orbit = verdict(&headless("orbit", &["--dump-dom"]));
+    assert!(orbit.starts_with("pass"), "{orbit}");
+    let tmp = Path::new(env!("CARGO_TARGET_TMPDIR"));
+    let mut shots = Vec::new();
+    for (test, name) in [
+        ("orbit", "serve_page_orbit.png"),
+        ("all", "serve_page_motion.png"),
+    ] {
+        let shot = tmp.join(name);
+        let _ = std::fs::remove_file(&shot);
+        headless(test, &[&format!("--screenshot={}", shot.display())]);
+        assert!(std::fs::metadata(&shot).unwrap().len() > 0);
+        shots.push(shot.display().to_string());
+    }
+    eprintln!("page self-test: {full}\norbit: {orbit}\nscreenshots: {shots:?}");
     server.shutdown().unwrap();
 }

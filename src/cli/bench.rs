@@ -36,8 +36,9 @@ pub enum BenchCommand {
     /// subject, adapted to it from the first 1, 3, 10 and 30 s of its video, each scored on
     /// the same held-out frames of that subject.
     NovelIdentity(NovelIdentityArgs),
-    /// The render server under load: an in-process server on a free port, closed-loop
-    /// clients posting one frame each; throughput and p50/p99 latency per client count.
+    /// The render server under load: an in-process server on a free port (`--run`) or any
+    /// running endpoint (`--target`, e.g. a load balancer), closed-loop clients posting one
+    /// frame each; throughput and p50/p99 latency per client count.
     Serve(ServeBenchArgs),
     /// Per device and preset, in one run: training steps/s and samples/s (and the host
     /// sampler's share of a step), render fps at 540x540, and peak memory.
@@ -221,9 +222,14 @@ pub struct SpeedVsErrorArgs {
 
 #[derive(clap::Args, Debug)]
 pub struct ServeBenchArgs {
-    /// Run directory to serve.
-    #[arg(long)]
-    pub run: PathBuf,
+    /// Run directory to serve from an in-process server.
+    #[arg(long, required_unless_present = "target", conflicts_with = "target")]
+    pub run: Option<PathBuf>,
+    /// Bench a running server or load balancer at this URL (http://HOST:PORT) instead; it
+    /// is asked for its first subject (GET /subjects). The server options below are then
+    /// unused, but for `--timeout` (a client waits 4x as long for each answer).
+    #[arg(long, value_name = "URL")]
+    pub target: Option<String>,
     /// Concurrent client counts to measure, comma-separated.
     #[arg(long, default_value = "1,4,16", value_delimiter = ',')]
     pub clients: Vec<usize>,
@@ -305,8 +311,13 @@ fn device_bench(args: DeviceBenchArgs) -> anyhow::Result<()> {
 
 fn serve_bench(args: ServeBenchArgs) -> anyhow::Result<()> {
     anyhow::ensure!(
-        !args.clients.is_empty() && args.clients.iter().all(|&c| c > 0) && args.requests > 0,
-        "--clients and --requests must be positive"
+        !args.clients.is_empty() && args.clients.iter().all(|&c| c > 0),
+        "--clients: expected positive client counts, found {:?}",
+        args.clients
+    );
+    anyhow::ensure!(
+        args.requests > 0,
+        "--requests: expected at least 1, found 0"
     );
     let mut config = args.limits.config()?;
     // Every client's request waits and every client connects instead of being refused:
@@ -314,23 +325,53 @@ fn serve_bench(args: ServeBenchArgs) -> anyhow::Result<()> {
     let most_clients = args.clients.iter().copied().max().unwrap_or(1);
     config.queue = config.queue.max(most_clients);
     config.max_connections = config.max_connections.max(most_clients);
-    let image = args
-        .image
-        .clone()
-        .unwrap_or_else(|| args.limits.size.clone());
-    let (width, height) = image
-        .split_once('x')
-        .and_then(|(w, h)| Some((w.parse::<u32>().ok()?, h.parse::<u32>().ok()?)))
-        .ok_or_else(|| anyhow::anyhow!("--image: expected WIDTHxHEIGHT, found {image}"))?;
-    let avatar = args.device.load_avatar(&args.run)?;
-    let subject = avatar
-        .trained_subjects()
-        .first()
-        .map(|s| s.to_string())
-        .context("the run has no trained subject")?;
-    let (workers, queue) = (config.workers, config.queue);
+    let image = args.image.clone();
+    let parse_size = |text: &str| {
+        text.split_once('x')
+            .and_then(|(w, h)| Some((w.parse::<u32>().ok()?, h.parse::<u32>().ok()?)))
+            .ok_or_else(|| anyhow::anyhow!("--image: expected WIDTHxHEIGHT, found {text}"))
+    };
     let timeout = config.render_timeout * 4;
-    let server = Server::start(Arc::new(avatar), "127.0.0.1:0", config)?;
+    let (workers, queue) = (config.workers, config.queue);
+    // The server benched: one started here, or the target's address.
+    let (server, addr, what) = match (&args.run, &args.target) {
+        (Some(run), _) => {
+            let avatar = args.device.load_avatar(run)?;
+            let server = Server::start(Arc::new(avatar), "127.0.0.1:0", config)?;
+            let addr = server.addr();
+            let what = format!(
+                "{} in process ({workers} render threads, queue {queue})",
+                run.display()
+            );
+            (Some(server), addr, what)
+        }
+        (None, Some(url)) => {
+            let addr = talkin_serve::client::parse_http_url(url)
+                .map_err(|e| anyhow::anyhow!("--target: {e}"))?;
+            (None, addr, url.clone())
+        }
+        (None, None) => anyhow::bail!("give --run or --target"),
+    };
+    let answer = talkin_serve::client::request(addr, "GET", "/subjects", None, timeout)
+        .with_context(|| format!("GET /subjects from {what}"))?;
+    anyhow::ensure!(
+        answer.status == 200,
+        "GET /subjects from {what} answered {}: {}",
+        answer.status,
+        String::from_utf8_lossy(&answer.body)
+    );
+    let first = &answer.json()["subjects"][0];
+    let subject = first["name"]
+        .as_str()
+        .with_context(|| format!("{what} serves no subject"))?
+        .to_string();
+    let (width, height) = match &image {
+        Some(text) => parse_size(text)?,
+        None => (
+            first["width"].as_u64().unwrap_or(0) as u32,
+            first["height"].as_u64().unwrap_or(0) as u32,
+        ),
+    };
     let mut params = FrameParams::default();
     params.jaw_pose.x = 0.2;
     let body = serde_json::to_vec(&serde_json::json!({
@@ -340,19 +381,20 @@ fn serve_bench(args: ServeBenchArgs) -> anyhow::Result<()> {
         "height": height,
     }))?;
     println!(
-        "bench serve: {} subject `{subject}`, {width}x{height} PNG frames, {workers} render \
-         threads, queue {queue}, {} requests per client count",
-        args.run.display(),
+        "bench serve: {what}, subject `{subject}`, {width}x{height} PNG frames, {} requests \
+         per client count",
         args.requests
     );
     // One untimed request: first-touch allocations and page faults.
-    bench::load_test(server.addr(), "/render", &body, 1, 1, timeout);
+    bench::load_test(addr, "/render", &body, 1, 1, timeout);
     let reports: Vec<bench::LoadReport> = args
         .clients
         .iter()
-        .map(|&c| bench::load_test(server.addr(), "/render", &body, c, args.requests, timeout))
+        .map(|&c| bench::load_test(addr, "/render", &body, c, args.requests, timeout))
         .collect();
-    server.shutdown()?;
+    if let Some(server) = server {
+        server.shutdown()?;
+    }
     print!("{}", bench::format_report(&reports));
     if let Some(path) = &args.json {
         std::fs::write(path, serde_json::to_string_pretty(&reports)?)

@@ -15,6 +15,10 @@ pub struct ServeArgs {
     /// as `render --motion --body-model` does. Loaded once at start.
     #[arg(long)]
     pub body_model: Option<PathBuf>,
+    /// A BEAT2 or AMASS `.npz` motion the page offers to play, by its file stem
+    /// (repeatable). Read once at start.
+    #[arg(long = "motion", value_name = "FILE")]
+    pub motions: Vec<PathBuf>,
     #[command(flatten)]
     pub limits: LimitArgs,
     #[command(flatten)]
@@ -57,6 +61,11 @@ pub struct LimitArgs {
     /// still open after it are dropped (0: at once).
     #[arg(long, default_value_t = ServeConfig::default().shutdown_grace.as_secs_f64())]
     pub shutdown_grace: f64,
+    /// Seconds the server keeps serving on SIGINT/SIGTERM while `GET /health` already
+    /// answers 503 (draining), before its listener closes: long enough for a load
+    /// balancer's health checks to take it out of rotation (0: close at once).
+    #[arg(long, default_value_t = ServeConfig::default().drain_delay.as_secs_f64())]
+    pub drain_delay: f64,
 }
 
 /// The command-line flag that sets a [`ServeConfig`] field.
@@ -72,6 +81,7 @@ fn flag(field: &str) -> &str {
         "idle_timeout" => "--idle-timeout",
         "max_connections" => "--max-connections",
         "shutdown_grace" => "--shutdown-grace",
+        "drain_delay" => "--drain-delay",
         other => other,
     }
 }
@@ -95,6 +105,7 @@ impl LimitArgs {
             idle_timeout: checked_seconds("--idle-timeout", self.idle_timeout, false)?,
             max_connections: self.max_connections,
             shutdown_grace: checked_seconds("--shutdown-grace", self.shutdown_grace, true)?,
+            drain_delay: checked_seconds("--drain-delay", self.drain_delay, true)?,
             default_width: w,
             default_height: h,
             ..default
@@ -123,13 +134,19 @@ pub fn run(args: ServeArgs) -> anyhow::Result<()> {
         signal_hook::flag::register(sig, caught_early.clone())
             .map_err(|e| anyhow::anyhow!("installing the SIGINT/SIGTERM handlers: {e}"))?;
     }
-    let server = Server::load_and_start(
-        &args.run,
-        args.body_model.as_deref(),
-        &args.addr,
-        config,
-        device,
-    )?;
+    // Listening before the checkpoint loads: `/health` answers 503 (loading) meanwhile,
+    // so a load balancer's checks see a replica that is starting, not one that is down.
+    // Motion files are small: read before binding, so a bad one never opens the port.
+    let motions = talkin_serve::motion::read_named(&args.motions)
+        .map_err(|e| anyhow::anyhow!("--motion: {e}"))?;
+    let server = Server::bind(&args.addr, config)?;
+    server.add_motions(motions)?;
+    tracing::info!(
+        "listening on http://{} (loading {}; /health answers 503 until it is ready)",
+        server.addr(),
+        args.run.display()
+    );
+    server.load(&args.run, args.body_model.as_deref(), device)?;
     tracing::info!(
         "serving {} on http://{} ({workers} render threads, queue {queue}); Ctrl-C stops",
         args.run.display(),

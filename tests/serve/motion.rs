@@ -1,7 +1,8 @@
 //! `POST /render/sequence` with a motion file as the body: BEAT2 and AMASS `.npz` files
 //! written as the tools write them come back as the same zip the JSON form gives for the
 //! same prepared poses (also resampled), with the motion's notes in `X-Talkin-Notes`; bad
-//! files, bad query values and oversized bodies are refused with the field named.
+//! files, bad query values and oversized bodies are refused with the field named. The
+//! page's player gets a motion's prepared poses (`/motion/poses`) by name or by upload.
 
 use std::io::Read;
 use std::net::SocketAddr;
@@ -15,7 +16,7 @@ use talkin::data::params_json::ParamsJson;
 use talkin::serve::client::{self, HttpResponse};
 
 use super::common::{npz_text, write_beat2};
-use super::{WAIT, assert_error, config, fixture, post, start, subject};
+use super::{WAIT, assert_error, config, fixture, get, post, start, subject};
 
 /// Small pose values that differ per frame and column.
 fn poses(n: usize, cols: usize) -> Vec<f32> {
@@ -49,7 +50,7 @@ fn file(name: &str) -> std::path::PathBuf {
 }
 
 /// A BEAT2 file of `n` frames named after `tag`, and its bytes.
-fn beat2(tag: &str, n: usize) -> (std::path::PathBuf, Vec<u8>) {
+pub(super) fn beat2(tag: &str, n: usize) -> (std::path::PathBuf, Vec<u8>) {
     let f = file(&format!("{tag}_beat2_{n}.npz"));
     write_beat2(&f, n, poses(n, 165));
     let bytes = std::fs::read(&f).unwrap();
@@ -223,5 +224,127 @@ fn bad_motion_requests_are_refused_naming_the_field() {
 
     // Still serving.
     assert_eq!(pngs(&post_motion(addr, &q, octet, &bytes)).len(), 5);
+    server.shutdown().unwrap();
+}
+
+#[test]
+fn motion_poses_come_by_name_or_from_an_upload_and_bad_uploads_name_the_field() {
+    use talkin::serve::motion::read_named;
+    let server = start(config());
+    let addr = server.addr();
+    let (f, bytes) = beat2("poses", 31);
+    server.add_motions(read_named(&[f]).unwrap()).unwrap();
+    let listed = get(addr, "/motions").json();
+    assert_eq!(listed["motions"][0]["name"], "poses_beat2_31", "{listed}");
+    assert_eq!(listed["motions"][0]["frames"], 31);
+    assert_eq!(listed["motions"][0]["fps"], 30.0);
+
+    let q = format!("subject={}&fps=10", subject());
+    let served = get(addr, &format!("/motion/poses?name=poses_beat2_31&{q}"));
+    assert_eq!(
+        served.status,
+        200,
+        "{}",
+        String::from_utf8_lossy(&served.body)
+    );
+    let served = served.json();
+    // 31 frames at 30 fps are 1 s: 11 frames at 10 fps.
+    assert_eq!(served["frames"].as_array().unwrap().len(), 11, "{served}");
+    assert_eq!(served["fps"], 10.0);
+    let r = client::request_with_headers(
+        addr,
+        "POST",
+        &format!("/motion/poses?{q}"),
+        &[("Content-Type", "application/octet-stream")],
+        Some(&bytes),
+        WAIT,
+    )
+    .unwrap();
+    assert_eq!(r.status, 200, "{}", String::from_utf8_lossy(&r.body));
+    assert_eq!(r.json()["frames"], served["frames"]);
+    // Each pose renders as a frame.
+    let params = served["frames"][5].clone();
+    let frame = post(
+        addr,
+        "/render",
+        &json!({"subject": subject(), "params": params}),
+    );
+    assert_eq!(frame.status, 200);
+
+    let post_as = |query: &str, content_type: &str, body: &[u8]| {
+        client::request_with_headers(
+            addr,
+            "POST",
+            &format!("/motion/poses?{query}"),
+            &[("Content-Type", content_type)],
+            Some(body),
+            WAIT,
+        )
+        .unwrap()
+    };
+    let cases = [
+        (
+            "no npz",
+            post_as(&q, "application/octet-stream", b"not a zip"),
+            400,
+            "motion",
+        ),
+        (
+            "json",
+            post_as(&q, "application/json", b"{}"),
+            400,
+            "motion",
+        ),
+        (
+            "empty",
+            post_as(&q, "application/octet-stream", b""),
+            400,
+            "motion",
+        ),
+        (
+            "fps",
+            post_as(
+                &format!("subject={}&fps=0", subject()),
+                "application/octet-stream",
+                &bytes,
+            ),
+            400,
+            "fps",
+        ),
+        (
+            "subject",
+            post_as("fps=10", "application/octet-stream", &bytes),
+            400,
+            "subject",
+        ),
+        (
+            "name",
+            post_as(&format!("{q}&name=x"), "application/octet-stream", &bytes),
+            400,
+            "name",
+        ),
+        (
+            "no name",
+            get(addr, &format!("/motion/poses?{q}")),
+            400,
+            "name",
+        ),
+        (
+            "unknown name",
+            get(addr, &format!("/motion/poses?name=nope&{q}")),
+            404,
+            "name",
+        ),
+    ];
+    for (case, r, status, field) in cases {
+        assert_error(case, &r, status, Some(field));
+    }
+    let (_, large_bytes) = beat2("long", 60);
+    let too_many = post_as(
+        &format!("subject={}", subject()),
+        "application/octet-stream",
+        &large_bytes,
+    );
+    assert_error("too many frames", &too_many, 413, Some("motion"));
     server.shutdown().unwrap();
 }

@@ -39,7 +39,22 @@ pub fn request(
     json_body: Option<&[u8]>,
     timeout: Duration,
 ) -> std::io::Result<HttpResponse> {
+    request_with_headers(addr, method, path, &[], json_body, timeout)
+}
+
+/// [`request`] with more header lines (`name`, `value`), written as given.
+pub fn request_with_headers(
+    addr: SocketAddr,
+    method: &str,
+    path: &str,
+    headers: &[(&str, &str)],
+    json_body: Option<&[u8]>,
+    timeout: Duration,
+) -> std::io::Result<HttpResponse> {
     let mut head = format!("{method} {path} HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\n");
+    for (name, value) in headers {
+        head += &format!("{name}: {value}\r\n");
+    }
     if let Some(body) = json_body {
         head += &format!(
             "Content-Type: application/json\r\nContent-Length: {}\r\n",
@@ -62,6 +77,39 @@ pub fn send_raw(addr: SocketAddr, wire: &[u8], timeout: Duration) -> std::io::Re
     let mut bytes = Vec::new();
     stream.read_to_end(&mut bytes)?;
     parse(&bytes)
+}
+
+/// The address of an `http://HOST[:PORT][/]` URL (port 80 by default; the first address
+/// HOST resolves to). This client speaks plain HTTP to a server root only, so a path or
+/// another scheme is refused with what was expected.
+pub fn parse_http_url(url: &str) -> Result<SocketAddr, String> {
+    let expected = || format!("expected http://HOST:PORT, found `{url}`");
+    let rest = url.strip_prefix("http://").ok_or_else(|| {
+        if url.starts_with("https://") {
+            format!("{}; this client speaks plain HTTP only", expected())
+        } else {
+            expected()
+        }
+    })?;
+    let host_port = rest.strip_suffix('/').unwrap_or(rest);
+    if host_port.is_empty() || host_port.contains(['/', '?', '#', '@']) {
+        return Err(format!("{} (no path, query or user)", expected()));
+    }
+    // A bare IPv6 address needs its brackets; a host without a port gets 80.
+    let with_port = match host_port.rsplit_once(':') {
+        Some((_, port)) if !host_port.ends_with(']') => {
+            port.parse::<u16>()
+                .map_err(|_| format!("{}: `{port}` is not a port", expected()))?;
+            host_port.to_string()
+        }
+        _ => format!("{host_port}:80"),
+    };
+    use std::net::ToSocketAddrs;
+    with_port
+        .to_socket_addrs()
+        .map_err(|e| format!("resolving `{host_port}`: {e}"))?
+        .next()
+        .ok_or_else(|| format!("`{host_port}` resolves to no address"))
 }
 
 fn bad(what: &str) -> std::io::Error {
@@ -131,6 +179,27 @@ fn dechunk(mut b: &[u8]) -> std::io::Result<Vec<u8>> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn urls_name_a_server_root() {
+        let ok = |u: &str| parse_http_url(u).unwrap().to_string();
+        assert_eq!(ok("http://127.0.0.1:8000"), "127.0.0.1:8000");
+        assert_eq!(ok("http://127.0.0.1:8000/"), "127.0.0.1:8000");
+        assert_eq!(ok("http://127.0.0.1"), "127.0.0.1:80");
+        assert_eq!(ok("http://[::1]:9"), "[::1]:9");
+        for bad in [
+            "127.0.0.1:8000",
+            "https://127.0.0.1:8000",
+            "http://",
+            "http://127.0.0.1:8000/render",
+            "http://127.0.0.1:port",
+            "http://127.0.0.1:99999",
+            "http://u@127.0.0.1:1",
+        ] {
+            let e = parse_http_url(bad).unwrap_err();
+            assert!(e.contains("expected http://HOST:PORT"), "{bad}: {e}");
+        }
+    }
 
     #[test]
     fn parses_length_and_chunked_bodies() {

@@ -55,6 +55,10 @@ pub struct ServeConfig {
     /// On shutdown, how long the requests in flight get to finish; the connections still
     /// open after it are dropped. Zero drops them at once.
     pub shutdown_grace: Duration,
+    /// On shutdown, how long the server keeps serving while `GET /health` already answers
+    /// 503 (draining), before the listener closes: a load balancer's health checks need
+    /// this long to take it out of rotation. Zero closes the listener at once.
+    pub drain_delay: Duration,
     /// Image size of the default camera, used when a request brings no camera.
     pub default_width: u32,
     pub default_height: u32,
@@ -74,6 +78,7 @@ impl Default for ServeConfig {
             idle_timeout: Duration::from_secs(30),
             max_connections: 256,
             shutdown_grace: Duration::from_secs(20),
+            drain_delay: Duration::ZERO,
             default_width: 144,
             default_height: 192,
         }
@@ -152,6 +157,7 @@ impl ServeConfig {
             ("header_timeout", self.header_timeout, false),
             ("idle_timeout", self.idle_timeout, false),
             ("shutdown_grace", self.shutdown_grace, true),
+            ("drain_delay", self.drain_delay, true),
         ] {
             if (d.is_zero() && !zero_ok) || d > MAX_TIMEOUT {
                 let low = if zero_ok { "[0" } else { "(0" };
@@ -278,6 +284,13 @@ mod tests {
                 "shutdown_grace",
                 ServeConfig {
                     shutdown_grace: Duration::MAX,
+                    ..ok.clone()
+                },
+            ),
+            (
+                "drain_delay",
+                ServeConfig {
+                    drain_delay: Duration::MAX,
                     ..ok.clone()
                 },
             ),

@@ -28,6 +28,19 @@ pub enum ServeError {
         #[source]
         source: talkin_data::smplx_model::ModelError,
     },
+    /// A motion file that does not read (its error names the file).
+    #[error("{source}")]
+    Motion {
+        file: PathBuf,
+        #[source]
+        source: Box<talkin_data::motion::MotionError>,
+    },
+    #[error(
+        "the motion file {} is named `{name}` (its file stem), which is empty or another \
+         motion's name",
+        file.display()
+    )]
+    MotionName { file: PathBuf, name: String },
     #[error("the avatar has no trained subject to serve")]
     NoSubjects,
     #[error("binding {addr}: {source}")]
@@ -80,6 +93,9 @@ pub enum RequestError {
     /// The server is shutting down: 503.
     #[error("the server is shutting down")]
     ShuttingDown,
+    /// The server is not ready yet (its checkpoint is loading): 503 with `Retry-After`.
+    #[error("{reason}; retry later")]
+    NotReady { reason: &'static str },
     /// The render did not finish in time: 504.
     #[error("the render did not finish within {seconds} s")]
     Timeout { seconds: f64 },
@@ -110,9 +126,10 @@ impl RequestError {
             Self::MethodNotAllowed { .. } => StatusCode::METHOD_NOT_ALLOWED,
             Self::TooLarge { .. } => StatusCode::PAYLOAD_TOO_LARGE,
             Self::BodyTimeout { .. } => StatusCode::REQUEST_TIMEOUT,
-            Self::QueueFull { .. } | Self::TooManyConnections { .. } | Self::ShuttingDown => {
-                StatusCode::SERVICE_UNAVAILABLE
-            }
+            Self::QueueFull { .. }
+            | Self::TooManyConnections { .. }
+            | Self::ShuttingDown
+            | Self::NotReady { .. } => StatusCode::SERVICE_UNAVAILABLE,
             Self::Timeout { .. } => StatusCode::GATEWAY_TIMEOUT,
             Self::Render(_) => StatusCode::INTERNAL_SERVER_ERROR,
         }
@@ -137,10 +154,15 @@ impl RequestError {
 impl IntoResponse for RequestError {
     fn into_response(self) -> Response {
         let mut response = (self.status(), crate::json::json_body(&self.json())).into_response();
-        if let Self::QueueFull { retry_after_s, .. } = self {
+        let retry_after_s = match self {
+            Self::QueueFull { retry_after_s, .. } => Some(retry_after_s),
+            Self::NotReady { .. } => Some(1),
+            _ => None,
+        };
+        if let Some(s) = retry_after_s {
             response
                 .headers_mut()
-                .insert(header::RETRY_AFTER, HeaderValue::from(retry_after_s));
+                .insert(header::RETRY_AFTER, HeaderValue::from(s));
         }
         response
     }

@@ -10,7 +10,15 @@
 //! gives the requests in flight `shutdown_grace` to finish, drops what is left and joins
 //! the render threads that are done.
 //!
-//! Routes: `GET /` (a page with sliders), `GET /health`, `GET /subjects`, `POST /render`,
+//! Readiness is separate from liveness, for a load balancer in front of replicas: the
+//! listener is bound before the checkpoint loads, and `GET /health` answers 503 with its
+//! reason while it loads and from the moment a shutdown begins (for `drain_delay` before
+//! the listener closes, so a balancer's health check sees it first); `GET /live` answers
+//! 200 as long as the process serves HTTP at all.
+//!
+//! Routes: `GET /` (a page with sliders), `GET /health`, `GET /live`, `GET /subjects`,
+//! `POST /render`, `GET /motions`, `GET`/`POST /motion/poses` (a motion's prepared poses,
+//! for the page's player),
 //! `POST /render/sequence` (a zip of PNGs, for a JSON list of poses or a posted BEAT2/AMASS
 //! motion file, see [`motion`]). `docs/server-api.md` has the request format.
 //!
@@ -32,8 +40,8 @@ mod subjects;
 
 use std::net::{SocketAddr, TcpListener};
 use std::path::Path;
-use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU8, AtomicU64, Ordering};
+use std::sync::{Arc, OnceLock, RwLock};
 use std::thread::JoinHandle;
 use std::time::Instant;
 
@@ -41,6 +49,8 @@ use tokio::sync::{Notify, Semaphore};
 
 pub use config::{ConfigError, ServeConfig, checked_seconds};
 pub use error::{RequestError, ServeError};
+pub use motion::NamedMotion;
+pub use routes::REQUEST_ID_HEADER;
 pub use subjects::{ServedSubject, default_camera, served_subjects};
 
 use pool::Pool;
@@ -50,14 +60,66 @@ use talkin_render::avatar::Avatar;
 
 /// What every handler shares.
 struct App {
-    avatar: Arc<Avatar>,
-    /// The SMPL-X model file for motion files (mean hands, the performer's rest pelvis).
-    body_model: Option<Arc<SmplxModel>>,
-    subjects: Vec<ServedSubject>,
+    /// What the server renders, set once the checkpoint has loaded.
+    loaded: OnceLock<Loaded>,
+    /// A [`Readiness`] as its `u8`.
+    readiness: AtomicU8,
+    /// The motion files the server offers by name (`GET /motions`).
+    motions: RwLock<Vec<Arc<NamedMotion>>>,
+    /// Jobs a render thread skipped because their client had gone (cancelled, timed out).
+    skipped: Arc<AtomicU64>,
     config: ServeConfig,
     pool: Pool,
     /// One permit per connection the server may hold open.
     connections: Arc<Semaphore>,
+}
+
+/// The avatar and what is derived from it.
+struct Loaded {
+    avatar: Arc<Avatar>,
+    /// The SMPL-X model file for motion files (mean hands, the performer's rest pelvis).
+    body_model: Option<Arc<SmplxModel>>,
+    subjects: Vec<ServedSubject>,
+}
+
+/// Whether a server wants new requests, as `GET /health` reports it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[repr(u8)]
+pub enum Readiness {
+    /// The listener is up but the checkpoint is still loading: 503.
+    Loading = 0,
+    /// Serving: 200.
+    Ready = 1,
+    /// A shutdown has begun; the listener closes after the drain delay: 503.
+    Draining = 2,
+}
+
+impl Readiness {
+    /// Why a server in this state wants no requests (None when it does).
+    pub fn reason(self) -> Option<&'static str> {
+        match self {
+            Readiness::Loading => Some("loading the checkpoint"),
+            Readiness::Ready => None,
+            Readiness::Draining => Some("shutting down: draining before the listener closes"),
+        }
+    }
+}
+
+impl App {
+    fn readiness(&self) -> Readiness {
+        match self.readiness.load(Ordering::SeqCst) {
+            0 => Readiness::Loading,
+            1 => Readiness::Ready,
+            _ => Readiness::Draining,
+        }
+    }
+
+    /// What the server renders, or 503 while it loads.
+    fn loaded(&self) -> Result<&Loaded, RequestError> {
+        self.loaded.get().ok_or(RequestError::NotReady {
+            reason: "the server is loading its checkpoint",
+        })
+    }
 }
 
 /// How a shutdown went.
@@ -72,13 +134,38 @@ pub struct ShutdownReport {
 /// A running server. Dropping it shuts it down gracefully.
 pub struct Server {
     addr: SocketAddr,
+    app: Arc<App>,
     stop: Arc<Notify>,
     thread: Option<JoinHandle<Result<ShutdownReport, ServeError>>>,
 }
 
+impl Loaded {
+    fn new(
+        avatar: Arc<Avatar>,
+        body_model: Option<Arc<SmplxModel>>,
+        config: &ServeConfig,
+    ) -> Result<Loaded, ServeError> {
+        let subjects = served_subjects(&avatar, config.default_width, config.default_height)
+            .map_err(|e| ConfigError {
+                field: "default_width",
+                problem: format!("no default camera of that size: {e}"),
+            })?;
+        if subjects.is_empty() {
+            return Err(ServeError::NoSubjects);
+        }
+        Ok(Loaded {
+            avatar,
+            body_model,
+            subjects,
+        })
+    }
+}
+
 impl Server {
     /// Loads the newest checkpoint of `run` (and the SMPL-X `body_model` file, if given,
-    /// for posted motion files) and starts serving it on `addr`.
+    /// for posted motion files) and starts serving it on `addr`. The listener is up (and
+    /// `/health` answers 503, loading) from before the checkpoint loads: use
+    /// [`Server::bind`] and [`Server::load`] to see the address in between.
     pub fn load_and_start(
         run: &Path,
         body_model: Option<&Path>,
@@ -86,22 +173,9 @@ impl Server {
         config: ServeConfig,
         device: ComputeDevice,
     ) -> Result<Server, ServeError> {
-        config.validate()?;
-        let device = device.open()?;
-        // The small file first: a wrong path is reported without loading the run.
-        let model = body_model
-            .map(|file| {
-                SmplxModel::load(file).map_err(|source| ServeError::BodyModel {
-                    file: file.to_path_buf(),
-                    source,
-                })
-            })
-            .transpose()?;
-        let avatar = Avatar::load_on(run, &device).map_err(|source| ServeError::Avatar {
-            run: run.to_path_buf(),
-            source,
-        })?;
-        Server::start_with_body_model(Arc::new(avatar), model.map(Arc::new), addr, config)
+        let server = Server::bind(addr, config)?;
+        server.load(run, body_model, device)?;
+        Ok(server)
     }
 
     /// Serves `avatar` on `addr` (`127.0.0.1:0` picks a free port; see [`Server::addr`]).
@@ -123,14 +197,17 @@ impl Server {
         config: ServeConfig,
     ) -> Result<Server, ServeError> {
         config.validate()?;
-        let subjects = served_subjects(&avatar, config.default_width, config.default_height)
-            .map_err(|e| ConfigError {
-                field: "default_width",
-                problem: format!("no default camera of that size: {e}"),
-            })?;
-        if subjects.is_empty() {
-            return Err(ServeError::NoSubjects);
-        }
+        // Checked before binding: a bad avatar or size never opens the port.
+        let loaded = Loaded::new(avatar, body_model, &config)?;
+        let server = Server::bind(addr, config)?;
+        server.set_loaded(loaded);
+        Ok(server)
+    }
+
+    /// Binds `addr` and starts serving with nothing loaded yet: `/health` answers 503
+    /// (loading) and `/live` 200 until [`Server::load`] or [`Server::serve_avatar`].
+    pub fn bind(addr: &str, config: ServeConfig) -> Result<Server, ServeError> {
+        config.validate()?;
         let bind_err = |source| ServeError::Bind {
             addr: addr.to_string(),
             source,
@@ -140,9 +217,10 @@ impl Server {
         let local = listener.local_addr().map_err(bind_err)?;
         let pool = Pool::new(config.workers, config.queue).map_err(ServeError::Runtime)?;
         let app = Arc::new(App {
-            avatar,
-            body_model,
-            subjects,
+            loaded: OnceLock::new(),
+            readiness: AtomicU8::new(Readiness::Loading as u8),
+            motions: RwLock::new(Vec::new()),
+            skipped: Arc::new(AtomicU64::new(0)),
             connections: Arc::new(Semaphore::new(config.max_connections)),
             config,
             pool,
@@ -157,9 +235,11 @@ impl Server {
             .map_err(ServeError::Runtime)?;
         let stop = Arc::new(Notify::new());
         let stopped = stop.clone();
+        let served = app.clone();
         let thread = std::thread::Builder::new()
             .name("talkin-serve".into())
             .spawn(move || {
+                let app = served;
                 let grace_ends = std::sync::OnceLock::new();
                 let dropped = runtime.block_on(async {
                     let listener = tokio::net::TcpListener::from_std(listener)?;
@@ -186,9 +266,79 @@ impl Server {
             .map_err(ServeError::Runtime)?;
         Ok(Server {
             addr: local,
+            app,
             stop,
             thread: Some(thread),
         })
+    }
+
+    /// Loads the newest checkpoint of `run` (and the SMPL-X `body_model` file, if given)
+    /// into a server started by [`Server::bind`], which then reports itself ready.
+    pub fn load(
+        &self,
+        run: &Path,
+        body_model: Option<&Path>,
+        device: ComputeDevice,
+    ) -> Result<(), ServeError> {
+        let device = device.open()?;
+        // The small file first: a wrong path is reported without loading the run.
+        let model = body_model
+            .map(|file| {
+                SmplxModel::load(file).map_err(|source| ServeError::BodyModel {
+                    file: file.to_path_buf(),
+                    source,
+                })
+            })
+            .transpose()?;
+        let avatar = Avatar::load_on(run, &device).map_err(|source| ServeError::Avatar {
+            run: run.to_path_buf(),
+            source,
+        })?;
+        self.serve_avatar(Arc::new(avatar), model.map(Arc::new))
+    }
+
+    /// Serves `avatar` from a server started by [`Server::bind`]; it reports itself ready.
+    pub fn serve_avatar(
+        &self,
+        avatar: Arc<Avatar>,
+        body_model: Option<Arc<SmplxModel>>,
+    ) -> Result<(), ServeError> {
+        let loaded = Loaded::new(avatar, body_model, &self.app.config)?;
+        self.set_loaded(loaded);
+        Ok(())
+    }
+
+    fn set_loaded(&self, loaded: Loaded) {
+        if self.app.loaded.set(loaded).is_ok() {
+            // A shutdown that began while loading stays a shutdown.
+            let _ = self.app.readiness.compare_exchange(
+                Readiness::Loading as u8,
+                Readiness::Ready as u8,
+                Ordering::SeqCst,
+                Ordering::SeqCst,
+            );
+        }
+    }
+
+    /// Offers `motions` by name (`GET /motions`, `GET /motion/poses?name=`), beside any
+    /// offered before; a name already offered is refused.
+    pub fn add_motions(&self, motions: Vec<NamedMotion>) -> Result<(), ServeError> {
+        let mut offered = self.app.motions.write().unwrap_or_else(|p| p.into_inner());
+        for m in motions {
+            if offered.iter().any(|o| o.name == m.name) {
+                return Err(ServeError::MotionName {
+                    file: m.motion.file.clone(),
+                    name: m.name,
+                });
+            }
+            offered.push(Arc::new(m));
+        }
+        Ok(())
+    }
+
+    /// What `GET /health` reports now.
+    pub fn readiness(&self) -> Readiness {
+        self.app.readiness()
     }
 
     /// The bound address.
@@ -196,9 +346,19 @@ impl Server {
         self.addr
     }
 
-    /// Stops accepting, gives the requests in flight the configured grace period to
-    /// finish, drops the connections still open after it, and joins the server's threads.
+    /// Reports itself draining (`/health` 503) for the configured `drain_delay` while it
+    /// still serves, then stops accepting, gives the requests in flight the configured
+    /// grace period to finish, drops the connections still open after it, and joins the
+    /// server's threads.
     pub fn shutdown(mut self) -> Result<ShutdownReport, ServeError> {
+        let was = self
+            .app
+            .readiness
+            .swap(Readiness::Draining as u8, Ordering::SeqCst);
+        // A server that was still loading was never in a balancer's rotation.
+        if was == Readiness::Ready as u8 {
+            std::thread::sleep(self.app.config.drain_delay);
+        }
         self.stop_and_join()
     }
 

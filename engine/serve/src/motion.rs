@@ -4,6 +4,7 @@
 //! problem is a [`RequestError`] naming `motion`, `motion.<array>` or the query field.
 
 use std::io::Write;
+use std::path::PathBuf;
 
 use serde_json::{Map, Value};
 
@@ -37,6 +38,60 @@ const QUERY_KEYS: [&str; 7] = [
     "height",
     "smooth",
 ];
+
+/// A motion file the server was started with (`talkin serve --motion`), offered by name.
+#[derive(Clone, Debug)]
+pub struct NamedMotion {
+    /// The file's stem.
+    pub name: String,
+    pub motion: Motion,
+}
+
+/// Reads motion `files`, each named by its file stem. A file that does not read, or a
+/// stem given twice, is refused naming the file.
+pub fn read_named(files: &[PathBuf]) -> Result<Vec<NamedMotion>, super::ServeError> {
+    use super::ServeError;
+    let mut named: Vec<NamedMotion> = Vec::with_capacity(files.len());
+    for file in files {
+        let name = file
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        if name.is_empty() || named.iter().any(|m| m.name == name) {
+            return Err(ServeError::MotionName {
+                file: file.clone(),
+                name,
+            });
+        }
+        let motion = read_motion(file, None).map_err(|source| ServeError::Motion {
+            file: file.clone(),
+            source: Box::new(source),
+        })?;
+        named.push(NamedMotion { name, motion });
+    }
+    Ok(named)
+}
+
+/// Splits `name=...` (a served motion's name, `GET /motion/poses`) off a query string;
+/// returns it and the other parameters, re-encoded.
+pub fn split_name(query: Option<&str>) -> Result<(Option<String>, String), RequestError> {
+    let mut name = None;
+    let mut rest = form_urlencoded::Serializer::new(String::new());
+    for (key, value) in form_urlencoded::parse(query.unwrap_or_default().as_bytes()) {
+        if key == "name" {
+            if name.is_some() {
+                return Err(RequestError::invalid(
+                    "name",
+                    "query parameter `name` is given twice",
+                ));
+            }
+            name = Some(value.into_owned());
+        } else {
+            rest.append_pair(&key, &value);
+        }
+    }
+    Ok((name, rest.finish()))
+}
 
 /// True when `content_type` (parameters such as `; charset` ignored) names a motion file.
 pub fn is_motion(content_type: Option<&str>) -> bool {

@@ -8,17 +8,18 @@ use axum::Router;
 use axum::body::{Body, Bytes};
 use axum::extract::State;
 use axum::http::{HeaderMap, HeaderValue, Method, StatusCode, Uri, header};
+use axum::middleware::Next;
 use axum::response::{Html, IntoResponse, Response};
 use axum::routing::{get, post};
 use serde_json::{Value, json};
 use tokio::sync::oneshot;
 
-use super::App;
 use super::encode::{self, Encoded};
 use super::error::RequestError;
 use super::motion;
 use super::pool::{Job, Refused};
 use super::request::{self, Format};
+use super::{App, Readiness};
 use crate::json::json_body;
 
 /// The web page at `/`: sliders for a few parameters, the rendered frame (no external
@@ -29,12 +30,30 @@ pub(super) fn router(app: Arc<App>) -> Router {
     Router::new()
         .route("/", get(page))
         .route("/health", get(health))
+        .route("/live", get(live))
         .route("/subjects", get(subjects))
         .route("/render", post(render))
         .route("/render/sequence", post(sequence))
+        .route("/motions", get(motions))
+        .route("/motion/poses", get(served_poses).post(posted_poses))
         .fallback(not_found)
         .method_not_allowed_fallback(method_not_allowed)
+        .layer(axum::middleware::from_fn(echo_request_id))
         .with_state(app)
+}
+
+/// The request header a client may set to tell its answers apart; every answer carries
+/// it back unchanged (behind a load balancer that retries, the client can check that
+/// the answer it got is the one to its own request).
+pub const REQUEST_ID_HEADER: &str = "x-request-id";
+
+async fn echo_request_id(request: axum::extract::Request, next: Next) -> Response {
+    let id = request.headers().get(REQUEST_ID_HEADER).cloned();
+    let mut response = next.run(request).await;
+    if let Some(id) = id {
+        response.headers_mut().insert(REQUEST_ID_HEADER, id);
+    }
+    response
 }
 
 async fn page() -> Html<&'static str> {
@@ -44,8 +63,8 @@ async fn page() -> Html<&'static str> {
 async fn not_found() -> RequestError {
     RequestError::NotFound {
         field: None,
-        message: "no such route; try GET /, /health, /subjects or POST /render, \
-                  /render/sequence"
+        message: "no such route; try GET /, /health, /live, /subjects, /motions, \
+                  /motion/poses or POST /render, /render/sequence, /motion/poses"
             .into(),
     }
 }
@@ -58,18 +77,39 @@ async fn method_not_allowed(method: Method, uri: Uri) -> RequestError {
     }
 }
 
+/// Readiness: 200 when the server wants requests, 503 with the reason while it loads or
+/// drains (what a load balancer's health check reads).
 async fn health(State(app): State<Arc<App>>) -> Response {
     let max = app.config.max_connections;
     let open = max.saturating_sub(app.connections.available_permits());
-    json_body(&json!({
-        "status": "ok",
+    let readiness = app.readiness();
+    let (code, status) = match readiness {
+        Readiness::Ready => (StatusCode::OK, "ok"),
+        Readiness::Loading => (StatusCode::SERVICE_UNAVAILABLE, "loading"),
+        Readiness::Draining => (StatusCode::SERVICE_UNAVAILABLE, "draining"),
+    };
+    let mut response = json_body(&json!({
+        "status": status,
+        "reason": readiness.reason(),
         "pool": app.pool.stats(),
+        "skipped_jobs": app.skipped.load(std::sync::atomic::Ordering::Relaxed),
         "connections": {"open": open, "max": max},
-    }))
+    }));
+    *response.status_mut() = code;
+    response
+}
+
+/// Liveness: 200 whenever the process answers HTTP at all, loading and draining included.
+async fn live() -> Response {
+    json_body(&json!({"status": "alive"}))
 }
 
 async fn subjects(State(app): State<Arc<App>>) -> Response {
-    let subjects: Vec<Value> = app
+    let loaded = match app.loaded() {
+        Ok(l) => l,
+        Err(e) => return e.into_response(),
+    };
+    let subjects: Vec<Value> = loaded
         .subjects
         .iter()
         .map(|s| {
@@ -77,6 +117,7 @@ async fn subjects(State(app): State<Arc<App>>) -> Response {
             json!({
                 "name": s.name,
                 "index": s.index,
+                "orbit_target": s.orbit_target.to_array(),
                 "width": c.width,
                 "height": c.height,
                 "camera": {
@@ -107,13 +148,12 @@ async fn subjects(State(app): State<Arc<App>>) -> Response {
 
 async fn render(State(app): State<Arc<App>>, headers: HeaderMap, body: Body) -> Response {
     let result = async {
+        let subjects = &app.loaded()?.subjects;
         let bytes = read_body(&app, &headers, body, None).await?;
-        let req = request::parse_render(&bytes, &app.subjects, &app.config)?;
-        let worker_app = app.clone();
+        let req = request::parse_render(&bytes, subjects, &app.config)?;
+        let avatar = app.loaded()?.avatar.clone();
         let encoded = on_pool(&app, app.config.render_timeout, move |_| {
-            let frame = worker_app
-                .avatar
-                .render(req.subject, &req.params, &req.camera, None)?;
+            let frame = avatar.render(req.subject, &req.params, &req.camera, None)?;
             Ok(match req.format {
                 Format::Png => encode::png(&frame)?,
                 Format::Raw => encode::raw(&frame),
@@ -189,7 +229,7 @@ async fn json_sequence(
     body: Body,
 ) -> Result<(Vec<u8>, Vec<String>), RequestError> {
     let bytes = read_body(&app, headers, body, None).await?;
-    let mut req = request::parse_sequence(&bytes, &app.subjects, &app.config)?;
+    let mut req = request::parse_sequence(&bytes, &app.loaded()?.subjects, &app.config)?;
     if req.smooth {
         req.frames = smooth(&req.frames, "frames")?;
     }
@@ -204,14 +244,15 @@ async fn motion_sequence(
     headers: &HeaderMap,
     body: Body,
 ) -> Result<(Vec<u8>, Vec<String>), RequestError> {
-    let q = motion::parse_query(query, &app.subjects, &app.config)?;
+    let q = motion::parse_query(query, &app.loaded()?.subjects, &app.config)?;
     let bytes = read_body(&app, headers, body, Some("motion")).await?;
     let reader = app.clone();
     let q2 = q.clone();
     // Reading and preparing touch the disk and the CPU: off the async threads.
     let (mut frames, notes) = tokio::task::spawn_blocking(move || {
         let motion = motion::read_bytes(&bytes, q2.layout)?;
-        let subject = reader.avatar.subjects[q2.subject]
+        let loaded = reader.loaded()?;
+        let subject = loaded.avatar.subjects[q2.subject]
             .model
             .as_ref()
             .ok_or_else(|| RequestError::Render("a served subject has no model".into()))?;
@@ -219,7 +260,7 @@ async fn motion_sequence(
             &motion,
             &q2,
             &subject.skeleton,
-            reader.body_model.as_deref(),
+            loaded.body_model.as_deref(),
             &reader.config,
         )
     })
@@ -230,6 +271,130 @@ async fn motion_sequence(
     }
     let zip = render_frames(app, q.subject, frames, q.camera, "motion").await?;
     Ok((zip, notes))
+}
+
+/// `GET /motions`: the motion files the server was started with.
+async fn motions(State(app): State<Arc<App>>) -> Response {
+    let offered = app.motions.read().unwrap_or_else(|p| p.into_inner());
+    let list: Vec<Value> = offered
+        .iter()
+        .map(|m| {
+            json!({
+                "name": m.name,
+                "frames": m.motion.frames.len(),
+                "fps": m.motion.fps,
+                "layout": format!("{:?}", m.motion.layout).to_ascii_lowercase(),
+            })
+        })
+        .collect();
+    json_body(&json!({ "motions": list }))
+}
+
+/// `GET /motion/poses?name=NAME&subject=...`: a served motion's poses, prepared for the
+/// subject as `/render/sequence` prepares a posted file.
+async fn served_poses(State(app): State<Arc<App>>, uri: Uri) -> Response {
+    let result = async {
+        let (name, rest) = motion::split_name(uri.query())?;
+        let name = name.ok_or_else(|| {
+            RequestError::invalid("name", "query parameter `name`: missing (see GET /motions)")
+        })?;
+        let found = app
+            .motions
+            .read()
+            .unwrap_or_else(|p| p.into_inner())
+            .iter()
+            .find(|m| m.name == name)
+            .cloned()
+            .ok_or_else(|| RequestError::NotFound {
+                field: Some("name".into()),
+                message: format!("no motion named `{name}`; GET /motions lists them"),
+            })?;
+        let q = motion::parse_query(Some(&rest), &app.loaded()?.subjects, &app.config)?;
+        poses(app, q, name, move |_| Ok(found.motion.clone())).await
+    }
+    .await;
+    result.unwrap_or_else(IntoResponse::into_response)
+}
+
+/// `POST /motion/poses?subject=...` with a BEAT2/AMASS `.npz` body: its poses, prepared.
+async fn posted_poses(
+    State(app): State<Arc<App>>,
+    uri: Uri,
+    headers: HeaderMap,
+    body: Body,
+) -> Response {
+    let result = async {
+        let (name, rest) = motion::split_name(uri.query())?;
+        if name.is_some() {
+            return Err(RequestError::invalid(
+                "name",
+                "query parameter `name` names a served motion (GET); a posted file has none",
+            ));
+        }
+        let content_type = headers
+            .get(header::CONTENT_TYPE)
+            .and_then(|v| v.to_str().ok());
+        if !motion::is_motion(content_type) {
+            return Err(RequestError::invalid(
+                "motion",
+                format!(
+                    "the body must be a motion file (.npz) sent as one of {}, not {}",
+                    motion::MOTION_CONTENT_TYPES.join(", "),
+                    content_type.unwrap_or("no Content-Type")
+                ),
+            ));
+        }
+        let q = motion::parse_query(Some(&rest), &app.loaded()?.subjects, &app.config)?;
+        let bytes = read_body(&app, &headers, body, Some("motion")).await?;
+        poses(app, q.clone(), "upload".into(), move |q| {
+            motion::read_bytes(&bytes, q.layout)
+        })
+        .await
+    }
+    .await;
+    result.unwrap_or_else(IntoResponse::into_response)
+}
+
+/// Reads a motion with `read` and prepares it per `q` off the async threads; the answer
+/// is `{name, fps, frames: [params], notes}`.
+async fn poses(
+    app: Arc<App>,
+    q: motion::MotionQuery,
+    name: String,
+    read: impl FnOnce(&motion::MotionQuery) -> Result<talkin_data::motion::Motion, RequestError>
+    + Send
+    + 'static,
+) -> Result<Response, RequestError> {
+    let q2 = q.clone();
+    let (frames, notes, fps) = tokio::task::spawn_blocking(move || {
+        let motion = read(&q2)?;
+        let loaded = app.loaded()?;
+        let subject = loaded.avatar.subjects[q2.subject]
+            .model
+            .as_ref()
+            .ok_or_else(|| RequestError::Render("a served subject has no model".into()))?;
+        let (mut frames, notes) = motion::prepare(
+            &motion,
+            &q2,
+            &subject.skeleton,
+            loaded.body_model.as_deref(),
+            &app.config,
+        )?;
+        if q2.smooth {
+            frames = smooth(&frames, "motion")?;
+        }
+        Ok::<_, RequestError>((frames, notes, q2.fps.or(motion.fps)))
+    })
+    .await
+    .map_err(|e| RequestError::Render(format!("reading the motion: {e}")))??;
+    use talkin_data::params_json::ParamsJson;
+    let frames: Vec<Value> = frames.iter().map(ParamsJson::to_json).collect();
+    Ok(json_body(&json!({
+        "name": name,
+        "fps": fps,
+        "frames": frames,
+        "notes": notes,
+    })))
 }
 
 /// The paper's test-time filter over a sequence (one camera).
@@ -252,7 +417,7 @@ async fn render_frames(
 ) -> Result<Vec<u8>, RequestError> {
     let n = frames.len();
     let timeout = app.config.render_timeout * n as u32;
-    let worker_app = app.clone();
+    let avatar = app.loaded()?.avatar.clone();
     on_pool(&app, timeout, move |job| {
         let mut pngs = Vec::with_capacity(n);
         for (i, params) in frames.iter().enumerate() {
@@ -262,15 +427,15 @@ async fn render_frames(
                     seconds: timeout.as_secs_f64(),
                 });
             }
-            let frame = worker_app
-                .avatar
-                .render(subject, params, &camera, None)
-                .map_err(|e| match RequestError::from(e) {
-                    RequestError::Invalid { message, .. } => {
-                        RequestError::invalid(format!("{field}[{i}]"), message)
-                    }
-                    other => other,
-                })?;
+            let frame =
+                avatar.render(subject, params, &camera, None).map_err(
+                    |e| match RequestError::from(e) {
+                        RequestError::Invalid { message, .. } => {
+                            RequestError::invalid(format!("{field}[{i}]"), message)
+                        }
+                        other => other,
+                    },
+                )?;
             pngs.push(encode::png(&frame)?.bytes);
         }
         encode::zip_frames(&pngs)
@@ -348,8 +513,10 @@ async fn on_pool<T: Send + 'static>(
 ) -> Result<T, RequestError> {
     let (tx, rx) = oneshot::channel();
     let deadline = Instant::now() + timeout;
+    let skipped = app.skipped.clone();
     let job: Job = Box::new(move || {
         if tx.is_closed() {
+            skipped.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
             return Box::new(|| {});
         }
         let result = work(&JobClock {

@@ -13,6 +13,8 @@ pub struct ServedSubject {
     /// Identity index in the avatar.
     pub index: usize,
     pub default_camera: Camera,
+    /// The point the default camera looks at (world space): what a viewer orbits.
+    pub orbit_target: glam::DVec3,
 }
 
 /// Every trained subject of `avatar`, each with a default camera of `width` x `height`.
@@ -27,10 +29,17 @@ pub fn served_subjects(
         .enumerate()
         .filter_map(|(index, slot)| slot.model.as_ref().map(|m| (index, m)))
         .map(|(index, model)| {
+            let camera = default_camera(&model.skeleton, width, height)?;
+            // The ray through the principal point is the optical axis; the camera looks
+            // at the point this far along it.
+            let k = camera.intrinsics_rows();
+            let (centre, forward) = camera.ray_through(glam::DVec2::new(k[0][2], k[1][2]));
+            let orbit_target = centre + forward * talkin_render::sequence::DEFAULT_CAMERA_DISTANCE;
             Ok(ServedSubject {
                 name: model.name.clone(),
                 index,
-                default_camera: default_camera(&model.skeleton, width, height)?,
+                default_camera: camera,
+                orbit_target,
             })
         })
         .collect()

@@ -49,6 +49,7 @@ fn subjects() -> Vec<ServedSubject> {
         name: "ada".into(),
         index: 0,
         default_camera: camera,
+        orbit_target: DVec3::new(0.0, 1.0, 0.0),
     }]
 }
 

@@ -10,6 +10,9 @@ use glam::DVec3;
 use talkin_human::body::{Skeleton, joint};
 use talkin_human::camera::{Camera, CameraError};
 
+/// How far the default camera stands from the point it looks at (metres).
+pub const DEFAULT_CAMERA_DISTANCE: f64 = 3.2;
+
 /// A frontal camera framing `skeleton`'s T-pose from mid-thigh up with 10% to spare.
 pub fn default_camera(skeleton: &Skeleton, width: u32, height: u32) -> Result<Camera, CameraError> {
     let r = &skeleton.rest_joints;
@@ -26,7 +29,7 @@ pub fn default_camera(skeleton: &Skeleton, width: u32, height: u32) -> Result<Ca
     let half_width = (r[joint::LEFT_WRIST].x - r[joint::RIGHT_WRIST].x).abs() * 0.5
         + 0.25 * 0.55 * skeleton.scale();
     let half_height = (top - bottom) * 0.5;
-    let distance = 3.2;
+    let distance = DEFAULT_CAMERA_DISTANCE;
     let focal = (f64::from(width) * 0.5 * distance / half_width)
         .min(f64::from(height) * 0.5 * distance / half_height)
         / 1.1;

@@ -10,7 +10,7 @@ mod sheet;
 
 use std::path::PathBuf;
 
-pub use camera::default_camera;
+pub use camera::{DEFAULT_CAMERA_DISTANCE, default_camera};
 pub use poses_file::{
     PoseSource, PoseSourceError, PosedCamera, motion_poses, parse_poses, read_pose_source,
     read_poses_file,
