@@ -35,6 +35,8 @@ pub enum RunLockError {
 pub struct RunLock {
     /// Kept open: closing the file releases the lock.
     _file: File,
+    /// The run directory, when taking the lock created it.
+    created: Option<PathBuf>,
 }
 
 impl RunLock {
@@ -46,6 +48,7 @@ impl RunLock {
             file: path.clone(),
             source,
         };
+        let created = (!run.exists()).then(|| run.to_path_buf());
         std::fs::create_dir_all(run).map_err(|source| RunLockError::Io {
             file: run.to_path_buf(),
             source,
@@ -74,7 +77,31 @@ impl RunLock {
             .and_then(|()| file.rewind())
             .and_then(|()| writeln!(file, "{}", std::process::id()))
             .and_then(|()| file.flush());
-        Ok(RunLock { _file: file })
+        Ok(RunLock {
+            _file: file,
+            created,
+        })
+    }
+}
+
+/// A command refused before it wrote anything (a bad dataset, say) leaves no directory it
+/// created behind: while still locked, the lock file goes, then the directory if empty. A
+/// writer that opened the file meanwhile is refused by the lock; one that opens after
+/// creates a new file, and the directory stays.
+impl Drop for RunLock {
+    fn drop(&mut self) {
+        let Some(run) = &self.created else {
+            return;
+        };
+        let only_the_lock = std::fs::read_dir(run).is_ok_and(|entries| {
+            entries
+                .flatten()
+                .all(|e| e.file_name() == std::ffi::OsStr::new(LOCK_FILE))
+        });
+        if only_the_lock {
+            let _ = std::fs::remove_file(run.join(LOCK_FILE));
+            let _ = std::fs::remove_dir(run);
+        }
     }
 }
 
@@ -110,8 +137,13 @@ mod tests {
             "{message}"
         );
         drop(first);
+        // The directory it created held nothing else: it is gone.
+        assert!(!run.exists());
         let again = RunLock::take(&run).unwrap();
+        std::fs::write(run.join("train_log.csv"), "step\n").unwrap();
         drop(again);
+        // With a run in it, the directory and its lock file stay.
+        assert!(run.join(LOCK_FILE).is_file());
         std::fs::remove_dir_all(&dir).unwrap();
     }
 }
