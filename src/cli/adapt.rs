@@ -1,7 +1,7 @@
 use std::path::PathBuf;
 
 use anyhow::Context;
-use talkin_train::{Identities, TrainOptions, Trainer};
+use talkin_train::{Identities, RunLock, TrainOptions, Trainer};
 
 use super::train::{GivenFlags, StopSignals, refuse_existing_run, run_trainer};
 
@@ -34,6 +34,8 @@ pub struct AdaptArgs {
 pub fn run(args: AdaptArgs) -> anyhow::Result<()> {
     // Before any work: a signal from here on ends the run with a checkpoint.
     let signals = StopSignals::install()?;
+    // One writer per run, taken before anything reads or clears --out (`--force` included).
+    let _lock = RunLock::take(&args.out)?;
     refuse_existing_run(&args.out, args.force)?;
     let dataset = super::load_dataset(&args.data)?;
     // A clip from a camera takes the capture recipe where nothing is named (the field's

@@ -276,6 +276,8 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
 
 fn device_bench(args: DeviceBenchArgs) -> anyhow::Result<()> {
     use talkin_benches::device::{DeviceBenchOptions, run, table};
+    // The runs it trains are written under --out: one writer at a time.
+    let _lock = talkin_train::RunLock::take(&args.out)?;
     let dataset = super::load_dataset(&args.data)?;
     let opts = DeviceBenchOptions {
         devices: args.devices.clone(),
@@ -455,6 +457,8 @@ fn trained_grids(
 
 fn speed_vs_error_bench(args: SpeedVsErrorArgs) -> anyhow::Result<()> {
     use talkin_benches::speed_vs_error::{SpeedVsErrorOptions, format_summary, speed_vs_error};
+    // The runs it trains are written under --out: one writer at a time.
+    let _lock = talkin_train::RunLock::take(&args.out)?;
     let lr = args.recipe.initial_lr();
     let opts = SpeedVsErrorOptions {
         targets_db: args.targets.clone(),
@@ -485,6 +489,8 @@ fn speed_vs_error_bench(args: SpeedVsErrorArgs) -> anyhow::Result<()> {
 
 fn ablations_bench(args: AblationArgs) -> anyhow::Result<()> {
     use talkin_benches::ablations::{AblationOptions, ablations, format_table};
+    // The runs it trains are written under --out: one writer at a time.
+    let _lock = talkin_train::RunLock::take(&args.out)?;
     let dataset = Dataset::load(&args.data)?;
     let opts = AblationOptions {
         budget_s: args.minutes_each * 60.0,
@@ -503,6 +509,8 @@ fn ablations_bench(args: AblationArgs) -> anyhow::Result<()> {
 
 fn noisy_fits_bench(args: NoisyFitsArgs) -> anyhow::Result<()> {
     use talkin_benches::noisy_fits::{NoisyFitsOptions, noisy_fits, table};
+    // The runs it trains are written under --out: one writer at a time.
+    let _lock = talkin_train::RunLock::take(&args.out)?;
     let dataset = Dataset::load(&args.data)?;
     let opts = NoisyFitsOptions {
         levels_deg: args.noise_deg.clone(),
@@ -523,6 +531,8 @@ fn noisy_fits_bench(args: NoisyFitsArgs) -> anyhow::Result<()> {
 fn novel_identity_bench(args: NovelIdentityArgs) -> anyhow::Result<()> {
     use talkin_benches::novel_identity::{NovelIdentityOptions, format_table, novel_identity};
     use talkin_train::Budget;
+    // The runs it trains are written under --out: one writer at a time.
+    let _lock = talkin_train::RunLock::take(&args.out)?;
     let budget = |flag: &str, minutes: f64, steps: Option<usize>| match steps {
         Some(0) => anyhow::bail!("{flag}-steps: expected a positive number of steps"),
         Some(n) => Ok(Budget::Steps(n)),

@@ -1,6 +1,7 @@
 use std::path::PathBuf;
 
 use anyhow::Context;
+use talkin_data::atomic::StagedDir;
 use talkin_data::dataset::{Matting, Split};
 use talkin_render::eval::{EvalOptions, evaluate_with_progress};
 use talkin_render::sequence::split_frames;
@@ -84,8 +85,10 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
             .map_or_else(|| "eval".into(), |s| s.to_string_lossy().into_owned());
         args.json.with_file_name(format!("{stem}_renders"))
     });
+    // The renders appear complete or not at all: an error (a full disk) removes them.
+    let staging = StagedDir::new(&renders).with_context(|| renders.display().to_string())?;
     let opts = EvalOptions {
-        renders_dir: Some(renders.clone()),
+        renders_dir: Some(staging.path().to_path_buf()),
         lpips_dir: Some(args.lpips_dir.clone()),
         smooth: args.smooth,
     };
@@ -100,11 +103,22 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
             args.data.display()
         )
     })?;
+    // Each score names its PNG where it will be, not where it was written.
+    for score in &mut report.frames {
+        if let Some(file) = &mut score.render
+            && let Ok(name) = file.strip_prefix(staging.path())
+        {
+            *file = renders.join(name);
+        }
+    }
     report.run = Some(args.run.clone());
     report.notes.extend(note);
     if let Some(dir) = args.json.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     }
+    staging
+        .publish()
+        .with_context(|| renders.display().to_string())?;
     report.write_json(&args.json)?;
     print!("{}", report.table());
     println!(

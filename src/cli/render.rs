@@ -1,6 +1,7 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::Context;
+use talkin_data::atomic::StagedDir;
 use talkin_data::dataset::{Dataset, Split};
 use talkin_data::motion::{Motion, MotionLayout, Prepare};
 use talkin_data::smplx_model::SmplxModel;
@@ -142,22 +143,19 @@ pub fn run(args: RenderArgs) -> anyhow::Result<()> {
         smooth_shots(&mut shots, &Smoothing::PAPER)?;
     }
     let progress = Progress::new("rendering", shots.len(), "frames");
-    let staging = staging_dir(&args.out)?;
+    // Rendered into a hidden directory beside --out, moved there only when complete; an
+    // error (a full disk) removes it.
+    let staging = StagedDir::new(&args.out).with_context(|| args.out.display().to_string())?;
     let renders = render_sequence(
         &avatar,
         &shots,
         dataset.as_ref(),
-        &staging,
+        staging.path(),
         &mut |done, _| progress.update(done, ""),
-    );
-    let renders = match renders {
-        Ok(r) => r,
-        Err(e) => {
-            let _ = std::fs::remove_dir_all(&staging);
-            return Err(e.into());
-        }
-    };
-    publish(&staging, &args.out)?;
+    )?;
+    staging
+        .publish()
+        .with_context(|| args.out.display().to_string())?;
     println!(
         "rendered {} frames to {} in {:.1} s ({:.2} s a frame, {:.0} samples a frame)",
         renders.frames.len(),
@@ -249,40 +247,4 @@ fn first_camera(dir: &Path, name: &str) -> anyhow::Result<Camera> {
         .min_by(|a, b| a.time.total_cmp(&b.time))
         .map(|f| f.camera)
         .with_context(|| format!("{}: subject `{name}` has no frames", dir.display()))
-}
-
-/// A fresh hidden directory beside `out` to render into.
-fn staging_dir(out: &Path) -> anyhow::Result<PathBuf> {
-    let name = out
-        .file_name()
-        .with_context(|| format!("{}: not a directory name", out.display()))?;
-    let staging = out.with_file_name(format!(
-        ".{}.partial-{}",
-        name.to_string_lossy(),
-        std::process::id()
-    ));
-    let _ = std::fs::remove_dir_all(&staging);
-    Ok(staging)
-}
-
-/// Moves the finished renders into `out`: a rename when `out` is absent or empty, else
-/// file by file (replacing same-named files).
-fn publish(staging: &Path, out: &Path) -> anyhow::Result<()> {
-    let io = |e: std::io::Error| anyhow::anyhow!("{}: {e}", out.display());
-    let empty = match std::fs::read_dir(out) {
-        Ok(mut entries) => entries.next().is_none(),
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => true,
-        Err(e) => return Err(io(e)),
-    };
-    if empty {
-        if out.exists() {
-            std::fs::remove_dir(out).map_err(io)?;
-        }
-        return std::fs::rename(staging, out).map_err(io);
-    }
-    for entry in std::fs::read_dir(staging).map_err(io)? {
-        let entry = entry.map_err(io)?;
-        std::fs::rename(entry.path(), out.join(entry.file_name())).map_err(io)?;
-    }
-    std::fs::remove_dir(staging).map_err(io)
 }

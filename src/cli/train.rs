@@ -6,7 +6,7 @@ use anyhow::Context;
 use clap::parser::ValueSource;
 use clap::{ArgMatches, FromArgMatches};
 pub use talkin_train::DEFAULT_LPIPS_DIR;
-use talkin_train::{Budget, DEVICE_ARG, StepLog, TrainOptions, Trainer, existing_run};
+use talkin_train::{Budget, DEVICE_ARG, RunLock, StepLog, TrainOptions, Trainer, existing_run};
 
 use crate::progress::Progress;
 
@@ -86,6 +86,13 @@ impl clap::Args for GivenFlags {
 pub fn run(args: TrainArgs) -> anyhow::Result<()> {
     // Before any work: a signal from here on ends the run with a checkpoint.
     let signals = StopSignals::install()?;
+    // One writer per run, taken before anything reads or clears it (`--force` included). A
+    // --resume of a directory that is not there takes none: resuming fails on its own.
+    let _lock = if args.resume && !args.out.is_dir() {
+        None
+    } else {
+        Some(RunLock::take(&args.out)?)
+    };
     if !args.resume {
         refuse_existing_run(&args.out, args.force)?;
     }

@@ -51,6 +51,78 @@ pub fn sync_dir(dir: &Path) -> std::io::Result<()> {
     }
 }
 
+/// A directory of files that appears complete or not at all: they are written into a
+/// hidden staging directory beside the target (`.NAME.partial-PID`), which
+/// [`StagedDir::publish`] moves into place and which is removed if it is dropped
+/// unpublished (an error half-way, a full disk).
+#[derive(Debug)]
+pub struct StagedDir {
+    staging: std::path::PathBuf,
+    target: std::path::PathBuf,
+    published: bool,
+}
+
+impl StagedDir {
+    /// A fresh staging directory for `target` (not created: the writer creates it).
+    pub fn new(target: &Path) -> std::io::Result<StagedDir> {
+        let name = target.file_name().ok_or_else(|| {
+            std::io::Error::new(
+                std::io::ErrorKind::InvalidInput,
+                "not a directory name (it ends in `..` or is a root)",
+            )
+        })?;
+        let staging = target.with_file_name(format!(
+            ".{}.partial-{}",
+            name.to_string_lossy(),
+            std::process::id()
+        ));
+        let _ = std::fs::remove_dir_all(&staging);
+        Ok(StagedDir {
+            staging,
+            target: target.to_path_buf(),
+            published: false,
+        })
+    }
+
+    /// Where the files go until [`StagedDir::publish`].
+    pub fn path(&self) -> &Path {
+        &self.staging
+    }
+
+    /// Moves the files into the target: one rename when it is absent or empty, else file
+    /// by file (replacing same-named files). Renames need no space, so a full disk fails
+    /// before this, while writing.
+    pub fn publish(mut self) -> std::io::Result<()> {
+        let empty = match std::fs::read_dir(&self.target) {
+            Ok(mut entries) => entries.next().is_none(),
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => true,
+            Err(e) => return Err(e),
+        };
+        if empty {
+            if self.target.exists() {
+                std::fs::remove_dir(&self.target)?;
+            }
+            std::fs::rename(&self.staging, &self.target)?;
+        } else {
+            for entry in std::fs::read_dir(&self.staging)? {
+                let entry = entry?;
+                std::fs::rename(entry.path(), self.target.join(entry.file_name()))?;
+            }
+            std::fs::remove_dir(&self.staging)?;
+        }
+        self.published = true;
+        sync_dir(parent_dir(&self.target))
+    }
+}
+
+impl Drop for StagedDir {
+    fn drop(&mut self) {
+        if !self.published {
+            let _ = std::fs::remove_dir_all(&self.staging);
+        }
+    }
+}
+
 /// The directory holding `path` (`.` for a bare file name).
 fn parent_dir(path: &Path) -> &Path {
     match path.parent() {
@@ -85,6 +157,41 @@ mod tests {
             let mode = |f: &Path| std::fs::metadata(f).unwrap().permissions().mode() & 0o777;
             assert_eq!(mode(&file), mode(&plain));
         }
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn a_staged_dir_appears_whole_or_not_at_all() {
+        let dir = std::env::temp_dir().join(format!("talkin_staged_{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        let target = dir.join("renders");
+        let listing = || -> Vec<String> {
+            let mut names: Vec<String> = std::fs::read_dir(&dir)
+                .unwrap()
+                .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+                .collect();
+            names.sort();
+            names
+        };
+        // Dropped half-way: nothing is left, under either name.
+        let staged = StagedDir::new(&target).unwrap();
+        std::fs::create_dir_all(staged.path()).unwrap();
+        std::fs::write(staged.path().join("a.png"), b"a").unwrap();
+        drop(staged);
+        assert!(listing().is_empty(), "{:?}", listing());
+        // Published: the files appear; into a non-empty target, beside what is there.
+        let staged = StagedDir::new(&target).unwrap();
+        std::fs::create_dir_all(staged.path()).unwrap();
+        std::fs::write(staged.path().join("a.png"), b"a").unwrap();
+        staged.publish().unwrap();
+        let staged = StagedDir::new(&target).unwrap();
+        std::fs::create_dir_all(staged.path()).unwrap();
+        std::fs::write(staged.path().join("b.png"), b"b").unwrap();
+        staged.publish().unwrap();
+        assert_eq!(listing(), ["renders"]);
+        assert_eq!(std::fs::read(target.join("a.png")).unwrap(), b"a");
+        assert_eq!(std::fs::read(target.join("b.png")).unwrap(), b"b");
         std::fs::remove_dir_all(&dir).unwrap();
     }
 }

@@ -22,6 +22,7 @@ pub mod rays;
 pub mod recipe;
 pub mod refine;
 pub mod rng;
+pub mod run_lock;
 pub mod schedule;
 pub mod setup;
 pub mod step;
@@ -34,6 +35,7 @@ pub use recipe::{
     Ablation, Budget, DEFAULT_LPIPS_DIR, DEVICE_ARG, FingerSkinning, Identities, TrainOptions,
 };
 pub use rng::SplitMix64;
+pub use run_lock::{LOCK_FILE, RunLock, RunLockError};
 pub use setup::{RECIPE_FILE, existing_run};
 pub use talkin_grids::SamplerKind;
 pub use trainer::{ScheduleAnchor, TrainReport, Trainer, train};

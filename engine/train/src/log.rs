@@ -54,11 +54,15 @@ impl TrainLog {
         kept.write_record(LOG_HEADER.split(','))
             .map_err(|source| log_error(path, source))?;
         if let Some(step) = resume_at {
+            // Steps rise row by row; a row that does not rise is a row cut short by a
+            // kill or a full disk ("13" of "130,...") and goes.
+            let mut last = 0;
             for row in read_rows(path)? {
                 let row_step = std::str::from_utf8(row.get(0).unwrap_or_default())
                     .ok()
                     .and_then(|s| s.trim().parse::<usize>().ok());
-                if row_step.is_some_and(|s| s <= step) {
+                if let Some(row_step) = row_step.filter(|&s| s > last && s <= step) {
+                    last = row_step;
                     let mut fields: Vec<&[u8]> = row.iter().take(columns).collect();
                     fields.resize(columns, b"");
                     kept.write_record(&fields)
@@ -191,7 +195,8 @@ mod tests {
 
     /// Resuming keeps the rows up to the checkpoint's step, and rows of a log written
     /// before the last column was added get it empty, so every row has the header's
-    /// columns. A row cut off by a kill mid-write (past the checkpoint) goes too.
+    /// columns. A row cut off by a kill mid-write (past the checkpoint) goes too, even
+    /// when what is left of it reads as an earlier step ("1" of "12,...").
     #[test]
     fn resumed_log_keeps_rows_up_to_the_step_with_every_column() {
         let dir = temp("open_log");
@@ -201,7 +206,7 @@ mod tests {
             &path,
             format!(
                 "{old_header}\n1,0.1,1,1,1,8,8,1,1,1e-2,1\n2,0.2,1,1,1,8,8,1,1,1e-2,1\n\
-                 3,0.3,1,1,1,8,8,1,1,1e-2,1\n4,0.4,1"
+                 3,0.3,1,1,1,8,8,1,1,1e-2,1\n4,0.4,1\n1"
             ),
         )
         .unwrap();

@@ -16,7 +16,8 @@
 //!
 //! A checkpoint is written into `step-N.tmp/` (each file fsynced), renamed to `step-N/`,
 //! and only then named in `LATEST` (itself replaced atomically); the checkpoint before it
-//! is kept and older ones are removed last. Loading verifies every file against the
+//! is kept and older ones are removed last. A save that fails (a full disk) removes what
+//! it wrote, leaving `LATEST` on the previous checkpoint. Loading verifies every file against the
 //! manifest and falls back to the previous checkpoint, saying so, when the newest is
 //! damaged; weights that are not finite are refused.
 
@@ -194,7 +195,40 @@ pub fn save(run: &Path, c: &CheckpointContents) -> Result<PathBuf, CheckpointErr
     if tmp.exists() {
         std::fs::remove_dir_all(&tmp).map_err(CheckpointError::io(&tmp))?;
     }
-    std::fs::create_dir_all(&tmp).map_err(CheckpointError::io(&tmp))?;
+    // A save that fails (a full disk, most likely) leaves the run as it was: nothing of
+    // the new checkpoint stays to hold the space, and `LATEST` names the previous one.
+    let published = write_files(&tmp, c).and_then(|()| {
+        if dir.exists() {
+            std::fs::remove_dir_all(&dir).map_err(CheckpointError::io(&dir))?;
+        }
+        std::fs::rename(&tmp, &dir).map_err(CheckpointError::io(&dir))?;
+        sync_dir(&root).map_err(CheckpointError::io(&root))?;
+        let latest = root.join(LATEST_FILE);
+        write_atomic(&latest, format!("{name}\n").as_bytes()).map_err(CheckpointError::io(&latest))
+    });
+    if let Err(e) = published {
+        let _ = std::fs::remove_dir_all(&tmp);
+        let _ = std::fs::remove_dir_all(&dir);
+        return Err(e);
+    }
+    // Older checkpoints go only after LATEST names the new one; the previous one stays.
+    let keep = c.keep.and_then(|k| k.file_name()).filter(|k| **k != *name);
+    for entry in std::fs::read_dir(&root)
+        .map_err(CheckpointError::io(&root))?
+        .flatten()
+    {
+        let file_name = entry.file_name();
+        let other = file_name.to_string_lossy();
+        if other.starts_with("step-") && other != name && Some(file_name.as_os_str()) != keep {
+            let _ = std::fs::remove_dir_all(entry.path());
+        }
+    }
+    Ok(dir)
+}
+
+/// Writes every file of `c` into `tmp` (created), each fsynced, the manifest last.
+fn write_files(tmp: &Path, c: &CheckpointContents) -> Result<(), CheckpointError> {
+    std::fs::create_dir_all(tmp).map_err(CheckpointError::io(tmp))?;
     let mut manifest = Manifest::new();
     let mut write = |file: &str, bytes: &[u8]| {
         let path = tmp.join(file);
@@ -232,27 +266,7 @@ pub fn save(run: &Path, c: &CheckpointContents) -> Result<PathBuf, CheckpointErr
         .to_json()
         .map_err(|e| CheckpointError::format(&manifest_path, "manifest", e))?;
     write_synced(&manifest_path, &manifest).map_err(CheckpointError::io(&manifest_path))?;
-    sync_dir(&tmp).map_err(CheckpointError::io(&tmp))?;
-    if dir.exists() {
-        std::fs::remove_dir_all(&dir).map_err(CheckpointError::io(&dir))?;
-    }
-    std::fs::rename(&tmp, &dir).map_err(CheckpointError::io(&dir))?;
-    sync_dir(&root).map_err(CheckpointError::io(&root))?;
-    let latest = root.join(LATEST_FILE);
-    write_atomic(&latest, format!("{name}\n").as_bytes()).map_err(CheckpointError::io(&latest))?;
-    // Older checkpoints go only after LATEST names the new one; the previous one stays.
-    let keep = c.keep.and_then(|k| k.file_name()).filter(|k| **k != *name);
-    for entry in std::fs::read_dir(&root)
-        .map_err(CheckpointError::io(&root))?
-        .flatten()
-    {
-        let file_name = entry.file_name();
-        let other = file_name.to_string_lossy();
-        if other.starts_with("step-") && other != name && Some(file_name.as_os_str()) != keep {
-            let _ = std::fs::remove_dir_all(entry.path());
-        }
-    }
-    Ok(dir)
+    sync_dir(tmp).map_err(CheckpointError::io(tmp))
 }
 
 /// The module path of the first float tensor of `field` holding a NaN or an infinity.

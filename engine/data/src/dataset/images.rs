@@ -54,24 +54,30 @@ pub(crate) fn open_png(file: &Path) -> Result<ImageReader<BufReader<File>>, Data
     Ok(reader)
 }
 
-/// Decodes the PNG at `root/rel` and checks it is `size` (width, height).
+/// Decodes the PNG at `root/rel` and checks it is `size` (width, height): from its header
+/// first, so that a file claiming another size (say 60000 x 60000) is refused before any
+/// pixel is allocated.
 fn decode_png(root: &Path, rel: &Path, size: (u32, u32)) -> Result<DynamicImage, DatasetError> {
     let file = root.join(rel);
-    let img = open_png(&file)?.decode().map_err(|e| DatasetError::Image {
+    let bad = |e: image::ImageError| DatasetError::Image {
         file: file.clone(),
         problem: format!("cannot decode PNG: {e}"),
-    })?;
-    if (img.width(), img.height()) != size {
-        return Err(DatasetError::Image {
-            file,
-            problem: format!(
-                "is {}x{} but the frame's camera is {}x{}",
-                img.width(),
-                img.height(),
-                size.0,
-                size.1
-            ),
-        });
+    };
+    let wrong_size = |found: (u32, u32)| DatasetError::Image {
+        file: file.clone(),
+        problem: format!(
+            "is {}x{} but the frame's camera is {}x{}",
+            found.0, found.1, size.0, size.1
+        ),
+    };
+    let claimed = open_png(&file)?.into_dimensions().map_err(bad)?;
+    if claimed != size {
+        return Err(wrong_size(claimed));
+    }
+    let img = open_png(&file)?.decode().map_err(bad)?;
+    let decoded = (img.width(), img.height());
+    if decoded != size {
+        return Err(wrong_size(decoded));
     }
     Ok(img)
 }

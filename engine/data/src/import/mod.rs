@@ -216,12 +216,30 @@ pub fn import(
     if !opts.src.is_dir() {
         return Err(ImportError::file(&opts.src, "is not a directory"));
     }
+    write::write(opts, read_source(opts)?, progress)
+}
+
+/// Reads what `opts.src` holds in `opts.format`, every frame's parameters finite and
+/// within [`PARAM_LIMIT`](crate::params_json::PARAM_LIMIT): a fitter's frame beyond them
+/// (a diverged fit, a damaged file) is refused here, naming it, rather than written into a
+/// dataset whose own loader refuses it.
+pub fn read_source(opts: &ImportOptions) -> Result<Source, ImportError> {
     let source = match opts.format {
         Format::HumanNerf => humannerf::read(opts)?,
         Format::SmplerX => smplerx::read(opts)?,
         Format::PeopleSnapshot => peoplesnapshot::read(opts)?,
     };
-    write::write(opts, source, progress)
+    for f in &source.frames {
+        let path = format!("{}.params", f.name);
+        crate::params_json::check_param_limits(&f.params, &path).map_err(|e| {
+            ImportError::field(
+                &opts.src,
+                e.field,
+                format!("expected {}, found {}", e.expected, e.found),
+            )
+        })?;
+    }
+    Ok(source)
 }
 
 /// The folder `dir` looks like the input of a format `talkin import` reads: the format and

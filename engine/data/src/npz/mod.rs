@@ -141,13 +141,21 @@ impl Npz {
         self.names.iter().any(|n| n == name)
     }
 
-    /// The raw bytes of member `<name>.npy`, or `None` if absent.
+    /// The raw bytes of member `<name>.npy`, or `None` if absent. A member that says or
+    /// turns out to be larger than [`MAX_MEMBER_BYTES`] is refused before it is read (a
+    /// few bytes of deflate can claim gigabytes).
     fn member(&mut self, name: &str) -> Result<Option<Vec<u8>>, NpzError> {
         let mut bytes = Vec::new();
+        let too_large = |size: u64| {
+            format!("member of {size} bytes is larger than the {MAX_MEMBER_BYTES} bytes read")
+        };
         let read = match self.zip.by_name(&format!("{name}.npy")) {
-            Ok(mut entry) => entry
-                .read_to_end(&mut bytes)
-                .map_err(|e| format!("truncated or corrupt member: {e}")),
+            Ok(entry) if entry.size() > MAX_MEMBER_BYTES => Err(too_large(entry.size())),
+            Ok(entry) => match entry.take(MAX_MEMBER_BYTES + 1).read_to_end(&mut bytes) {
+                Ok(n) if n as u64 > MAX_MEMBER_BYTES => Err(too_large(n as u64)),
+                Ok(_) => Ok(()),
+                Err(e) => Err(format!("truncated or corrupt member: {e}")),
+            },
             Err(zip::result::ZipError::FileNotFound) => return Ok(None),
             Err(e) => Err(format!("cannot open the member: {e}")),
         };
@@ -263,13 +271,20 @@ pub fn read_npy(path: impl AsRef<Path>) -> Result<NdArray, NpzError> {
     parse_npy(&bytes, file, &name)
 }
 
+/// The largest `.npy` member of an archive that is read: 1 GiB, ten times the largest real
+/// one (SMPL-X's `shapedirs`, 10 475 x 3 x 400 float64, ~100 MB).
+pub const MAX_MEMBER_BYTES: u64 = 1 << 30;
+/// The most elements an array may claim: 2^28, checked before any is decoded (a text
+/// array of zero-width elements needs no bytes of data for any count).
+pub const MAX_ELEMENTS: usize = 1 << 28;
+
 /// The header of a `.npy` is at most this long (numpy itself refuses 10 000 by default).
 const MAX_HEADER: usize = 1 << 16;
 /// Nesting of brackets allowed in a header: a real one nests two deep.
 const MAX_HEADER_NESTING: usize = 16;
 
 /// Checks what npyz trusts: the header length, its bracket nesting (its parser recurses)
-/// and that the shape's product fits (it multiplies unchecked).
+/// and that the shape's products fit (it multiplies unchecked).
 fn precheck_header(bytes: &[u8]) -> Result<(), String> {
     if bytes.len() < 10 || &bytes[..6] != b"\x93NUMPY" {
         return Err("not a .npy array (bad magic)".into());
@@ -307,9 +322,12 @@ fn precheck_header(bytes: &[u8]) -> Result<(), String> {
         if let (Some(open), Some(close)) = (rest.find('('), rest.find(')'))
             && open < close
         {
+            // npyz multiplies the dims in both orders for its strides, so every partial
+            // product must fit, not only the whole one: a zero dim does not save
+            // (0, 2^31, 2^40), whose strides overflow.
             let mut count: u64 = 1;
             for dim in rest[open + 1..close].split(',').map(str::trim) {
-                if let Ok(d) = dim.parse::<u64>() {
+                if let Ok(d) = dim.parse::<u64>().map(|d| d.max(1)) {
                     count = count.checked_mul(d).ok_or_else(|| {
                         format!("shape ({}) is too large", &rest[open + 1..close])
                     })?;
@@ -352,7 +370,12 @@ pub fn parse_npy(bytes: &[u8], file: &Path, name: &str) -> Result<NdArray, NpzEr
         .collect::<Result<Vec<usize>, _>>()
         .map_err(|_| corrupt("shape does not fit in memory".into()))?;
     let count = crate::array::element_count(&shape)
-        .ok_or_else(|| corrupt(format!("shape {shape:?} is too large")))?;
+        .filter(|&n| n <= MAX_ELEMENTS)
+        .ok_or_else(|| {
+            corrupt(format!(
+                "shape {shape:?} is too large (at most {MAX_ELEMENTS} elements are read)"
+            ))
+        })?;
     let item = ty
         .num_bytes()
         .ok_or_else(|| corrupt(format!("dtype {descr} is too large")))?;

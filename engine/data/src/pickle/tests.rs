@@ -333,6 +333,40 @@ proptest! {
         }
         let _ = parse(&b);
     }
+
+    /// Opcodes whose length field claims up to 2^64 bytes, followed by a few: refused as
+    /// truncated (nothing of the claimed size is allocated: `take` checks what is left
+    /// first). FRAME's length is only a hint and is not held to it.
+    #[test]
+    fn absurd_lengths_are_refused(
+        op in proptest::sample::select(vec![
+            b'B', b'X', b'T', b'C', b'U', 0x8c, 0x8d, 0x8e, 0x96, 0x95,
+        ]),
+        len in prop_oneof![
+            Just(u64::MAX),
+            Just(1u64 << 40),
+            Just(u64::from(u32::MAX)),
+            Just(0x8000_0000u64),
+            0u64..16,
+        ],
+        tail in proptest::collection::vec(any::<u8>(), 0..16),
+        protocol in 2u8..6,
+    ) {
+        let width = match op {
+            b'C' | b'U' | 0x8c => 1,
+            b'B' | b'X' | b'T' => 4,
+            _ => 8,
+        };
+        let mut b = vec![0x80, protocol, op];
+        b.extend(&len.to_le_bytes()[..width]);
+        b.extend(&tail);
+        b.push(b'.');
+        let claimed = len & (u64::MAX >> (64 - 8 * width));
+        let parsed = parse(&b);
+        if op != 0x95 && claimed > b.len() as u64 {
+            prop_assert!(parsed.is_err(), "accepted a claim of {claimed} bytes");
+        }
+    }
 }
 
 /// Offsets and lengths of the FRAME opcodes in `bytes`, walking frame by frame.
