@@ -134,7 +134,7 @@ struct Tmpfs {
 
 impl Tmpfs {
     /// `None` (with a note on stderr) when the test does not run as root, which mounting
-    /// needs; CI runs as root.
+    /// needs (CI runs as root), or when the mount is refused all the same.
     fn mount(name: &str, size_mb: u32) -> Option<Tmpfs> {
         let status = std::fs::read_to_string("/proc/self/status").unwrap_or_default();
         let root = status
@@ -152,7 +152,14 @@ impl Tmpfs {
             .arg(&dir)
             .output()
             .unwrap();
-        assert!(out.status.success(), "mount: {}", stderr(&out));
+        if !out.status.success() {
+            // Root in a container without CAP_SYS_ADMIN may not mount.
+            eprintln!(
+                "note: skipped: mounting a small tmpfs was refused: {}",
+                stderr(&out).trim()
+            );
+            return None;
+        }
         Some(Tmpfs { dir })
     }
 
