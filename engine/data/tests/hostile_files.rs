@@ -519,6 +519,7 @@ fn decode_frame(files: &[Vec<u8>; 3]) -> Result<(), String> {
         root: root.clone(),
         background: [1.0, 1.0, 1.0],
         matting: Matting::ByMask,
+        masks: Default::default(),
         subjects: vec![Subject {
             name: "ada".into(),
             skeleton: Skeleton {
