@@ -5,7 +5,7 @@
 //! Per pixel: one centre ray decides segmentation and depth; RGB is supersampled 2x2
 //! where the centre rays of neighbouring pixels disagree (silhouettes, part borders), and
 //! the mask is the pixel's covered fraction: the share of those four rays that hit, the
-//! centre ray elsewhere.
+//! centre ray elsewhere, kept on the centre ray's side of the 128 cut.
 //! Per ray, primitives are culled by their bounding spheres; per SDF evaluation, by the
 //! distance to their bounding sphere.
 
@@ -235,8 +235,16 @@ impl<'a> Scene<'a> {
                         let rgb = c
                             .to_array()
                             .map(|v| (v.clamp(0.0, 1.0) * 255.0).round() as u8);
-                        // 0, 64, 128, 191 or 255: a quarter of 255 per ray, rounded.
-                        (rgb, ((hits * 255 + 2) / 4) as u8)
+                        // A quarter of 255 per ray, rounded; on the 128 cut where the
+                        // centre ray is (the person for rays, labels and depth is the
+                        // centre ray's, so mask, segmentation and depth agree).
+                        let coverage = ((hits * 255 + 2) / 4) as u8;
+                        let coverage = if me.is_some() {
+                            coverage.max(128)
+                        } else {
+                            coverage.min(127)
+                        };
+                        (rgb, coverage)
                     })
                     .collect()
             })

@@ -108,7 +108,7 @@ fn generator_is_deterministic_and_its_frames_are_consistent() {
 
     // How far clothing and hair stick out of the bare skeleton's capsules.
     let mut farthest = 0.0f32;
-    let (mut soft, mut on_outline_only, mut pixels) = (0usize, 0usize, 0usize);
+    let (mut soft, mut pixels) = (0usize, 0usize);
     for (i, frame) in ds.frames.iter().enumerate() {
         let img = ds.images(i).unwrap();
         let depth = ds.depth(i).unwrap().expect("synthetic frames carry depth");
@@ -129,16 +129,17 @@ fn generator_is_deterministic_and_its_frames_are_consistent() {
             for x in 0..w {
                 let label = img.segmentation.get_pixel(x, y).0[0];
                 let mask = img.mask.get_pixel(x, y).0[0];
-                // The mask is the pixel's covered fraction in quarters; the label is
-                // the centre ray's: a pixel fully in or out agrees with it but where the
-                // centre ray alone met (or missed) a thin part.
+                // The mask is the pixel's covered fraction in quarters, on the centre
+                // ray's side of the 128 cut: it agrees with the label everywhere.
                 assert!(
-                    [0, 64, 128, 191, 255].contains(&mask),
+                    [0, 64, 127, 128, 191, 255].contains(&mask),
                     "frame {i} pixel ({x}, {y}): mask {mask}"
                 );
-                if (mask == 0 && label > 0) || (mask == 255 && label == 0) {
-                    on_outline_only += 1;
-                }
+                assert_eq!(
+                    mask >= 128,
+                    label > 0,
+                    "frame {i} pixel ({x}, {y}): mask {mask}, label {label}"
+                );
                 soft += usize::from(mask != 0 && mask != 255);
                 count[label as usize] += 1;
                 if label == 4 {
@@ -197,17 +198,20 @@ fn generator_is_deterministic_and_its_frames_are_consistent() {
             match *m {
                 0 => assert_eq!(p.0, [0, 0, 0]),
                 255 => assert_eq!(p.0, q.0),
+                // The white share goes (all of what is left where the mask rounds
+                // the cover up to the cut).
                 m => (0..3).for_each(|c| {
                     let lost = i32::from(q.0[c]) - i32::from(p.0[c]);
-                    assert!((lost - (255 - i32::from(m))).abs() <= 1, "{p:?} {q:?} {m}")
+                    let white = 255 - i32::from(m);
+                    let ok = (lost - white).abs() <= 1 || (p.0[c] == 0 && lost <= white);
+                    assert!(ok, "{p:?} {q:?} {m}")
                 }),
             }
         }
     }
-    assert!(soft > 0, "no pixel is partly covered");
     assert!(
-        on_outline_only * 100 < soft,
-        "{on_outline_only} whole pixels' coverage and label disagree, of {soft} soft and {pixels} in all"
+        soft > 0 && soft * 10 < pixels,
+        "{soft} of {pixels} pixels partly covered"
     );
     assert!(
         farthest > 0.03,
