@@ -124,6 +124,35 @@ fn compare(
     (inter as f64 / union.max(1) as f64, psnr)
 }
 
+/// The render beside the posed mesh, `export_same_FRAME.png` in the target tmp dir.
+fn write_side_by_side(
+    render: &RenderedFrame,
+    covered: &[bool],
+    colour: &[[f32; 3]],
+    background: [f32; 3],
+    frame: usize,
+) {
+    let (w, h) = (render.width, render.height);
+    let byte = |v: f32| (v.clamp(0.0, 1.0) * 255.0).round() as u8;
+    let img = image::RgbImage::from_fn(2 * w, h, |x, y| {
+        let i = (y * w + x % w) as usize;
+        let c = if x < w {
+            [
+                render.rgb[3 * i],
+                render.rgb[3 * i + 1],
+                render.rgb[3 * i + 2],
+            ]
+        } else if covered[i] {
+            colour[i]
+        } else {
+            background
+        };
+        image::Rgb(c.map(byte))
+    });
+    let file = Path::new(env!("CARGO_TARGET_TMPDIR")).join(format!("export_same_{frame}.png"));
+    img.save(file).unwrap();
+}
+
 /// For each of `frames` (dataset indices): the exported mesh posed by the engine's
 /// skinning and rasterised, against the avatar's render: (IoU, PSNR).
 fn same_avatar_scores(
@@ -150,7 +179,9 @@ fn same_avatar_scores(
                 &exported.colours,
                 &exported.surface.triangles,
             );
-            compare(&render, &covered, &colour, avatar.background)
+            let scores = compare(&render, &covered, &colour, avatar.background);
+            write_side_by_side(&render, &covered, &colour, avatar.background, i);
+            scores
         })
         .collect()
 }
@@ -462,4 +493,51 @@ fn glb_in_validator_and_three() {
     headless(&[&format!("--screenshot={}", shot.display())]);
     assert!(std::fs::metadata(&shot).unwrap().len() > 0);
     eprintln!("screenshot {}", shot.display());
+}
+
+/// `TALKIN_EXPORT_RUN=RUN TALKIN_EXPORT_DATA=DATA cargo test --release --test export --
+/// --ignored same_avatar_on_a_run --nocapture`: the same comparison as
+/// `posed_mesh_matches_the_render_on_held_out_frames` on a run of your own (e.g. the
+/// demo's), every subject, the first four test_same frames of each, at the default
+/// resolution (`TALKIN_EXPORT_RESOLUTION` for another); prints each frame's IoU and PSNR
+/// and their means.
+#[test]
+#[ignore = "needs a trained run: TALKIN_EXPORT_RUN and TALKIN_EXPORT_DATA"]
+fn same_avatar_on_a_run() {
+    let var = |k: &str| std::env::var(k).unwrap_or_else(|_| panic!("set {k}"));
+    let run = PathBuf::from(var("TALKIN_EXPORT_RUN"));
+    let dataset = Dataset::load(Path::new(&var("TALKIN_EXPORT_DATA"))).unwrap();
+    let resolution = std::env::var("TALKIN_EXPORT_RESOLUTION")
+        .map_or(talkin::export::DEFAULT_RESOLUTION, |r| r.parse().unwrap());
+    let avatar = Avatar::load(&run).unwrap();
+    let frames = split_frames(&dataset, Split::TestSame).unwrap();
+    let mut all = Vec::new();
+    for (s, subject) in dataset.subjects.iter().enumerate() {
+        let opts = SurfaceOptions {
+            resolution,
+            ..SurfaceOptions::default()
+        };
+        let exported = export_avatar(&avatar, &subject.name, &opts).unwrap();
+        let mine: Vec<usize> = frames
+            .iter()
+            .copied()
+            .filter(|&i| dataset.frames[i].subject == s)
+            .take(4)
+            .collect();
+        for (i, (iou, psnr)) in mine
+            .iter()
+            .zip(same_avatar_scores(&avatar, &dataset, &exported, &mine))
+        {
+            eprintln!(
+                "{} frame {i}: IoU {iou:.3}, person-box PSNR {psnr:.2} dB",
+                subject.name
+            );
+            all.push((iou, psnr));
+        }
+    }
+    let n = all.len() as f64;
+    let (iou, psnr) = all
+        .iter()
+        .fold((0.0, 0.0), |(a, b), (i, p)| (a + i / n, b + p / n));
+    eprintln!("mean over {n} frames: IoU {iou:.3}, PSNR {psnr:.2} dB");
 }

@@ -107,11 +107,12 @@ pub fn mesh_lattice(sdf: &[f32], dims: [u32; 3], origin: Vec3, cell: f32) -> Sur
         .iter()
         .map(|n| Vec3::from_array(*n).normalize_or_zero())
         .collect();
-    // The crate winds its quads clockwise seen from the positive (outer) side.
+    // The crate winds its quads counter-clockwise seen from the positive (outer) side,
+    // as glTF's front faces are (the test below holds it to that).
     let triangles = buffer
         .indices
         .chunks_exact(3)
-        .map(|t| [t[0], t[2], t[1]])
+        .map(|t| [t[0], t[1], t[2]])
         .collect();
     Surface {
         positions,
