@@ -24,7 +24,9 @@ pub struct Keyframes {
 
 /// The keyframes of `frames` played at `fps` on `skeleton`'s rig.
 pub fn keyframes(skeleton: &Skeleton, frames: &[FrameParams], fps: f64) -> Keyframes {
-    let mut rotations: Vec<Vec<Quat>> = vec![Vec::with_capacity(frames.len()); N_JOINTS];
+    let mut rotations: Vec<Vec<Quat>> = (0..N_JOINTS)
+        .map(|_| Vec::with_capacity(frames.len()))
+        .collect();
     let mut root_translation = Vec::with_capacity(frames.len());
     for params in frames {
         let nodes = node_poses(skeleton, params);

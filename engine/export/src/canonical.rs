@@ -187,7 +187,7 @@ impl<'a> CanonicalSubject<'a> {
     }
 
     /// Each vertex's colour: the field volume-rendered along a short ray down its normal
-    /// (from [`COLOUR_REACH_CELLS`] cells outside to as far inside), normalised by the
+    /// (from 1.5 grid cells outside to as far inside), normalised by the
     /// ray's opacity, so a vertex gets the colour a camera facing it would see there.
     /// Where the ray gathers no opacity, the field's colour at the vertex.
     pub fn surface_colours(&self, surface: &Surface) -> Result<Vec<[f32; 3]>, ExportError> {

@@ -45,7 +45,7 @@ impl Document {
         bytes: &[u8],
         target: Option<gj::buffer::Target>,
     ) -> Index<gj::buffer::View> {
-        while self.bin.len() % 4 != 0 {
+        while !self.bin.len().is_multiple_of(4) {
             self.bin.push(0);
         }
         let offset = self.bin.len();
@@ -164,7 +164,6 @@ impl Document {
             name: Some("field radiance (unlit vertex colours)".into()),
             extensions: Some(gj::extensions::material::Material {
                 unlit: Some(gj::extensions::material::Unlit {}),
-                ..Default::default()
             }),
             ..Default::default()
         });
@@ -238,11 +237,30 @@ impl Document {
         use gj::animation::{Channel, Interpolation, Property, Sampler, Target};
         let times: Vec<[f32; 1]> = keys.times.iter().map(|&t| [t]).collect();
         let input = self.floats(&times, Type::Scalar, None, true);
-        let mut samplers = Vec::new();
-        let mut channels = Vec::new();
-        let mut add = |doc: &mut Document, node: usize, path: Property, output| {
-            channels.push(Channel {
-                sampler: Index::new(samplers.len() as u32),
+        let mut outputs = Vec::new();
+        for (j, rotations) in keys.rotations.iter().enumerate() {
+            let values: Vec<[f32; 4]> = rotations.iter().map(|q| q.to_array()).collect();
+            let output = self.floats(&values, Type::Vec4, None, false);
+            outputs.push((j, Property::Rotation, output));
+        }
+        let moves: Vec<[f32; 3]> = keys.root_translation.iter().map(Vec3::to_array).collect();
+        let output = self.floats(&moves, Type::Vec3, None, false);
+        outputs.push((0, Property::Translation, output));
+        let samplers = outputs
+            .iter()
+            .map(|&(_, _, output)| Sampler {
+                input,
+                interpolation: Valid(Interpolation::Linear),
+                output,
+                extensions: Default::default(),
+                extras: Default::default(),
+            })
+            .collect();
+        let channels = outputs
+            .into_iter()
+            .enumerate()
+            .map(|(k, (node, path, _))| Channel {
+                sampler: Index::new(k as u32),
                 target: Target {
                     node: Index::new(node as u32),
                     path: Valid(path),
@@ -251,24 +269,8 @@ impl Document {
                 },
                 extensions: Default::default(),
                 extras: Default::default(),
-            });
-            samplers.push(Sampler {
-                input,
-                interpolation: Valid(Interpolation::Linear),
-                output,
-                extensions: Default::default(),
-                extras: Default::default(),
-            });
-            let _ = doc;
-        };
-        for (j, rotations) in keys.rotations.iter().enumerate() {
-            let values: Vec<[f32; 4]> = rotations.iter().map(|q| q.to_array()).collect();
-            let output = self.floats(&values, Type::Vec4, None, false);
-            add(self, j, Property::Rotation, output);
-        }
-        let moves: Vec<[f32; 3]> = keys.root_translation.iter().map(Vec3::to_array).collect();
-        let output = self.floats(&moves, Type::Vec3, None, false);
-        add(self, 0, Property::Translation, output);
+            })
+            .collect();
         self.root.push(gj::Animation {
             extensions: Default::default(),
             extras: Default::default(),
@@ -279,7 +281,7 @@ impl Document {
     }
 
     fn finish(mut self) -> Result<Vec<u8>, ExportError> {
-        while self.bin.len() % 4 != 0 {
+        while !self.bin.len().is_multiple_of(4) {
             self.bin.push(0);
         }
         self.root.asset = gj::Asset {

@@ -18,7 +18,6 @@ pub mod weights;
 
 use std::time::Instant;
 
-use talkin_human::body::FrameParams;
 use talkin_render::avatar::{Avatar, AvatarError};
 
 pub use canonical::CanonicalSubject;
@@ -50,8 +49,7 @@ pub enum ExportError {
     Gltf(String),
 }
 
-/// A subject's exported avatar before it is written: mesh, weights and (optionally) the
-/// motion it plays.
+/// A subject's exported avatar before it is written: mesh, colours, rig and weights.
 #[derive(Clone, Debug)]
 pub struct ExportedAvatar {
     /// Subject name.
@@ -61,8 +59,6 @@ pub struct ExportedAvatar {
     pub colours: Vec<[f32; 3]>,
     pub skin: SkinWeights,
     pub rig: rig::Rig,
-    /// Frames of the motion and its rate, if one was given.
-    pub motion: Option<(Vec<FrameParams>, f64)>,
     /// Wall time of the surface, colours and weights.
     pub seconds: f64,
 }
@@ -88,7 +84,6 @@ pub fn export_avatar(
         surface,
         colours,
         skin,
-        motion: None,
         seconds: start.elapsed().as_secs_f64(),
     })
 }

@@ -38,7 +38,7 @@ pub fn skin_weights(
         &conditions.canonical_from_posed,
         &conditions.bone_capsules,
     )?;
-    let (joints, weights) = all.into_iter().map(|w| largest_four(w)).unzip();
+    let (joints, weights) = all.into_iter().map(largest_four).unzip();
     Ok(SkinWeights { joints, weights })
 }
 
