@@ -213,7 +213,8 @@ fn waving_motion(file: &Path, n: usize) {
     let mut poses = vec![0.0f32; n * 165];
     for i in 0..n {
         // body_pose[15] is the left shoulder (joint 16), after the 3 of global_orient.
-        poses[i * 165 + 3 + 15 * 3 + 2] = -0.8 * (i as f32 / n as f32 * std::f32::consts::TAU).sin();
+        poses[i * 165 + 3 + 15 * 3 + 2] =
+            -0.8 * (i as f32 / n as f32 * std::f32::consts::TAU).sin();
     }
     common::write_beat2(file, n, poses);
 }

@@ -581,12 +581,20 @@ fn blend_weights_reproduce_the_warp() {
     let learned: Vec<f32> = (0..n).map(|i| ((i * 37) % 11) as f32 * 0.3 - 1.5).collect();
     vol.logits = burn::module::Param::from_tensor(crate::util::floats(learned, [n], &device));
     let t = identity_transforms();
-    let capsules = [BoneCapsule {
-        bone: 3,
-        a: [0.0, -0.2, 0.0],
-        b: [0.0, 0.2, 0.0],
-        radius: 0.1,
-    }];
+    let capsules = [
+        BoneCapsule {
+            bone: 3,
+            a: [0.0, -0.2, 0.0],
+            b: [0.0, 0.2, 0.0],
+            radius: 0.1,
+        },
+        BoneCapsule {
+            bone: 9,
+            a: [0.1, 0.2, 0.0],
+            b: [0.1, 0.25, 0.0],
+            radius: 0.25,
+        },
+    ];
     let pts = [[0.1f32, 0.2, 0.3], [-0.4, 0.05, 0.0], [0.0, 0.0, 0.0]];
     let masks = [(1u64 << 3) | (1 << 9) | (1 << 16), 1 << 5, 0];
     let warp = host(
