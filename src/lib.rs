@@ -2,6 +2,7 @@
 pub use talkin_avatar as avatar;
 pub use talkin_benches as benches;
 pub use talkin_data as data;
+pub use talkin_export as export;
 pub use talkin_grids as grids;
 pub use talkin_human as human;
 pub use talkin_nets as nets;

