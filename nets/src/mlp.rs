@@ -66,7 +66,7 @@ pub struct MlpPath {
     /// MLPs without skips take the fused device op (`kernels::cube::mlp`); false: the
     /// composed burn ops (the baseline it is measured against).
     pub fused_on_device: bool,
-    /// Rows a slice of the composed ops' batched products ([`Mlp::sliced`]); 0: no
+    /// Rows a slice of the composed ops' batched products (`Mlp::sliced`); 0: no
     /// slicing.
     pub slice_rows: usize,
 }
