@@ -32,21 +32,7 @@ fn talkin(args: &[&OsStr]) -> Output {
 fn train_args(data: &Path, out: &Path, extra: &[&str]) -> Vec<OsString> {
     let mut args: Vec<OsString> = vec!["train".into(), "--data".into(), data.into()];
     args.extend(["--out".into(), out.into()]);
-    for a in [
-        "--batch",
-        "256",
-        "--patches",
-        "0",
-        "--occ-every",
-        "4",
-        "--grid-resolution",
-        "32",
-        "--seed",
-        "3",
-    ]
-    .iter()
-    .chain(extra)
-    {
+    for a in common::cli::TINY_TRAIN_FLAGS.iter().chain(extra) {
         args.push(a.into());
     }
     args

@@ -20,18 +20,7 @@ use talkin::train::LOG_FILE;
 /// `talkin train` on a tiny scene: 256 rays, no perceptual term, a 32-cell grid.
 fn train_args<'a>(data: &'a Path, out: &'a Path, extra: &[&'a str]) -> Vec<&'a str> {
     let mut args = vec!["train", "--data", p(data), "--out", p(out)];
-    args.extend([
-        "--batch",
-        "256",
-        "--patches",
-        "0",
-        "--occ-every",
-        "4",
-        "--grid-resolution",
-        "32",
-        "--seed",
-        "3",
-    ]);
+    args.extend(common::cli::TINY_TRAIN_FLAGS);
     args.extend(extra);
     args
 }

@@ -76,3 +76,18 @@ pub fn train_and_test_same(ds: &Dataset) -> Vec<&Frame> {
         .filter(|f| matches!(f.split.name(), "train" | "test_same"))
         .collect()
 }
+
+/// `talkin train`'s flags for a tiny scene in the end-to-end tests: 256 rays, no
+/// perceptual term, a 32-cell grid, a fixed seed.
+pub const TINY_TRAIN_FLAGS: [&str; 10] = [
+    "--batch",
+    "256",
+    "--patches",
+    "0",
+    "--occ-every",
+    "4",
+    "--grid-resolution",
+    "32",
+    "--seed",
+    "3",
+];
