@@ -11,6 +11,7 @@
 
 pub mod animation;
 pub mod canonical;
+pub mod colours;
 pub mod glb;
 pub mod rig;
 pub mod surface;
@@ -76,7 +77,7 @@ pub fn export_avatar(
     let start = Instant::now();
     let subject = CanonicalSubject::new(avatar, name)?;
     let surface = surface::extract(&subject, opts)?;
-    let colours = subject.surface_colours(&surface)?;
+    let colours = colours::surface_colours(&subject, &surface)?;
     let skin = weights::skin_weights(&subject, &surface.positions)?;
     Ok(ExportedAvatar {
         subject: name.to_string(),
