@@ -342,6 +342,23 @@ fn a_full_disk_loses_nothing_and_the_run_resumes_exactly() {
     let exported = disk.dir.join("refined.json");
     let export = ["export-poses", "--run", p(&straight), "--out", p(&exported)];
     fails_on_full_disk(&disk, &export);
+    let glb = disk.dir.join("avatar.glb");
+    let subject = dataset.subjects[0].name.clone();
+    let glb_export = [
+        "export",
+        "--run",
+        p(&straight),
+        "--subject",
+        &subject,
+        "--out",
+        p(&glb),
+        "--resolution",
+        "32",
+        // A few steps' field: a low level still gives a surface to write.
+        "--level",
+        "0.01",
+    ];
+    fails_on_full_disk(&disk, &glb_export);
     let clip = Clip::subject0(&dataset);
     let (src, model) = write_peoplesnapshot(&clip, "faults_disk_peoplesnapshot");
     let imported = disk.dir.join("imported");
@@ -350,7 +367,7 @@ fn a_full_disk_loses_nothing_and_the_run_resumes_exactly() {
 
     // Each of them writes once there is room.
     disk.free_all();
-    for args in [&render[..], &export[..], &import[..]] {
+    for args in [&render[..], &export[..], &glb_export[..], &import[..]] {
         let out = talkin(args);
         assert!(out.status.success(), "{args:?}: {}", stderr(&out));
     }
