@@ -22,7 +22,7 @@ use talkin_data::array::{ArrayData, NdArray};
 use talkin_data::dataset::{Dataset, Frame, Matting, Split, Subject};
 use talkin_data::import::peoplesnapshot::parse_splits_yaml;
 use talkin_data::motion::{MotionLayout, read_motion};
-use talkin_data::npz::{MAX_ELEMENTS, Npz, NpzWriter, parse_npy};
+use talkin_data::npz::{MAX_ELEMENTS, Npz, NpzWriter, parse_npy, raw_npy_bytes};
 use talkin_data::smplx_model::SmplxModel;
 use talkin_human::body::{FrameParams, N_JOINTS, PARENTS, Skeleton};
 use talkin_human::camera::Camera;
@@ -154,8 +154,8 @@ impl Damage {
 // ---------------------------------------------------------------------------------------
 // .npy and .npz
 
-/// A `.npy` header (version 1) for `descr`, `shape` and order, padded as numpy pads it,
-/// followed by `data`.
+/// A `.npy` header (version 1) for `descr`, `shape` and order, padded as numpy pads it
+/// (`npz::raw_npy_bytes`), followed by `data`.
 fn npy_with_header(descr: &str, shape: &[u64], fortran: bool, data: &[u8]) -> Vec<u8> {
     let dims: Vec<String> = shape.iter().map(u64::to_string).collect();
     let shape = match dims.len() {
@@ -163,17 +163,10 @@ fn npy_with_header(descr: &str, shape: &[u64], fortran: bool, data: &[u8]) -> Ve
         _ => format!("({})", dims.join(", ")),
     };
     let order = if fortran { "True" } else { "False" };
-    let mut header =
-        format!("{{'descr': '{descr}', 'fortran_order': {order}, 'shape': {shape}, }}");
-    while (10 + header.len() + 1) % 64 != 0 {
-        header.push(' ');
-    }
-    header.push('\n');
-    let mut out = b"\x93NUMPY\x01\x00".to_vec();
-    out.extend((header.len() as u16).to_le_bytes());
-    out.extend(header.as_bytes());
-    out.extend(data);
-    out
+    raw_npy_bytes(
+        &format!("{{'descr': '{descr}', 'fortran_order': {order}, 'shape': {shape}, }}"),
+        data,
+    )
 }
 
 /// Sizes a header may claim: none, small, and far beyond memory.
@@ -472,28 +465,12 @@ fn frame_pngs() -> [Vec<u8>; 3] {
     [png(rgb.into()), png(mask.into()), png(labels.into())]
 }
 
-/// The CRC-32 of PNG chunks (ISO 3309), bit by bit.
-fn crc32(bytes: &[u8]) -> u32 {
-    let mut crc = !0u32;
-    for &b in bytes {
-        crc ^= u32::from(b);
-        for _ in 0..8 {
-            crc = if crc & 1 == 1 {
-                (crc >> 1) ^ 0xEDB8_8320
-            } else {
-                crc >> 1
-            };
-        }
-    }
-    !crc
-}
-
 /// `png` with its header claiming `width` x `height` (the chunk's CRC fixed up, so that
 /// the decoder believes it).
 fn claiming_size(mut png: Vec<u8>, width: u32, height: u32) -> Vec<u8> {
     png[16..20].copy_from_slice(&width.to_be_bytes());
     png[20..24].copy_from_slice(&height.to_be_bytes());
-    let crc = crc32(&png[12..29]);
+    let crc = crc32fast::hash(&png[12..29]);
     png[29..33].copy_from_slice(&crc.to_be_bytes());
     png
 }

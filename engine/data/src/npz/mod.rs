@@ -479,8 +479,9 @@ pub fn object_npy_bytes(pickle: &[u8]) -> Vec<u8> {
 }
 
 /// A version 1.0 `.npy` file: magic, the header dict `dict` padded with spaces and a
-/// newline to a multiple of 64 bytes, then `data` as is.
-pub(crate) fn raw_npy_bytes(dict: &str, data: &[u8]) -> Vec<u8> {
+/// newline to a multiple of 64 bytes, then `data` as is (whatever the dict claims: how
+/// tests build files with hostile headers).
+pub fn raw_npy_bytes(dict: &str, data: &[u8]) -> Vec<u8> {
     let mut header = dict.to_string();
     while !(10 + header.len() + 1).is_multiple_of(64) {
         header.push(' ');
