@@ -8,14 +8,12 @@ mod common;
 
 use std::ffi::{OsStr, OsString};
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output, Stdio};
+use std::process::{Command, Output};
 use std::time::{Duration, Instant};
 
 use burn::module::{Module, ModuleMapper, Param};
 use burn::prelude::*;
-use talkin::avatar::checkpoint::{
-    self, CHECKPOINT_DIR, Checkpoint, LATEST_FILE, MANIFEST_FILE, MODEL_FILE,
-};
+use talkin::avatar::checkpoint::{self, Checkpoint, MANIFEST_FILE, MODEL_FILE};
 use talkin::data::dataset::Dataset;
 use talkin::grids::SamplerKind;
 use talkin::render::avatar::Avatar;
@@ -143,39 +141,20 @@ fn a_signal_ends_the_run_with_a_checkpoint_and_resume_continues() {
     let dataset = scene("durable_scene_signal", 1);
     let base = common::temp_dir("durable_signal");
     let run = base.join("run");
-    let stderr = std::fs::File::create(base.join("stderr.txt")).unwrap();
-    let mut child = Command::new(env!("CARGO_BIN_EXE_talkin"))
-        .args(train_args(
-            &dataset.root,
-            &run,
-            &["--steps", "100000", "--checkpoint-every", "0.3"],
-        ))
-        .stdout(Stdio::null())
-        .stderr(stderr)
-        .spawn()
-        .unwrap();
-    let latest = run.join(CHECKPOINT_DIR).join(LATEST_FILE);
-    let start = Instant::now();
-    while !latest.exists() {
-        assert!(
-            start.elapsed() < Duration::from_secs(120),
-            "no checkpoint after 2 minutes"
-        );
-        assert!(child.try_wait().unwrap().is_none(), "the run ended early");
-        std::thread::sleep(Duration::from_millis(50));
-    }
+    let mut child = common::cli::start_trainer(&dataset.root, &run, &base.join("stderr.txt"));
     let killed = Command::new("kill")
         .args(["-s", "TERM", &child.id().to_string()])
         .status()
         .unwrap();
     assert!(killed.success());
+    let start = Instant::now();
     let status = loop {
         if let Some(status) = child.try_wait().unwrap() {
             break status;
         }
         assert!(
-            start.elapsed() < Duration::from_secs(180),
-            "still running after SIGTERM"
+            start.elapsed() < Duration::from_secs(120),
+            "still running 2 minutes after SIGTERM"
         );
         std::thread::sleep(Duration::from_millis(50));
     };

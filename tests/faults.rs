@@ -8,10 +8,9 @@ mod common;
 use std::collections::BTreeSet;
 use std::io::Write;
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
-use std::time::{Duration, Instant};
+use std::process::Command;
 
-use common::cli::{p, stderr, talkin};
+use common::cli::{p, start_trainer, stderr, talkin};
 use common::layouts::{Clip, write_peoplesnapshot};
 use talkin::avatar::checkpoint::{self, CHECKPOINT_DIR, Checkpoint, LATEST_FILE};
 use talkin::render::avatar::Avatar;
@@ -27,36 +26,6 @@ fn train_args<'a>(data: &'a Path, out: &'a Path, extra: &[&'a str]) -> Vec<&'a s
 
 fn steps_of_checkpoints(run: &Path) -> Vec<usize> {
     checkpoint::step_dirs(run).iter().map(|(s, _)| *s).collect()
-}
-
-/// Starts a long `talkin train` into `run` and waits for its first checkpoint.
-fn start_trainer(data: &Path, run: &Path, stderr_file: &Path) -> Child {
-    let mut child = Command::new(env!("CARGO_BIN_EXE_talkin"))
-        .args(train_args(
-            data,
-            run,
-            &["--steps", "100000", "--checkpoint-every", "0.3"],
-        ))
-        .stdout(Stdio::null())
-        .stderr(std::fs::File::create(stderr_file).unwrap())
-        .spawn()
-        .unwrap();
-    let latest = run.join(CHECKPOINT_DIR).join(LATEST_FILE);
-    let start = Instant::now();
-    while !latest.exists() {
-        assert!(
-            start.elapsed() < Duration::from_secs(120),
-            "no checkpoint after 2 minutes"
-        );
-        if child.try_wait().unwrap().is_some() {
-            panic!(
-                "the trainer ended early: {}",
-                std::fs::read_to_string(stderr_file).unwrap()
-            );
-        }
-        std::thread::sleep(Duration::from_millis(50));
-    }
-    child
 }
 
 #[cfg(unix)]

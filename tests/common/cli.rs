@@ -91,3 +91,34 @@ pub const TINY_TRAIN_FLAGS: [&str; 10] = [
     "--seed",
     "3",
 ];
+
+/// Starts a long `talkin train` (the tiny-scene flags, a checkpoint every 0.3 s) of `data`
+/// into `run`, its stderr into `stderr_file`, and waits for its first checkpoint; fails
+/// the test if none comes in 2 minutes or the trainer ends first.
+pub fn start_trainer(data: &Path, run: &Path, stderr_file: &Path) -> std::process::Child {
+    use talkin::avatar::checkpoint::{CHECKPOINT_DIR, LATEST_FILE};
+    let mut child = Command::new(env!("CARGO_BIN_EXE_talkin"))
+        .args(["train", "--data", p(data), "--out", p(run)])
+        .args(TINY_TRAIN_FLAGS)
+        .args(["--steps", "100000", "--checkpoint-every", "0.3"])
+        .stdout(std::process::Stdio::null())
+        .stderr(std::fs::File::create(stderr_file).unwrap())
+        .spawn()
+        .unwrap();
+    let latest = run.join(CHECKPOINT_DIR).join(LATEST_FILE);
+    let start = std::time::Instant::now();
+    while !latest.exists() {
+        assert!(
+            start.elapsed() < std::time::Duration::from_secs(120),
+            "no checkpoint after 2 minutes"
+        );
+        if child.try_wait().unwrap().is_some() {
+            panic!(
+                "the trainer ended early: {}",
+                std::fs::read_to_string(stderr_file).unwrap()
+            );
+        }
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    }
+    child
+}
