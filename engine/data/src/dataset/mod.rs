@@ -154,26 +154,26 @@ impl Dataset {
     /// ([`Matting::Reshown`]). A matted dataset with a matte cannot: its edge pixels keep
     /// the colour they were written over.
     pub fn show_over(&mut self, background: [f32; 3]) -> Result<(), DatasetError> {
-        if !self.can_show_over() {
-            return Err(DatasetError::Invalid {
-                file: self.root.join(INDEX_FILE),
-                field: "masks".into(),
-                problem: format!(
-                    "the frames are matted over {:?} and the masks are a matte, which cannot \
-                     take that colour out of the edge pixels: only a dataset composited by its \
-                     masks (\"matting\": \"by_mask\") or one with exact coverage masks \
-                     (\"masks\": \"coverage\", what `synth` writes) is shown over another colour",
-                    self.background
-                ),
-            });
-        }
-        self.matting = match (self.matting, self.masks) {
-            (Matting::ByMask, _) => Matting::ByMask,
-            (Matting::Reshown { files_over }, _) => Matting::Reshown { files_over },
-            (Matting::Matted, Masks::Coverage) => Matting::Reshown {
+        self.matting = match self.matting {
+            Matting::Matted if self.masks == Masks::Coverage => Matting::Reshown {
                 files_over: self.background,
             },
-            (Matting::Matted, Masks::Matte) => unreachable!("checked above"),
+            Matting::Matted => {
+                return Err(DatasetError::Invalid {
+                    file: self.root.join(INDEX_FILE),
+                    field: "masks".into(),
+                    problem: format!(
+                        "the frames are matted over {:?} and the masks are a matte, which \
+                         cannot take that colour out of the edge pixels: only a dataset \
+                         composited by its masks (\"matting\": \"by_mask\") or one with exact \
+                         coverage masks (\"masks\": \"coverage\", what `synth` writes) is \
+                         shown over another colour",
+                        self.background
+                    ),
+                });
+            }
+            // Composited by its masks, or already recomposited from its files' colour.
+            other => other,
         };
         self.background = background;
         Ok(())
