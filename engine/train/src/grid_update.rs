@@ -23,6 +23,54 @@ pub(crate) fn virtual_time_decay(ema_decay: f32, virtual_steps_since: f64) -> f3
     (f64::from(ema_decay).powf(updates) as f32).clamp(0.0, 1.0)
 }
 
+/// A run's occupancy-grid updates: their options, and the occupied fraction of the grid
+/// updated last (for the log; 1 before the first update).
+pub(crate) struct GridUpdates {
+    opts: OccUpdateOpts,
+    occupied: f64,
+}
+
+impl GridUpdates {
+    pub fn new(opts: OccUpdateOpts) -> Self {
+        GridUpdates {
+            opts,
+            occupied: 1.0,
+        }
+    }
+
+    /// The occupied fraction of the grid updated last.
+    pub fn occupied(&self) -> f64 {
+        self.occupied
+    }
+
+    /// Whether an update is due after physical step `step`.
+    pub fn due(&self, step: usize) -> bool {
+        self.opts.n > 0 && step.is_multiple_of(self.opts.n as usize)
+    }
+
+    /// The due update after physical step `step` ([`update_grids`]).
+    pub fn update(
+        &mut self,
+        field: &TalkinField,
+        subjects: &mut [SubjectSlot],
+        step: usize,
+        virtual_per_step: f64,
+        face_dim: usize,
+    ) -> Result<(), TrainError> {
+        if let Some(occupied) = update_grids(
+            field,
+            subjects,
+            step as u32,
+            virtual_per_step,
+            &self.opts,
+            face_dim,
+        )? {
+            self.occupied = occupied;
+        }
+        Ok(())
+    }
+}
+
 /// Updates one trained subject's grid (in turn) with the field's density at canonical points
 /// as the renderer routes it ([`route_density`]), times the cell size as nerfacc's
 /// `density * step`, without gradients. The

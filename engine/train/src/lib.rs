@@ -1,11 +1,12 @@
 //! train: one training step and the run around it. The modules read in the order a step
 //! runs: a frame's [`rays`] (its scene, conditions and samplers come from `talkin-avatar`),
 //! the [`loss`] (whose two halves' gradients nets' fused `grad_sum` adds), Adam (nets'
-//! fused kernel), the [`grid_update`]; [`step`] strings them together and [`trainer`] runs steps until
-//! the budget is spent, writing the [`log`] (on a GPU a few steps' losses at a time, read
-//! in one transfer by `pending`) and the avatar's checkpoints. A run is told
+//! fused kernel), the [`grid_update`]; the [`trainer`]'s step strings them together and
+//! it runs steps until the budget is spent, writing the [`log`] (through `journal`: on a
+//! GPU a few steps' losses at a time, read in one transfer by `pending`) and the avatar's
+//! checkpoints. A run is told
 //! its [`recipe`] (on a camera capture, the capture recipe wherever the command line
-//! named nothing), whose [`preset`] names the architecture and optimiser settings; with
+//! named nothing; runs record it as a [`record`], versioned), whose [`preset`] names the architecture and optimiser settings; with
 //! [`refine`] it also learns per-frame corrections of the training fits.
 //!
 //! Must not know about rendering whole frames, evaluation, the server or the
@@ -14,18 +15,19 @@
 
 pub mod error;
 pub mod grid_update;
+mod journal;
 pub mod log;
 pub mod loss;
 mod pending;
 pub mod preset;
 pub mod rays;
 pub mod recipe;
+pub mod record;
 pub mod refine;
 pub mod rng;
 pub mod run_lock;
 pub mod schedule;
 pub mod setup;
-pub mod step;
 pub mod trainer;
 
 pub use error::TrainError;

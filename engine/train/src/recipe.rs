@@ -1,6 +1,6 @@
 //! What a run is told: one struct that is the command line's options (`talkin train`,
-//! `adapt` and the training benches flatten it) and the record in every checkpoint's
-//! `state.json` and in `RUN/recipe.json`. Field docs are the `--help` text.
+//! `adapt` and the training benches flatten it). Field docs are the `--help` text. What a
+//! run records of them is [`crate::record`]'s own type.
 
 use std::path::PathBuf;
 use std::str::FromStr;
@@ -54,7 +54,7 @@ pub const CAPTURE_RECIPE: [(&str, SetOption); 6] = [
 pub const CAPTURE_FRAME_CODE_DIM: usize = 16;
 
 /// Everything a run is told.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, Args)]
+#[derive(Clone, Debug, PartialEq, Args)]
 pub struct TrainOptions {
     /// Field preset: `fast` (hash grid, small MLPs) or `paper` (8x256 MLPs).
     #[arg(long, value_enum, default_value_t = Preset::Fast, help_heading = "Model and device")]
@@ -62,8 +62,6 @@ pub struct TrainOptions {
     /// Where the field trains: `cpu`, or `wgpu` / `wgpu:N` (a GPU; builds with the `wgpu`
     /// feature). Not part of the recipe: a run resumes, renders and serves on any device.
     #[arg(long, default_value_t = ComputeDevice::Cpu, help_heading = "Model and device")]
-    // Runs recorded before the option existed trained on the CPU.
-    #[serde(default)]
     pub device: ComputeDevice,
     /// Sampler: `accelerated` (exact capsule intervals + occupancy grid) or `dense` (128
     /// per ray).
@@ -73,20 +71,15 @@ pub struct TrainOptions {
     /// field learns the rest-pose hand) or `wrist` (the fingers move with their wrist and
     /// the hand networks learn every finger pose seen).
     #[arg(long, value_enum, default_value_t = FingerSkinning::Bones, help_heading = "Model and device")]
-    // Runs recorded before finger skinning moved the fingers with their wrist.
-    #[serde(default = "FingerSkinning::recorded_before")]
     pub skin_fingers: FingerSkinning,
     /// Off the CPU, whether the MLPs take the fused device op (`on`) or burn's composed
     /// ops (`off`: the baseline it is measured against). Recorded in the field's
     /// configuration; the CPU always takes its fused kernel.
     #[arg(long = "mlp-fused", value_name = "on|off", default_value = "on", value_parser = PossibleValuesParser::new(["on", "off"]).map(|s| s == "on"), action = clap::ArgAction::Set, help_heading = "Model and device")]
-    // Runs recorded before the option existed took the fused op.
-    #[serde(default = "yes")]
     pub mlp_fused: bool,
     /// Off the CPU, rows a slice of the composed MLP products (0: no slicing). Recorded in
     /// the field's configuration.
     #[arg(long = "mlp-slice-rows", value_name = "N", default_value_t = MlpPath::default().slice_rows, help_heading = "Model and device")]
-    #[serde(default = "default_slice_rows")]
     pub mlp_slice_rows: usize,
     #[command(flatten, next_help_heading = "Run")]
     pub budget: Budget,
@@ -115,34 +108,25 @@ pub struct TrainOptions {
     /// field paints the background's colour around the person and in front of it (over
     /// any other background a sheath); 0: off, the paper's loss.
     #[arg(long, default_value_t = TrainOptions::default().mask_weight, help_heading = "Loss")]
-    // Runs recorded before the term existed read as 0.
-    #[serde(default)]
     pub mask_weight: f32,
     /// Weight of the distortion loss (Mip-NeRF 360's, on the body pass, distances in
     /// metres): it draws each ray's weight into one short stretch, a surface, instead of
     /// a cloud spread through the shells' depth; 0: off.
     #[arg(long, default_value_t = TrainOptions::default().distortion, help_heading = "Loss")]
-    // Runs recorded before the term existed read as 0.
-    #[serde(default)]
     pub distortion: f32,
     /// Width of a per-frame latent code read by F_body beside the identity code (one
     /// code per training frame, with a Gaussian prior; every other frame renders with
     /// their mean); 0: no codes.
     #[arg(long = "frame-codes", value_name = "DIM", default_value_t = TrainOptions::default().frame_code_dim, help_heading = "Model and device")]
-    // Runs recorded before the codes existed had none.
-    #[serde(default)]
     pub frame_code_dim: usize,
     /// D_nr reads the frame code too (a deformation code): `on` or `off`.
     #[arg(long = "frame-code-deform", value_name = "on|off", default_value = "off", value_parser = PossibleValuesParser::new(["on", "off"]).map(|s| s == "on"), action = clap::ArgAction::Set, help_heading = "Model and device")]
-    #[serde(default)]
     pub frame_code_deform: bool,
     /// Composite each step's targets and render over a random colour instead of the
     /// dataset's background (HumanNeRF, InstantAvatar), on a dataset composited by its
     /// masks (camera frames) or matted with coverage masks (`synth`'s); a matted one with
     /// a matte keeps its background: `on` or `off`.
     #[arg(long = "random-background", value_name = "on|off", default_value = "off", value_parser = PossibleValuesParser::new(["on", "off"]).map(|s| s == "on"), action = clap::ArgAction::Set, help_heading = "Loss")]
-    // Runs recorded before the option existed trained over the dataset's background.
-    #[serde(default)]
     pub random_background: bool,
     /// Leave the mask's edge out of the random rays: pixels within PX of the mask's cut,
     /// on either side, where a matting tool's mask is often a pixel or two off (Neural
@@ -150,16 +134,12 @@ pub struct TrainOptions {
     /// `by_mask` one (camera frames) 1 px per whole 256 px of the frame's longer side
     /// (none below 256 px, where a pixel is a limb's edge).
     #[arg(long = "mask-edge", value_name = "PX", help_heading = "Rays")]
-    // Runs recorded before the option existed trained on every pixel.
-    #[serde(default = "every_pixel")]
     pub mask_edge_px: Option<u32>,
     /// D_nr's learning rate as a fraction of the field's (HumanNeRF trains its non-rigid
     /// MLP at 0.1 of its rate): Adam moves every weight by about the rate per step
     /// whatever its gradient, and at the field's rate D_nr's start set a real capture's
     /// body back (0.1: +0.56 dB in the person box there, +0.29 dB on the demo scene).
     #[arg(long, default_value_t = TrainOptions::default().non_rigid_lr_scale, help_heading = "Optimizer")]
-    // Runs recorded before the option existed trained D_nr at the field's rate.
-    #[serde(default = "one")]
     pub non_rigid_lr_scale: f64,
     /// Occupancy-grid update period in steps (0: never; accelerated sampler only).
     #[arg(long, default_value_t = TrainOptions::default().occ_every, help_heading = "Occupancy grid")]
@@ -177,23 +157,13 @@ pub struct TrainOptions {
     /// The paper's ablation switches (all on: the full method): `--hand-deform`, and the
     /// ablation bench's.
     #[command(flatten)]
-    // Runs recorded before the switches existed read as the full method.
-    #[serde(default)]
     pub ablation: Ablation,
     /// Train on each subject's first S seconds of training frames only (a short clip:
     /// the novel-identity experiment's clips).
     #[arg(long = "seconds-of-video", value_name = "S", help_heading = "Data")]
-    // Runs recorded before the option existed read as all of the video.
-    #[serde(default)]
     pub clip_seconds: Option<f64>,
     #[command(flatten, next_help_heading = "Pose refinement")]
-    // Runs recorded before refinement existed trusted their fits.
-    #[serde(default = "RefineOptions::recorded_before")]
     pub refine: RefineOptions,
-}
-
-fn one() -> f64 {
-    1.0
 }
 
 /// The most rows a slice of the composed MLP products may take (a batch is rarely more).
@@ -209,18 +179,6 @@ impl TrainOptions {
     }
 }
 
-fn default_slice_rows() -> usize {
-    MlpPath::default().slice_rows
-}
-
-fn yes() -> bool {
-    true
-}
-
-fn every_pixel() -> Option<u32> {
-    Some(0)
-}
-
 /// How inverse LBS moves a hand's samples (`--skin-fingers`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, ValueEnum)]
 #[serde(rename_all = "lowercase")]
@@ -232,10 +190,6 @@ pub enum FingerSkinning {
 }
 
 impl FingerSkinning {
-    fn recorded_before() -> Self {
-        FingerSkinning::Wrist
-    }
-
     /// Whether the field skins the finger joints.
     pub fn finger_bones(self) -> bool {
         self == FingerSkinning::Bones
@@ -378,7 +332,7 @@ impl std::fmt::Display for Identities {
 
 /// The paper's ablations (Tables 1 and 3), as switches on the field. `--hand-deform` is
 /// the one a user sets; the ablation bench sets the others.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Args)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Args)]
 pub struct Ablation {
     /// D_hands, the paper's offset for hand samples from the hand pose: `on` or `off`.
     /// With `--skin-fingers bones` the finger bones already undo the fingers' motion, and
@@ -389,8 +343,6 @@ pub struct Ablation {
     /// (inverse skinning alone carries the body; the pose-dependent folds of clothes are
     /// then averaged into one canonical body).
     #[arg(long = "non-rigid", value_name = "on|off", default_value = "on", value_parser = PossibleValuesParser::new(["on", "off"]).map(|s| s == "on"), action = clap::ArgAction::Set, help_heading = "Model and device")]
-    // Runs recorded before the switch existed had D_nr.
-    #[serde(default = "yes")]
     pub non_rigid: bool,
     /// The body's rendered colour is the hands' background (off: "w/o background").
     #[arg(skip = true)]
@@ -640,15 +592,6 @@ mod tests {
         assert!(TrainOptions::default().check().is_ok());
     }
 
-    /// `state.json` of a run from before the silhouette term resumes with it off.
-    #[test]
-    fn options_without_mask_weight_read_as_off() {
-        let mut json = serde_json::to_value(TrainOptions::default()).unwrap();
-        json.as_object_mut().unwrap().remove("mask_weight");
-        let opts: TrainOptions = serde_json::from_value(json).unwrap();
-        assert_eq!(opts.mask_weight, 0.0);
-    }
-
     /// The command line's defaults are the struct's, but for the LPIPS directory.
     #[test]
     fn command_line_defaults_are_the_defaults() {
@@ -706,32 +649,6 @@ mod tests {
         assert!(parse(&["--steps", "7", "--minutes", "1"]).is_err());
         assert!(parse(&["--preset", "slow"]).is_err());
         assert!(parse(&["--identities", ","]).is_err());
-    }
-
-    /// The recorded form is the one runs have always written: old `state.json` files
-    /// resume.
-    #[test]
-    fn the_record_keeps_its_shape() {
-        let json = serde_json::to_value(TrainOptions {
-            identities: Identities::Named(vec!["ada".into()]),
-            ..TrainOptions::default()
-        })
-        .unwrap();
-        assert_eq!(json["preset"], "fast");
-        assert_eq!(json["sampler"], "accelerated");
-        assert_eq!(json["budget"], serde_json::json!({"steps": 1000}));
-        assert_eq!(json["identities"], serde_json::json!(["ada"]));
-        assert_eq!(json["batch_rays"], 1024);
-        let all = serde_json::to_value(TrainOptions::default()).unwrap();
-        assert!(all["identities"].is_null());
-        assert_eq!(json["skin_fingers"], "bones");
-        let back: TrainOptions = serde_json::from_value(json.clone()).unwrap();
-        assert_eq!(back.identities.names(), Some(&["ada".to_string()][..]));
-        // A run recorded before finger skinning moved the fingers with their wrist.
-        let mut old = json;
-        old.as_object_mut().unwrap().remove("skin_fingers");
-        let old: TrainOptions = serde_json::from_value(old).unwrap();
-        assert_eq!(old.skin_fingers, FingerSkinning::Wrist);
     }
 
     /// A camera capture takes the capture recipe wherever the command line named nothing,

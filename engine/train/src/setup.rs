@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 
 use glam::Vec3;
 use serde_json::{Value, json};
-use talkin_avatar::checkpoint::{CHECKPOINT_DIR, path_json};
+use talkin_avatar::checkpoint::CHECKPOINT_DIR;
 use talkin_avatar::subject::{SubjectModel, SubjectSlot};
 use talkin_data::dataset::{Dataset, Split};
 use talkin_nets::FieldConfig;
@@ -14,6 +14,7 @@ use talkin_nets::FieldConfig;
 use crate::error::TrainError;
 use crate::log::LOG_FILE;
 use crate::recipe::TrainOptions;
+use crate::record::RecordedOptions;
 use crate::{loss, rays, schedule};
 
 /// The recipe (options and the derived schedule) inside the run directory.
@@ -39,47 +40,6 @@ pub(crate) fn clear_run(out: &Path) -> Result<(), TrainError> {
             file: checkpoints,
             source,
         }),
-    }
-}
-
-/// The options as recorded in `state.json` and `recipe.json`: serde's form, but with
-/// `--lpips-dir` in [`path_json`]'s form, so a path that is not UTF-8 round-trips
-/// instead of failing to serialise.
-pub(crate) fn options_to_json(opts: &TrainOptions) -> Result<Value, String> {
-    let mut plain = opts.clone();
-    let dir = plain.perceptual.take();
-    let mut value = serde_json::to_value(&plain).map_err(|e| e.to_string())?;
-    if let Some(dir) = dir {
-        value["perceptual"] = path_json::to_json(&dir)?;
-    }
-    Ok(value)
-}
-
-/// The inverse of [`options_to_json`].
-pub(crate) fn options_from_json(mut value: Value) -> Result<TrainOptions, String> {
-    let dir = match value.get_mut("perceptual").map(Value::take) {
-        None | Some(Value::Null) => None,
-        Some(p) => Some(path_json::from_json(&p).map_err(|e| format!("`perceptual`: {e}"))?),
-    };
-    let mut opts: TrainOptions = serde_json::from_value(value).map_err(|e| e.to_string())?;
-    opts.perceptual = dir;
-    Ok(opts)
-}
-
-/// For `#[serde(with = "crate::setup::options_serde")]` on a [`TrainOptions`].
-pub(crate) mod options_serde {
-    use serde::{Deserialize, Deserializer, Serialize, Serializer};
-
-    use super::*;
-
-    pub fn serialize<S: Serializer>(opts: &TrainOptions, s: S) -> Result<S::Ok, S::Error> {
-        options_to_json(opts)
-            .map_err(serde::ser::Error::custom)?
-            .serialize(s)
-    }
-
-    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<TrainOptions, D::Error> {
-        options_from_json(Value::deserialize(d)?).map_err(serde::de::Error::custom)
     }
 }
 
@@ -230,7 +190,9 @@ pub(crate) fn write_recipe(
         schedule["extended"] = extended;
     }
     let recipe = json!({
-        "options": options_to_json(opts).map_err(unserialisable)?,
+        "options": RecordedOptions::of(opts)
+            .and_then(|r| r.to_json())
+            .map_err(unserialisable)?,
         "initial_lr": opts.initial_lr(),
         "loss": loss,
         "schedule": schedule,

@@ -1,6 +1,9 @@
 //! One step's rays: LPIPS patches and part-aware random pixels (the paper's schedule),
 //! with their target colours and segmentation labels, from a cached training frame.
 
+use std::collections::HashMap;
+use std::collections::hash_map::Entry;
+
 use talkin_grids::{GridError, Ray};
 use talkin_nets::FrameConditions;
 
@@ -30,6 +33,39 @@ pub(crate) struct FrameCache {
     foreground_rays: Vec<Ray>,
     /// The pose correction the conditions and sampler were built with (`None`: the fit).
     pub posed_with: Option<Vec<f32>>,
+}
+
+/// The training frames cached so far, by dataset frame (a frame is cached on its first
+/// draw and kept for the run).
+#[derive(Default)]
+pub(crate) struct FrameCaches {
+    by_frame: HashMap<usize, FrameCache>,
+}
+
+impl FrameCaches {
+    /// Frame `i`'s cache, built by `build` on its first use.
+    pub fn get_or_build<E>(
+        &mut self,
+        i: usize,
+        build: impl FnOnce() -> Result<FrameCache, E>,
+    ) -> Result<&mut FrameCache, E> {
+        match self.by_frame.entry(i) {
+            Entry::Occupied(e) => Ok(e.into_mut()),
+            Entry::Vacant(e) => Ok(e.insert(build()?)),
+        }
+    }
+
+    /// Frame `i`'s cache; `i` has been drawn ([`FrameCaches::get_or_build`]).
+    pub fn get(&self, i: usize) -> &FrameCache {
+        &self.by_frame[&i]
+    }
+
+    /// [`FrameCaches::get`], to change.
+    pub fn get_mut(&mut self, i: usize) -> &mut FrameCache {
+        self.by_frame
+            .get_mut(&i)
+            .expect("a frame is cached before its rays are drawn")
+    }
 }
 
 /// Why a frame could not be cached.

@@ -16,7 +16,7 @@ pub enum RefineMode {
 }
 
 /// How a run refines its training fits.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, Args)]
+#[derive(Clone, Debug, PartialEq, Args)]
 pub struct RefineOptions {
     /// Learn per-frame corrections of the training fits (pose, hands, jaw, expression,
     /// translation): `on`, `off` or `auto` (on for imported datasets); the bare flag
@@ -37,7 +37,6 @@ pub struct RefineOptions {
     /// Learning rate of the corrections of fits that jitter like white noise (fits in
     /// between get a rate in between, by the same measure of jitter as `--pose-smooth`).
     #[arg(long = "pose-lr-jitter", default_value_t = RefineOptions::default().pose_lr_jitter)]
-    #[serde(default = "RefineOptions::default_pose_lr_jitter")]
     pub pose_lr_jitter: f64,
     /// Steps before the corrections start learning from the images (the prior and the
     /// smoothness act from the first step).
@@ -58,7 +57,7 @@ impl Default for RefineOptions {
         RefineOptions {
             refine_poses: RefineMode::Auto,
             pose_lr: 1e-3,
-            pose_lr_jitter: RefineOptions::default_pose_lr_jitter(),
+            pose_lr_jitter: 5e-3,
             pose_warmup: 500,
             pose_prior: 0.01,
             pose_smooth: 0.5,
@@ -67,18 +66,6 @@ impl Default for RefineOptions {
 }
 
 impl RefineOptions {
-    /// What a run recorded before refinement existed did: trust the fits.
-    pub fn recorded_before() -> Self {
-        RefineOptions {
-            refine_poses: RefineMode::Off,
-            ..RefineOptions::default()
-        }
-    }
-
-    fn default_pose_lr_jitter() -> f64 {
-        5e-3
-    }
-
     /// Whether the options turn refinement on for a dataset that is (or is not)
     /// imported.
     pub fn is_on(&self, imported: bool) -> bool {

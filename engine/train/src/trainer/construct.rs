@@ -1,6 +1,5 @@
 //! Building a trainer: a fresh run, or one adapted from another run to a novel subject.
 
-use std::collections::HashMap;
 use std::path::Path;
 
 use burn::optim::ModuleOptimizer;
@@ -14,9 +13,11 @@ use talkin_nets::loss::{Backbone, PerceptualLoss};
 use talkin_nets::{ComputeDevice, FieldConfig, FrameCodes, TalkinField};
 
 use crate::error::TrainError;
+use crate::grid_update::GridUpdates;
+use crate::journal::Journal;
 use crate::log::{LOG_FILE, TrainLog};
-use crate::pending::PendingLosses;
 use crate::preset::Preset;
+use crate::rays::FrameCaches;
 use crate::recipe::TrainOptions;
 use crate::refine::{PoseRefiner, RefineMode};
 use crate::rng::SplitMix64;
@@ -26,6 +27,7 @@ use crate::setup::{
     clear_run, clip_of, fit_field_box, fit_subjects, training_frames, unknown_subject, write_recipe,
 };
 
+use super::save::Checkpoints;
 use super::{Trainer, is_imported};
 
 impl<'a> Trainer<'a> {
@@ -238,27 +240,23 @@ impl<'a> Trainer<'a> {
             dataset,
             out: out.to_path_buf(),
             rng: SplitMix64::new(opts.seed ^ 0x7A1C_11E5_EED5_0001),
+            checkpoints: Checkpoints::new(opts.checkpoint_every_s),
             opts,
             config,
             field: Some(field),
             optim,
             subjects,
             frames,
-            cache: HashMap::new(),
+            frame_caches: FrameCaches::default(),
             perceptual,
             step: 0,
             elapsed: 0.0,
-            since_checkpoint: 0.0,
-            log,
-            occ_opts,
-            grid_occupied: 1.0,
+            journal: Journal::new(log),
+            grids: GridUpdates::new(occ_opts),
             slot_of,
             dataset_sha256,
             anchor: None,
-            last_checkpoint: None,
             notes: Vec::new(),
-            pending: PendingLosses::default(),
-            unreported: Vec::new(),
         })
     }
 }

@@ -5,10 +5,10 @@
 //! stop ([`Trainer::run_until`]), checkpointing every few minutes and at the end.
 //!
 //! This file holds the trainer's state, its accessors and the run loop; `construct`
-//! builds one (fresh or adapted), `resume` continues a run from a checkpoint, `save`
-//! writes checkpoints and `budget` maps a run onto the schedule.
+//! builds one (fresh or adapted), `resume` continues a run from a checkpoint, `step`
+//! takes one optimizer step, `save` writes checkpoints and `budget` maps a run onto the
+//! schedule.
 
-use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 
@@ -19,15 +19,16 @@ use talkin_avatar::checkpoint::path_json;
 use talkin_avatar::refined::RefinerState;
 use talkin_avatar::subject::SubjectSlot;
 use talkin_data::dataset::Dataset;
-use talkin_grids::OccUpdateOpts;
 use talkin_nets::loss::PerceptualLoss;
 use talkin_nets::{FieldConfig, TalkinField};
 
 use crate::error::TrainError;
-use crate::log::{LOG_FILE, StepLog, TrainLog};
-use crate::pending::PendingLosses;
-use crate::rays::FrameCache;
+use crate::grid_update::GridUpdates;
+use crate::journal::Journal;
+use crate::log::{LOG_FILE, StepLog};
+use crate::rays::FrameCaches;
 use crate::recipe::TrainOptions;
+use crate::record::RecordedOptions;
 use crate::refine::PoseRefiner;
 use crate::rng::SplitMix64;
 use crate::schedule;
@@ -35,10 +36,9 @@ mod budget;
 mod construct;
 mod resume;
 mod save;
+mod step;
 
 pub use budget::ScheduleAnchor;
-
-use crate::setup::options_serde;
 
 /// What a run did.
 #[derive(Clone, Debug)]
@@ -68,8 +68,7 @@ struct TrainState {
     field_step: usize,
     elapsed_seconds: f64,
     rng_state: u64,
-    #[serde(with = "options_serde")]
-    options: TrainOptions,
+    options: RecordedOptions,
     /// The dataset directory, as given (for messages).
     #[serde(with = "path_json::serde_path")]
     data: PathBuf,
@@ -90,46 +89,42 @@ struct TrainState {
     pose_refinement: Option<RefinerState>,
 }
 
-/// A run in progress.
+/// A run in progress. Its parts own their state: the frames' caches
+/// ([`FrameCaches`]), the log ([`Journal`]), the checkpoints ([`save::Checkpoints`]) and
+/// the grid updates ([`GridUpdates`]); the files of this module build it (`construct`,
+/// `resume`), step it (`step`), save it (`save`) and place it on the schedule (`budget`).
 pub struct Trainer<'a> {
-    pub(crate) dataset: &'a Dataset,
-    pub(crate) out: PathBuf,
-    pub(crate) opts: TrainOptions,
-    pub(crate) config: FieldConfig,
+    dataset: &'a Dataset,
+    out: PathBuf,
+    opts: TrainOptions,
+    config: FieldConfig,
     /// Always `Some` between steps; the optimizer step takes it out so that no other
     /// handle shares the parameters' buffers and Adam updates them in place.
-    pub(crate) field: Option<TalkinField>,
-    pub(crate) optim: ModuleOptimizer,
-    pub(crate) subjects: Vec<SubjectSlot>,
-    pub(crate) frames: Vec<usize>,
-    pub(crate) rng: SplitMix64,
-    pub(crate) cache: HashMap<usize, FrameCache>,
-    pub(crate) perceptual: Option<PerceptualLoss>,
-    pub(crate) step: usize,
-    pub(crate) elapsed: f64,
-    pub(crate) since_checkpoint: f64,
-    pub(crate) log: TrainLog,
-    pub(crate) occ_opts: OccUpdateOpts,
-    /// Occupied fraction of the grid last updated, for the log.
-    pub(crate) grid_occupied: f64,
+    field: Option<TalkinField>,
+    optim: ModuleOptimizer,
+    subjects: Vec<SubjectSlot>,
     /// Per dataset subject: its identity code and subject slot.
-    pub(crate) slot_of: Vec<Option<usize>>,
+    slot_of: Vec<Option<usize>>,
+    /// The dataset frames trained on (a frame code each, in order).
+    frames: Vec<usize>,
     /// SHA-256 of the dataset's `dataset.json`, recorded in every checkpoint.
-    pub(crate) dataset_sha256: String,
-    pub(crate) anchor: Option<ScheduleAnchor>,
-    /// The checkpoint written or resumed from last (kept as the fallback by the next
-    /// save) and its step.
-    pub(crate) last_checkpoint: Option<(usize, PathBuf)>,
-    pub(crate) notes: Vec<String>,
+    dataset_sha256: String,
+    rng: SplitMix64,
+    frame_caches: FrameCaches,
+    perceptual: Option<PerceptualLoss>,
+    /// Steps taken.
+    step: usize,
+    /// Training seconds so far.
+    elapsed: f64,
+    anchor: Option<ScheduleAnchor>,
+    journal: Journal,
+    checkpoints: save::Checkpoints,
+    grids: GridUpdates,
     /// The training fits' corrections (`None`: the fits are trusted).
-    pub(crate) refiner: Option<PoseRefiner>,
-    /// Steps whose losses are still on the device.
-    pub(crate) pending: PendingLosses,
-    /// Log entries a checkpoint read that [`Trainer::step`] has not returned yet.
-    pub(crate) unreported: Vec<StepLog>,
+    refiner: Option<PoseRefiner>,
+    /// What loading the checkpoint this run resumed from had to say.
+    notes: Vec<String>,
 }
-
-impl<'a> Trainer<'a> {}
 
 impl Trainer<'_> {
     /// What loading the checkpoint this run resumed from had to say.
@@ -188,6 +183,12 @@ impl Trainer<'_> {
         &self.subjects
     }
 
+    /// `secs` more of training: on the run's clock and the checkpoints'.
+    fn spend(&mut self, secs: f64) {
+        self.elapsed += secs;
+        self.checkpoints.count(secs);
+    }
+
     /// The colour the dataset's images are composited on.
     pub fn background(&self) -> [f32; 3] {
         self.dataset.background
@@ -198,7 +199,7 @@ impl Trainer<'_> {
         schedule::virtual_step(self.schedule_progress())
     }
 
-    pub(crate) fn field(&self) -> &TalkinField {
+    fn field(&self) -> &TalkinField {
         self.field
             .as_ref()
             .expect("the field is back after every step")

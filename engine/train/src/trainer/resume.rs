@@ -74,6 +74,15 @@ impl<'a> Trainer<'a> {
                 ),
             });
         }
+        let options =
+            state
+                .options
+                .clone()
+                .into_options()
+                .map_err(|problem| TrainError::Resume {
+                    file: state_file.clone(),
+                    problem: format!("`options`: {problem}"),
+                })?;
         let device = open_device(on)?;
         let field = checkpoint.field(&device)?;
         let optim_bytes = checkpoint
@@ -89,7 +98,7 @@ impl<'a> Trainer<'a> {
             run,
             TrainOptions {
                 device: on,
-                ..state.options.clone()
+                ..options
             },
             checkpoint.config.clone(),
             field,
@@ -122,7 +131,8 @@ impl<'a> Trainer<'a> {
                 });
             }
         }
-        t.last_checkpoint = Some((state.step, checkpoint.dir.clone()));
+        t.checkpoints
+            .resumed_from(state.step, checkpoint.dir.clone());
         t.notes = notes;
         Ok(t)
     }

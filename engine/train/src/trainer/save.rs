@@ -1,12 +1,68 @@
-//! Saving a run: checkpoints every few minutes and at the end.
+//! Saving a run: checkpoints every few minutes and at the end. [`Checkpoints`] owns when
+//! the next is due and which one the next keeps as its fallback.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use talkin_avatar::checkpoint::{CheckpointContents, CheckpointError};
 
 use crate::error::TrainError;
+use crate::record::RecordedOptions;
 
 use super::{TrainState, Trainer};
+
+/// When a run checkpoints, and what it wrote or resumed from last.
+pub(super) struct Checkpoints {
+    /// Training seconds between two checkpoints (`--checkpoint-every`).
+    every_s: f64,
+    /// Training seconds since the last checkpoint (or the start).
+    since_last_s: f64,
+    /// The checkpoint written or resumed from last (kept as the fallback by the next
+    /// save) and its step.
+    last: Option<(usize, PathBuf)>,
+}
+
+impl Checkpoints {
+    pub fn new(every_s: f64) -> Self {
+        Checkpoints {
+            every_s,
+            since_last_s: 0.0,
+            last: None,
+        }
+    }
+
+    /// A run resumed from checkpoint `dir` of step `step`.
+    pub fn resumed_from(&mut self, step: usize, dir: PathBuf) {
+        self.last = Some((step, dir));
+    }
+
+    /// `secs` more of training.
+    pub fn count(&mut self, secs: f64) {
+        self.since_last_s += secs;
+    }
+
+    pub fn due(&self) -> bool {
+        self.since_last_s >= self.every_s
+    }
+
+    /// The checkpoint already written at step `step`, if it is still there.
+    fn written_at(&self, step: usize) -> Option<&PathBuf> {
+        self.last
+            .as_ref()
+            .filter(|(at, dir)| *at == step && dir.is_dir())
+            .map(|(_, dir)| dir)
+    }
+
+    /// The checkpoint a new one keeps as its fallback.
+    fn fallback(&self) -> Option<&Path> {
+        self.last.as_ref().map(|(_, dir)| dir.as_path())
+    }
+
+    /// Checkpoint `dir` was written at step `step`: the clock starts again.
+    fn written(&mut self, step: usize, dir: PathBuf) {
+        self.since_last_s = 0.0;
+        self.last = Some((step, dir));
+    }
+}
 
 impl Trainer<'_> {
     /// Writes a checkpoint now (the log is flushed and fsynced first), keeping the
@@ -15,25 +71,25 @@ impl Trainer<'_> {
     pub fn save(&mut self) -> Result<PathBuf, TrainError> {
         // The log reaches the checkpoint's step: the losses still on the device first
         // (their entries go to the next `step` or `settle`).
-        let read = self.read_losses()?;
-        self.unreported.extend(read);
-        self.log.sync()?;
-        if let Some((step, dir)) = &self.last_checkpoint
-            && *step == self.step
-            && dir.is_dir()
-        {
+        let waited = self.journal.sync()?;
+        self.spend(waited);
+        if let Some(dir) = self.checkpoints.written_at(self.step) {
             return Ok(dir.clone());
         }
         let optimizer = self.optim.into_bytes().map_err(|e| TrainError::Resume {
             file: self.out.join(talkin_avatar::checkpoint::OPTIMIZER_FILE),
             problem: e.to_string(),
         })?;
+        let state_file = talkin_avatar::checkpoint::checkpoint_root(&self.out)
+            .join(talkin_avatar::checkpoint::STATE_FILE);
+        let options = RecordedOptions::of(&self.opts)
+            .map_err(|e| CheckpointError::format(&state_file, "options", e))?;
         let state = TrainState {
             step: self.step,
             field_step: self.field_step(),
             elapsed_seconds: self.elapsed,
             rng_state: self.rng.state(),
-            options: self.opts.clone(),
+            options,
             data: self.dataset.root.clone(),
             dataset_sha256: Some(self.dataset_sha256.clone()),
             frames: self.frames.clone(),
@@ -41,14 +97,8 @@ impl Trainer<'_> {
             schedule_anchor: self.anchor,
             pose_refinement: self.refiner.as_ref().map(|r| r.state.clone()),
         };
-        let state = serde_json::to_value(&state).map_err(|e| {
-            CheckpointError::format(
-                &talkin_avatar::checkpoint::checkpoint_root(&self.out)
-                    .join(talkin_avatar::checkpoint::STATE_FILE),
-                "state",
-                e,
-            )
-        })?;
+        let state = serde_json::to_value(&state)
+            .map_err(|e| CheckpointError::format(&state_file, "state", e))?;
         let dir = talkin_avatar::checkpoint::save(
             &self.out,
             &CheckpointContents {
@@ -59,18 +109,17 @@ impl Trainer<'_> {
                 background: self.dataset.background,
                 subjects: &self.subjects,
                 state: &state,
-                keep: self.last_checkpoint.as_ref().map(|(_, dir)| dir.as_path()),
+                keep: self.checkpoints.fallback(),
             },
         )?;
         // Checkpoint time counts as training time, not the schedule's.
-        self.since_checkpoint = 0.0;
-        self.last_checkpoint = Some((self.step, dir.clone()));
+        self.checkpoints.written(self.step, dir.clone());
         Ok(dir)
     }
 
     /// Checkpoints when `checkpoint_every_s` of training passed since the last one.
     pub fn maybe_save(&mut self) -> Result<Option<PathBuf>, TrainError> {
-        if self.since_checkpoint >= self.opts.checkpoint_every_s {
+        if self.checkpoints.due() {
             self.save().map(Some)
         } else {
             Ok(None)

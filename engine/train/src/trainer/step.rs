@@ -8,14 +8,14 @@ use burn::module::Module;
 use burn::optim::GradientsParams;
 use talkin_grids::{GridError, PackedSamples, SamplerKind};
 
+use super::Trainer;
 use crate::error::TrainError;
 use crate::log::StepLog;
 use crate::loss::{LossValues, StepBatch, StepLoss, loss_and_grads};
-use crate::pending::{READ_EVERY, psnr};
+use crate::pending::psnr;
 use crate::rays::{Batch, BatchSpec, CacheError, FrameCache, PATCH, draw_batch};
 use crate::refine::chain::correction_gradient;
 use crate::schedule;
-use crate::trainer::Trainer;
 use talkin_nets::PoseGrads;
 use talkin_nets::skinning::skinned_candidates;
 
@@ -86,8 +86,7 @@ impl Trainer<'_> {
         }
 
         let secs = t0.elapsed().as_secs_f64().max(1e-9);
-        self.elapsed += secs;
-        self.since_checkpoint += secs;
+        self.spend(secs);
         // A queued step's loss, MSE and PSNR are filled in when they are read.
         let mut entry = StepLog {
             step: self.step,
@@ -101,46 +100,30 @@ impl Trainer<'_> {
             samples_per_s: n_samples as f64 / secs,
             lr,
             progress: self.progress(),
-            grid_occupied: self.grid_occupied,
+            grid_occupied: self.grids.occupied(),
             sampling_s,
             bones_per_sample,
         };
-        let mut done = std::mem::take(&mut self.unreported);
         match values {
             LossValues::Read { loss, mse } => {
                 (entry.loss, entry.mse, entry.psnr) = (loss, mse, psnr(mse));
-                self.log.write(&entry)?;
-                done.push(entry);
+                self.journal.record(entry)
             }
             LossValues::Queued(values) => {
-                self.pending.push(entry, secs, *values);
-                if self.pending.len() >= READ_EVERY {
-                    done.extend(self.read_losses()?);
-                }
+                let done = self.journal.queue(entry, secs, *values)?;
+                // The read's wait for the device counts as training time.
+                self.spend(done.waited_s);
+                Ok(done.entries)
             }
         }
-        Ok(done)
-    }
-
-    /// Reads the losses of every step still queued on the device (one wait for the
-    /// device's work), logs those steps and returns their entries; its wait counts as
-    /// training time.
-    pub(crate) fn read_losses(&mut self) -> Result<Vec<StepLog>, TrainError> {
-        let (entries, waited) = self.pending.read()?;
-        self.elapsed += waited;
-        self.since_checkpoint += waited;
-        for entry in &entries {
-            self.log.write(entry)?;
-        }
-        Ok(entries)
     }
 
     /// The log entries of every step taken and not yet returned by [`Trainer::step`]: the
-    /// losses still on the device are read first.
+    /// losses still on the device are read first (the wait counts as training time).
     pub fn settle(&mut self) -> Result<Vec<StepLog>, TrainError> {
-        let mut done = std::mem::take(&mut self.unreported);
-        done.extend(self.read_losses()?);
-        Ok(done)
+        let done = self.journal.settle()?;
+        self.spend(done.waited_s);
+        Ok(done.entries)
     }
 
     /// A seeded training frame, cached with its decoded images and sampler on first use.
@@ -149,22 +132,23 @@ impl Trainer<'_> {
         let i = self.frames[k];
         // A run's frame codes are its training frames', in order.
         let code = (k < self.field().n_frame_codes()).then_some(k);
-        if let std::collections::hash_map::Entry::Vacant(entry) = self.cache.entry(i) {
-            let subject = self.dataset.frames[i].subject;
-            let slot = self.slot_of[subject].expect("training frames belong to trained subjects");
-            let model = self.subjects[slot]
-                .model
-                .as_ref()
-                .expect("a trained subject has a model");
-            let mask_edge = self.opts.mask_edge_in(self.dataset, i);
-            let fingers = self.config.skinning.skins_fingers();
-            let cached = FrameCache::new(self.dataset, i, slot, model, mask_edge, fingers, code)
-                .map_err(|e| match e {
+        let slot = self.slot_of[self.dataset.frames[i].subject]
+            .expect("training frames belong to trained subjects");
+        let model = self.subjects[slot]
+            .model
+            .as_ref()
+            .expect("a trained subject has a model");
+        let mask_edge = self.opts.mask_edge_in(self.dataset, i);
+        let fingers = self.config.skinning.skins_fingers();
+        let dataset = self.dataset;
+        self.frame_caches.get_or_build(i, || {
+            FrameCache::new(dataset, i, slot, model, mask_edge, fingers, code).map_err(
+                |e| match e {
                     CacheError::Dataset(e) => TrainError::Dataset(e),
-                    CacheError::Grid(source) => grid_error(self.dataset, i, source),
-                })?;
-            entry.insert(cached);
-        }
+                    CacheError::Grid(source) => grid_error(dataset, i, source),
+                },
+            )
+        })?;
         Ok(i)
     }
 
@@ -197,7 +181,7 @@ impl Trainer<'_> {
         draw_batch(
             self.dataset,
             frame,
-            &self.cache[&frame],
+            self.frame_caches.get(frame),
             &spec,
             &mut self.rng,
         )
@@ -212,7 +196,8 @@ impl Trainer<'_> {
             .wrapping_mul(0x9E37_79B9)
             .wrapping_add(self.step as u64);
         let model = self.model_of(frame);
-        self.cache[&frame]
+        self.frame_caches
+            .get(frame)
             .sampler
             .sample(
                 self.opts.sampler,
@@ -233,10 +218,7 @@ impl Trainer<'_> {
         let Some(delta) = refiner.delta_of(frame) else {
             return Ok(());
         };
-        let cache = self
-            .cache
-            .get_mut(&frame)
-            .expect("the picked frame is cached");
+        let cache = self.frame_caches.get_mut(frame);
         let current = match &cache.posed_with {
             Some(d) => d.as_slice() == delta,
             None => delta.iter().all(|&d| d == 0.0),
@@ -300,7 +282,7 @@ impl Trainer<'_> {
                 silhouette: &batch.silhouette,
                 patches: batch.patches,
                 patch_side: PATCH as usize,
-                frame: &self.cache[&frame].conditions,
+                frame: &self.frame_caches.get(frame).conditions,
                 step: vstep,
                 background,
                 mask_weight: self.opts.mask_weight,
@@ -335,10 +317,7 @@ impl Trainer<'_> {
     /// Every `occ_every` steps (accelerated sampler only), one trained subject's
     /// occupancy grid, in turn, from the field's density.
     fn update_grids_if_due(&mut self) -> Result<(), TrainError> {
-        let due = self.opts.sampler == SamplerKind::Accelerated
-            && self.opts.occ_every > 0
-            && self.step.is_multiple_of(self.opts.occ_every as usize);
-        if !due {
+        if self.opts.sampler != SamplerKind::Accelerated || !self.grids.due(self.step) {
             return Ok(());
         }
         let face_dim = talkin_nets::field::EXPRESSION_DIM
@@ -348,17 +327,14 @@ impl Trainer<'_> {
                 0
             };
         let virtual_per_step = self.field_step() as f64 / self.step as f64;
-        if let Some(occupied) = crate::grid_update::update_grids(
-            &self.field().valid(),
+        let field = self.field().valid();
+        self.grids.update(
+            &field,
             &mut self.subjects,
-            self.step as u32,
+            self.step,
             virtual_per_step,
-            &self.occ_opts,
             face_dim,
-        )? {
-            self.grid_occupied = occupied;
-        }
-        Ok(())
+        )
     }
 
     /// The model of the subject dataset frame `frame` shows.
