@@ -111,24 +111,27 @@ pub enum ArrayData {
     Str(Vec<String>),
 }
 
+/// `match`es an [`ArrayData`] with `$e` for every numeric (and boolean) vector `$v` and
+/// `$s` for text: for code generic over the element type.
 macro_rules! each_numeric {
     ($data:expr, $v:ident => $e:expr, $str:ident => $s:expr) => {
         match $data {
-            ArrayData::Bool($v) => $e,
-            ArrayData::I8($v) => $e,
-            ArrayData::I16($v) => $e,
-            ArrayData::I32($v) => $e,
-            ArrayData::I64($v) => $e,
-            ArrayData::U8($v) => $e,
-            ArrayData::U16($v) => $e,
-            ArrayData::U32($v) => $e,
-            ArrayData::U64($v) => $e,
-            ArrayData::F32($v) => $e,
-            ArrayData::F64($v) => $e,
-            ArrayData::Str($str) => $s,
+            $crate::array::ArrayData::Bool($v) => $e,
+            $crate::array::ArrayData::I8($v) => $e,
+            $crate::array::ArrayData::I16($v) => $e,
+            $crate::array::ArrayData::I32($v) => $e,
+            $crate::array::ArrayData::I64($v) => $e,
+            $crate::array::ArrayData::U8($v) => $e,
+            $crate::array::ArrayData::U16($v) => $e,
+            $crate::array::ArrayData::U32($v) => $e,
+            $crate::array::ArrayData::U64($v) => $e,
+            $crate::array::ArrayData::F32($v) => $e,
+            $crate::array::ArrayData::F64($v) => $e,
+            $crate::array::ArrayData::Str($str) => $s,
         }
     };
 }
+pub(crate) use each_numeric;
 
 impl ArrayData {
     pub fn dtype(&self) -> DType {

@@ -17,6 +17,7 @@ pub mod inspect;
 pub mod json_shape;
 pub mod motion;
 pub mod npz;
+mod numpy_dtype;
 pub mod params_json;
 pub mod pickle;
 pub mod smplx_model;

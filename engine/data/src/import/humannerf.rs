@@ -24,7 +24,7 @@ use super::{
 use crate::array::Dim;
 use crate::pickle::{Value, read_pickle};
 use talkin_human::body::{
-    N_BODY_JOINTS, N_JOINTS, axis_angle_from_rotation, rotation_from_axis_angle,
+    FrameParams, N_BODY_JOINTS, N_JOINTS, axis_angle_from_rotation, rotation_from_axis_angle,
 };
 
 /// Reads whichever of the two layouts `opts.src` holds.
@@ -69,13 +69,43 @@ fn v3(x: &[f64]) -> DVec3 {
     DVec3::new(x[0], x[1], x[2])
 }
 
-/// One frame of the prepared layout, as its pickles hold it.
-struct Raw {
+/// What both layouts give of a frame besides its body: its name, image and camera.
+struct FrameCamera {
     stem: String,
     image: std::path::PathBuf,
+    /// Intrinsics, 3x3 row-major.
     k: Vec<f64>,
+    /// World to camera, 4x4 row-major.
     e: Vec<f64>,
+    /// OpenCV k1, k2, p1, p2, k3, where the layout has them.
     d: Option<Vec<f64>>,
+}
+
+/// Frame `index` of the sequence: `camera` with its mask (`--masks` or
+/// `masks/<stem>.png`), its time at `--fps` and its body `params`.
+fn source_frame(
+    opts: &ImportOptions,
+    index: usize,
+    camera: FrameCamera,
+    params: FrameParams,
+) -> Result<SourceFrame, ImportError> {
+    let mask = mask_for(opts, &camera.stem, default_mask(opts, &camera.stem))?;
+    Ok(SourceFrame {
+        name: camera.stem,
+        time: index as f64 / opts.fps(),
+        split: None,
+        image: camera.image,
+        mask,
+        intrinsics: mat3(&camera.k),
+        extrinsics: rigid(&mat4(&camera.e)),
+        distortion: camera.d.map(|d| [d[0], d[1], d[2], d[3], d[4]]),
+        params,
+    })
+}
+
+/// One frame of the prepared layout, as its pickles hold it.
+struct Raw {
+    camera: FrameCamera,
     rh: DVec3,
     th: DVec3,
     poses: Vec<f64>,
@@ -114,11 +144,13 @@ fn read_prepared_frames(
             )?),
         };
         raws.push(Raw {
-            stem: stem.clone(),
-            image: image.clone(),
-            k: pickle_array(cam, cam_file, stem, "intrinsics", &[Dim::Is(3), Dim::Is(3)])?,
-            e: pickle_array(cam, cam_file, stem, "extrinsics", &[Dim::Is(4), Dim::Is(4)])?,
-            d,
+            camera: FrameCamera {
+                stem: stem.clone(),
+                image: image.clone(),
+                k: pickle_array(cam, cam_file, stem, "intrinsics", &[Dim::Is(3), Dim::Is(3)])?,
+                e: pickle_array(cam, cam_file, stem, "extrinsics", &[Dim::Is(4), Dim::Is(4)])?,
+                d,
+            },
             rh: v3(&pickle_array(mesh, mesh_file, stem, "Rh", &[Dim::Is(3)])?),
             th: v3(&pickle_array(mesh, mesh_file, stem, "Th", &[Dim::Is(3)])?),
             poses: pickle_array(mesh, mesh_file, stem, "poses", &[Dim::Is(72)])?,
@@ -175,7 +207,6 @@ fn read_prepared(opts: &ImportOptions) -> Result<Source, ImportError> {
     notes
         .push("SMPL poses: joints 0..21 as given; hands, jaw, eyes and expression are zero".into());
     let j0 = rest_joints[0];
-    let fps = opts.fps();
     let mut frames = Vec::with_capacity(raws.len());
     for (i, r) in raws.into_iter().enumerate() {
         let r_h = rotation_from_axis_angle(r.rh);
@@ -186,18 +217,7 @@ fn read_prepared(opts: &ImportOptions) -> Result<Source, ImportError> {
         // R(Rh) J0f + Th, which the dataset writes as J0 + transl.
         let j0f = v3(&r.tpose[0..3]);
         params.transl = r_h * j0f + r.th - j0;
-        let mask = mask_for(opts, &r.stem, default_mask(opts, &r.stem))?;
-        frames.push(SourceFrame {
-            name: r.stem,
-            time: i as f64 / fps,
-            split: None,
-            image: r.image,
-            mask,
-            intrinsics: mat3(&r.k),
-            extrinsics: rigid(&mat4(&r.e)),
-            distortion: r.d.map(|d| [d[0], d[1], d[2], d[3], d[4]]),
-            params,
-        });
+        frames.push(source_frame(opts, i, r.camera, params)?);
     }
     check_masks_exist(&frames)?;
     Ok(Source {
@@ -289,12 +309,9 @@ fn read_wild(opts: &ImportOptions) -> Result<Source, ImportError> {
     })?;
     let images = frame_images(opts)?;
     struct Raw {
-        stem: String,
-        image: std::path::PathBuf,
+        camera: FrameCamera,
         poses: Vec<f64>,
         betas: Vec<f64>,
-        k: Vec<f64>,
-        e: Vec<f64>,
     }
     let mut raws = Vec::new();
     for (stem, image) in &images {
@@ -306,12 +323,15 @@ fn read_wild(opts: &ImportOptions) -> Result<Source, ImportError> {
             )
         })?;
         raws.push(Raw {
-            stem: stem.clone(),
-            image: image.clone(),
             poses: json_numbers(entry, &file, stem, "poses", &[72])?,
             betas: json_numbers(entry, &file, stem, "betas", &[10])?,
-            k: json_numbers(entry, &file, stem, "cam_intrinsics", &[3, 3])?,
-            e: json_numbers(entry, &file, stem, "cam_extrinsics", &[4, 4])?,
+            camera: FrameCamera {
+                stem: stem.clone(),
+                image: image.clone(),
+                k: json_numbers(entry, &file, stem, "cam_intrinsics", &[3, 3])?,
+                e: json_numbers(entry, &file, stem, "cam_extrinsics", &[4, 4])?,
+                d: None,
+            },
         });
     }
     let mean_betas: Vec<f64> = (0..10)
@@ -319,24 +339,12 @@ fn read_wild(opts: &ImportOptions) -> Result<Source, ImportError> {
         .collect();
     let rest_joints: [DVec3; N_JOINTS] = model.rest_joints(&mean_betas)?;
     let j0 = rest_joints[0];
-    let fps = opts.fps();
     let mut frames = Vec::new();
     for (i, r) in raws.into_iter().enumerate() {
         // SMPL with transl = 0 puts the pelvis at the frame's own J0(betas).
         let j0f = model.rest_joints(&r.betas)?[0];
         let params = params_from_smpl(&r.poses, j0f - j0);
-        let mask = mask_for(opts, &r.stem, default_mask(opts, &r.stem))?;
-        frames.push(SourceFrame {
-            name: r.stem,
-            time: i as f64 / fps,
-            split: None,
-            image: r.image,
-            mask,
-            intrinsics: mat3(&r.k),
-            extrinsics: rigid(&mat4(&r.e)),
-            distortion: None,
-            params,
-        });
+        frames.push(source_frame(opts, i, r.camera, params)?);
     }
     check_masks_exist(&frames)?;
     Ok(Source {

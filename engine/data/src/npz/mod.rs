@@ -29,7 +29,8 @@ use std::path::{Path, PathBuf};
 
 use npyz::{Order, TypeChar, WriterBuilder};
 
-use crate::array::{ArrayData, DType, Dim, NdArray, shape_text};
+use crate::array::{ArrayData, DType, Dim, NdArray, each_numeric, shape_text};
+use crate::numpy_dtype::NumpyDtype;
 
 /// Why an `.npy`/`.npz` file or one of its arrays was rejected. Every variant names the
 /// file; all but `Io` and `Archive` name the array.
@@ -428,45 +429,37 @@ fn data_len(bytes: &[u8]) -> usize {
     bytes.len() - start - len
 }
 
-/// The `.npy` bytes of `array` (little-endian, C order), written by npyz.
+/// The `.npy` bytes of `array` (little-endian, C order, the dtype numpy would give it),
+/// written by npyz.
 pub fn npy_bytes(array: &NdArray) -> std::io::Result<Vec<u8>> {
-    let mut out = Vec::new();
+    let descr = NumpyDtype::of(array).descr();
+    let dtype = npyz::DType::Plain(descr.parse().map_err(std::io::Error::other)?);
     let shape: Vec<u64> = array.shape().iter().map(|&d| d as u64).collect();
-    macro_rules! write {
-        ($v:expr, $descr:expr) => {{
-            let dtype = npyz::DType::Plain($descr.parse().map_err(std::io::Error::other)?);
-            let mut w = npyz::WriteOptions::new()
-                .dtype(dtype)
-                .shape(&shape)
-                .writer(&mut out)
-                .begin_nd()?;
-            w.extend($v.iter().cloned())?;
-            w.finish()?;
-        }};
-    }
-    match array.data() {
-        ArrayData::Bool(v) => write!(v, "|b1"),
-        ArrayData::I8(v) => write!(v, "|i1"),
-        ArrayData::I16(v) => write!(v, "<i2"),
-        ArrayData::I32(v) => write!(v, "<i4"),
-        ArrayData::I64(v) => write!(v, "<i8"),
-        ArrayData::U8(v) => write!(v, "|u1"),
-        ArrayData::U16(v) => write!(v, "<u2"),
-        ArrayData::U32(v) => write!(v, "<u4"),
-        ArrayData::U64(v) => write!(v, "<u8"),
-        ArrayData::F32(v) => write!(v, "<f4"),
-        ArrayData::F64(v) => write!(v, "<f8"),
-        ArrayData::Str(v) => {
-            let width = v
-                .iter()
-                .map(|s| s.chars().count())
-                .max()
-                .unwrap_or(0)
-                .max(1);
-            write!(v, format!("<U{width}"))
-        }
-    }
+    let mut out = Vec::new();
+    each_numeric!(
+        array.data(),
+        v => write_npy(&mut out, &dtype, &shape, v),
+        s => write_npy(&mut out, &dtype, &shape, s)
+    )?;
     Ok(out)
+}
+
+/// Appends a `.npy` of `values` (C order, of `shape`) to `out`.
+fn write_npy<T: npyz::Serialize>(
+    out: &mut Vec<u8>,
+    dtype: &npyz::DType,
+    shape: &[u64],
+    values: &[T],
+) -> std::io::Result<()> {
+    let mut w = npyz::WriteOptions::new()
+        .dtype(dtype.clone())
+        .shape(shape)
+        .writer(out)
+        .begin_nd()?;
+    for x in values {
+        w.push(x)?;
+    }
+    w.finish()
 }
 
 /// The `.npy` bytes numpy writes for a 0-d object array holding `pickle` (e.g. the SMPL-X

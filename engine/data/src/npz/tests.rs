@@ -28,6 +28,81 @@ fn round_trips_every_dtype() {
     }
 }
 
+/// Every dtype and text width `npy_bytes` writes, pinned byte for byte: `descr` and data
+/// as `np.save` writes them (numpy 2.4), the header's shape as npyz spells it (`(3, )`
+/// where numpy writes `(3,)`; numpy reads both).
+#[test]
+fn npy_bytes_are_pinned_to_numpys_layout() {
+    use ArrayData::*;
+    let a = |shape: &[usize], data| NdArray::new(shape.to_vec(), data).unwrap();
+    let text = |v: &[&str]| Str(v.iter().map(|s| s.to_string()).collect());
+    let pinned = [
+        (
+            a(&[3], text(&["a", "héllo", ""])),
+            "<U5",
+            "(3, )",
+            concat!(
+                "610000000000000000000000000000000000000068000000e90000006c0000006c000000",
+                "6f0000000000000000000000000000000000000000000000",
+            ),
+        ),
+        // All empty: numpy's width is still 1.
+        (
+            a(&[2, 1], text(&["", ""])),
+            "<U1",
+            "(2, 1, )",
+            "0000000000000000",
+        ),
+        // The width counts characters (code points), not UTF-8 bytes.
+        (a(&[], text(&["😀x"])), "<U2", "()", "00f6010078000000"),
+        (a(&[2], Bool(vec![true, false])), "|b1", "(2, )", "0100"),
+        (a(&[2], I8(vec![-1, 7])), "|i1", "(2, )", "ff07"),
+        (a(&[2], I16(vec![-300, 7])), "<i2", "(2, )", "d4fe0700"),
+        (
+            a(&[2], I32(vec![-70000, 7])),
+            "<i4",
+            "(2, )",
+            "90eefeff07000000",
+        ),
+        (
+            a(&[1, 2], I64(vec![-(1 << 40), 7])),
+            "<i8",
+            "(1, 2, )",
+            "0000000000ffffff0700000000000000",
+        ),
+        (a(&[2], U8(vec![255, 7])), "|u1", "(2, )", "ff07"),
+        (a(&[2], U16(vec![65535, 7])), "<u2", "(2, )", "ffff0700"),
+        (
+            a(&[2], U32(vec![4_000_000_000, 7])),
+            "<u4",
+            "(2, )",
+            "00286bee07000000",
+        ),
+        (
+            a(&[2], U64(vec![u64::MAX, 7])),
+            "<u8",
+            "(2, )",
+            "ffffffffffffffff0700000000000000",
+        ),
+        (
+            a(&[2], F32(vec![0.5, -1e30])),
+            "<f4",
+            "(2, )",
+            "0000003fcaf249f1",
+        ),
+        (a(&[2, 0], F64(vec![])), "<f8", "(2, 0, )", ""),
+    ];
+    for (array, descr, shape, data) in pinned {
+        let data: Vec<u8> = (0..data.len())
+            .step_by(2)
+            .map(|i| u8::from_str_radix(&data[i..i + 2], 16).unwrap())
+            .collect();
+        let dict = format!("{{'descr': '{descr}', 'fortran_order': False, 'shape': {shape}, }}");
+        let expected = raw_npy_bytes(&dict, &data);
+        assert_eq!(npy_bytes(&array).unwrap(), expected, "{descr} {shape}");
+    }
+}
+
 #[test]
 fn fortran_big_endian_and_scalars() {
     // np.asfortranarray(np.arange(6, dtype='>i4').reshape(2, 3)).

@@ -1,30 +1,31 @@
-//! The pickle stack machine. Objects live in an arena and the stack, the memo and the
-//! containers hold arena indices, so a memoised object mutated later (a dict filled by
-//! SETITEMS, an array set by BUILD) is seen mutated through every reference.
+//! The pickle stack machine. Objects live in an arena, plain data as the public [`Value`]
+//! and the rest (containers, numpy's pieces) as the reader's own `Obj`; the stack, the
+//! memo and the containers hold arena indices, so a memoised object mutated later (a dict
+//! filled by SETITEMS, an array set by BUILD) is seen mutated through every reference.
 
 use std::collections::HashMap;
 use std::path::Path;
-use std::sync::Arc;
 
 use super::numpy::{Callable, Dt, global};
 use super::opcodes::opcode_name;
 use super::{PickleError, Value};
-use crate::array::NdArray;
 
 mod reconstruct;
 /// Deepest nesting converted (also stops self-referencing containers).
 const MAX_DEPTH: usize = 200;
 
+/// An object on the arena: plain data as the public [`Value`] holds it, or what exists
+/// only while reading.
 #[derive(Clone, Debug)]
 enum Obj {
-    None,
-    Bool(bool),
-    Int(i64),
-    Float(f64),
-    Str(String),
-    Bytes(Vec<u8>),
+    /// None, a number, a string, bytes or a built array, final as read (never a
+    /// container: those are the reader's own, below).
+    Plain(Value),
     /// A Python 2 `str`: bytes, read as Latin-1 text where text is expected.
     Py2Str(Vec<u8>),
+    /// Containers hold arena indices, not values, until STOP: an item memoised and then
+    /// filled (SETITEMS, BUILD) is seen filled through every reference, and shared items
+    /// are expanded only once, under a budget.
     Tuple(Vec<usize>),
     List(Vec<usize>),
     Dict(Vec<(usize, usize)>),
@@ -32,18 +33,12 @@ enum Obj {
     Dtype(Dt),
     /// Made by `_reconstruct`, waiting for its BUILD.
     PendingArray,
-    Array(Arc<NdArray>),
 }
 
 impl Obj {
     fn kind(&self) -> &'static str {
         match self {
-            Obj::None => "None",
-            Obj::Bool(_) => "bool",
-            Obj::Int(_) => "int",
-            Obj::Float(_) => "float",
-            Obj::Str(_) => "str",
-            Obj::Bytes(_) => "bytes",
+            Obj::Plain(v) => v.kind(),
             Obj::Py2Str(_) => "str (Python 2)",
             Obj::Tuple(_) => "tuple",
             Obj::List(_) => "list",
@@ -51,7 +46,6 @@ impl Obj {
             Obj::Global(_) => "global",
             Obj::Dtype(_) => "dtype",
             Obj::PendingArray => "ndarray (not built)",
-            Obj::Array(_) => "ndarray",
         }
     }
 }
@@ -145,6 +139,10 @@ impl Machine<'_> {
         self.stack.push(self.objs.len() - 1);
     }
 
+    fn push_value(&mut self, v: Value) {
+        self.push(Obj::Plain(v));
+    }
+
     fn pop(&mut self) -> Result<usize, String> {
         if self.stack.len() <= self.marks.last().copied().unwrap_or(0) {
             return Err("the stack is empty".into());
@@ -170,7 +168,7 @@ impl Machine<'_> {
 
     fn text(&self, id: usize) -> Result<String, String> {
         match &self.objs[id] {
-            Obj::Str(s) => Ok(s.clone()),
+            Obj::Plain(Value::Str(s)) => Ok(s.clone()),
             Obj::Py2Str(b) => Ok(b.iter().map(|&c| char::from(c)).collect()),
             o => Err(format!("expected a string, found {}", o.kind())),
         }
@@ -184,10 +182,10 @@ impl Machine<'_> {
     }
 
     fn int(&self, id: usize) -> Result<i64, String> {
-        match self.objs[id] {
-            Obj::Int(i) => Ok(i),
-            Obj::Bool(b) => Ok(i64::from(b)),
-            ref o => Err(format!("expected an int, found {}", o.kind())),
+        match &self.objs[id] {
+            Obj::Plain(Value::Int(i)) => Ok(*i),
+            Obj::Plain(Value::Bool(b)) => Ok(i64::from(*b)),
+            o => Err(format!("expected an int, found {}", o.kind())),
         }
     }
 
@@ -232,10 +230,11 @@ impl Machine<'_> {
     /// Equality of dict keys (strings, numbers, None); other keys never collide.
     fn key_eq(&self, a: usize, b: usize) -> bool {
         match (&self.objs[a], &self.objs[b]) {
-            (Obj::Str(x), Obj::Str(y)) => x == y,
-            (Obj::Py2Str(x), Obj::Py2Str(y)) | (Obj::Bytes(x), Obj::Bytes(y)) => x == y,
-            (Obj::Int(x), Obj::Int(y)) => x == y,
-            (Obj::None, Obj::None) => true,
+            (Obj::Plain(Value::Str(x)), Obj::Plain(Value::Str(y))) => x == y,
+            (Obj::Py2Str(x), Obj::Py2Str(y))
+            | (Obj::Plain(Value::Bytes(x)), Obj::Plain(Value::Bytes(y))) => x == y,
+            (Obj::Plain(Value::Int(x)), Obj::Plain(Value::Int(y))) => x == y,
+            (Obj::Plain(Value::None), Obj::Plain(Value::None)) => true,
             _ => a == b,
         }
     }
@@ -294,20 +293,20 @@ impl Machine<'_> {
             b'}' => self.push(Obj::Dict(Vec::new())),
             b']' => self.push(Obj::List(Vec::new())),
             b')' => self.push(Obj::Tuple(Vec::new())),
-            b'N' => self.push(Obj::None),
-            0x88 => self.push(Obj::Bool(true)),
-            0x89 => self.push(Obj::Bool(false)),
+            b'N' => self.push_value(Value::None),
+            0x88 => self.push_value(Value::Bool(true)),
+            0x89 => self.push_value(Value::Bool(false)),
             b'K' => {
                 let v = self.u8()?;
-                self.push(Obj::Int(i64::from(v)));
+                self.push_value(Value::Int(i64::from(v)));
             }
             b'M' => {
                 let v = u16::from_le_bytes(self.le()?);
-                self.push(Obj::Int(i64::from(v)));
+                self.push_value(Value::Int(i64::from(v)));
             }
             b'J' => {
                 let v = i32::from_le_bytes(self.le()?);
-                self.push(Obj::Int(i64::from(v)));
+                self.push_value(Value::Int(i64::from(v)));
             }
             0x8a => {
                 let n = self.u8()?;
@@ -322,11 +321,11 @@ impl Machine<'_> {
                 };
                 let mut a = [fill; 8];
                 a[..b.len()].copy_from_slice(b);
-                self.push(Obj::Int(i64::from_le_bytes(a)));
+                self.push_value(Value::Int(i64::from_le_bytes(a)));
             }
             b'G' => {
                 let v = f64::from_be_bytes(self.le()?);
-                self.push(Obj::Float(v));
+                self.push_value(Value::Float(v));
             }
             _ => return Err(format!("opcode {op:#04x} sent to the wrong group")),
         }
@@ -351,22 +350,22 @@ impl Machine<'_> {
             b'V' => {
                 let raw = self.line()?;
                 let s = raw_unicode_escape(&raw)?;
-                self.push(Obj::Str(s));
+                self.push_value(Value::Str(s));
             }
             b'C' => {
                 let n = self.u8()?;
                 let b = self.take(u64::from(n))?.to_vec();
-                self.push(Obj::Bytes(b));
+                self.push_value(Value::Bytes(b));
             }
             b'B' => {
                 let n = u32::from_le_bytes(self.le()?);
                 let b = self.take(u64::from(n))?.to_vec();
-                self.push(Obj::Bytes(b));
+                self.push_value(Value::Bytes(b));
             }
             0x8e | 0x96 => {
                 let n = u64::from_le_bytes(self.le()?);
                 let b = self.take(n)?.to_vec();
-                self.push(Obj::Bytes(b));
+                self.push_value(Value::Bytes(b));
             }
             b'U' => {
                 let n = self.u8()?;
@@ -497,7 +496,7 @@ impl Machine<'_> {
         let s = std::str::from_utf8(b)
             .map_err(|_| "the string is not UTF-8")?
             .to_string();
-        self.push(Obj::Str(s));
+        self.push_value(Value::Str(s));
         Ok(())
     }
 
@@ -518,13 +517,8 @@ impl Machine<'_> {
                 .collect::<Result<Vec<_>, _>>()
         };
         Ok(match &self.objs[id] {
-            Obj::None => Value::None,
-            Obj::Bool(b) => Value::Bool(*b),
-            Obj::Int(i) => Value::Int(*i),
-            Obj::Float(x) => Value::Float(*x),
-            Obj::Str(s) => Value::Str(s.clone()),
+            Obj::Plain(v) => v.clone(),
             Obj::Py2Str(_) => Value::Str(self.text(id)?),
-            Obj::Bytes(b) => Value::Bytes(b.clone()),
             Obj::Tuple(v) => Value::Tuple(seq(v, budget)?),
             Obj::List(v) => Value::List(seq(v, budget)?),
             Obj::Dict(items) => Value::Dict(
@@ -538,7 +532,6 @@ impl Machine<'_> {
                     })
                     .collect::<Result<_, String>>()?,
             ),
-            Obj::Array(a) => Value::Array(Arc::clone(a)),
             o => return Err(format!("a {} is not plain data", o.kind())),
         })
     }

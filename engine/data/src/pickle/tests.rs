@@ -416,3 +416,56 @@ fn large_pickles_are_framed_as_cpython_frames_them() {
     assert_eq!(f[19], (1_249_456, 16_882));
     assert_eq!(parse(&b).unwrap().as_dict().unwrap().len(), 1200);
 }
+
+/// What `write_protocol4` wrote for text arrays of several widths and for every byte
+/// order (`|` for one-byte types, `<` otherwise) when this pin was taken: a regression
+/// pin, not a CPython dump. (CPython with numpy makes a fresh `<U` dtype object per
+/// array and does not share a dtype's code string with an equal dict key, so it writes
+/// those again where these fetch them from the memo.)
+const DTYPES: &[&str] = &[
+    "80049586030000000000007d94288c056e616d6573948c156e756d70792e636f72652e6d756c74696172726179948c0c",
+    "5f7265636f6e7374727563749493948c056e756d7079948c076e6461727261799493944b008594430162948794529428",
+    "4b014b03859468058c0564747970659493948c02553594898887945294284b038c013c944e4e4e4b144b044b08749462",
+    "89433c610000000000000000000000000000000000000068000000e90000006c0000006c0000006f0000000000000000",
+    "000000000000000000000000000000947494628c05656d70747994680468074b008594680987945294284b014b024b01",
+    "8694680e8c02553194898887945294284b0368124e4e4e4b044b044b087494628943080000000000000000947494628c",
+    "05656d6f6a6994680468074b008594680987945294284b0129680e8c02553294898887945294284b0368124e4e4e4b08",
+    "4b044b0874946289430800f6010078000000947494628c0a73616d655f776964746894680468074b0085946809879452",
+    "94284b014b01859468118943146100000062000000630000006400000065000000947494628c05666c61677394680468",
+    "074b008594680987945294284b014b028594680e8c02623194898887945294284b038c017c944e4e4e4affffffff4aff",
+    "ffffff4b007494628943020100947494628c02693194680468074b008594680987945294284b014b028594680e683e89",
+    "8887945294284b03683a4e4e4e4affffffff4affffffff4b00749462894302ff07947494628c02753194680468074b00",
+    "8594680987945294284b014b028594680e6848898887945294284b03683a4e4e4e4affffffff4affffffff4b00749462",
+    "894302ff07947494628c02693294680468074b008594680987945294284b014b028594680e6852898887945294284b03",
+    "68124e4e4e4affffffff4affffffff4b00749462894304d4fe0700947494628c02753894680468074b00859468098794",
+    "5294284b014b028594680e685c898887945294284b0368124e4e4e4affffffff4affffffff4b00749462894310ffffff",
+    "ffffffffff0700000000000000947494628c02663894680468074b008594680987945294284b014b028594680e686689",
+    "8887945294284b0368124e4e4e4affffffff4affffffff4b00749462894310000000000000e03f00000000000000c094",
+    "7494628c0366386294680468074b008594680987945294284b014b018594686c89430800000000000008409474946275",
+    "2e",
+];
+
+#[test]
+fn the_writer_keeps_its_dtype_and_text_layout() {
+    let text = |shape: Vec<usize>, v: &[&str]| {
+        let v = v.iter().map(|s| s.to_string()).collect();
+        Value::array(NdArray::new(shape, ArrayData::Str(v)).unwrap())
+    };
+    let array = |shape: Vec<usize>, data| Value::array(NdArray::new(shape, data).unwrap());
+    let v = Value::dict([
+        ("names", text(vec![3], &["a", "héllo", ""])),
+        ("empty", text(vec![2, 1], &["", ""])),
+        ("emoji", text(vec![], &["😀x"])),
+        ("same_width", text(vec![1], &["abcde"])),
+        ("flags", array(vec![2], ArrayData::Bool(vec![true, false]))),
+        ("i1", array(vec![2], ArrayData::I8(vec![-1, 7]))),
+        ("u1", array(vec![2], ArrayData::U8(vec![255, 7]))),
+        ("i2", array(vec![2], ArrayData::I16(vec![-300, 7]))),
+        ("u8", array(vec![2], ArrayData::U64(vec![u64::MAX, 7]))),
+        ("f8", array(vec![2], ArrayData::F64(vec![0.5, -2.0]))),
+        ("f8b", array(vec![1], ArrayData::F64(vec![3.0]))),
+    ]);
+    let written = write_protocol4(&v);
+    assert_eq!(written, bytes(DTYPES));
+    assert_eq!(parse(&written).unwrap(), v);
+}

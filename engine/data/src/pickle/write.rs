@@ -6,7 +6,8 @@
 use std::collections::HashMap;
 
 use super::Value;
-use crate::array::{ArrayData, DType, NdArray};
+use crate::array::{DType, NdArray};
+use crate::numpy_dtype::{NumpyDtype, le_bytes};
 
 const FRAME_SIZE_TARGET: usize = 64 * 1024;
 const FRAME_SIZE_MIN: usize = 4;
@@ -35,7 +36,7 @@ struct Writer {
     memo_len: u32,
     strings: HashMap<String, u32>,
     globals: HashMap<(&'static str, &'static str), u32>,
-    dtypes: HashMap<(DType, usize), u32>,
+    dtypes: HashMap<NumpyDtype, u32>,
     arrays: HashMap<*const NdArray, u32>,
     small_b: Option<u32>,
 }
@@ -265,16 +266,19 @@ impl Writer {
     }
 
     /// `numpy.dtype(code, False, True)` with its state, once per type.
-    fn dtype(&mut self, dtype: DType, width: usize) {
+    fn dtype(&mut self, dtype: NumpyDtype) {
         self.boundary();
-        if let Some(&i) = self.dtypes.get(&(dtype, width)) {
+        if let Some(&i) = self.dtypes.get(&dtype) {
             self.get(i);
             return;
         }
-        let (code, order, elsize, align, flags) = match dtype {
-            DType::Str => (format!("U{width}"), "<", 4 * width as i64, 4, 8),
-            DType::Bool | DType::I8 | DType::U8 => (dtype.name().to_string(), "|", -1, -1, 0),
-            _ => (dtype.name().to_string(), "<", -1, -1, 0),
+        let code = dtype.code();
+        // The state's elsize, alignment and flags as `dtype.__reduce__()` gives them: set
+        // for flexible types (text: 4 bytes a character, flag 8 `NPY_NEEDS_INIT`), -1 -1 0
+        // (implied by the code) for numbers.
+        let (elsize, align, flags) = match dtype.dtype {
+            DType::Str => (4 * dtype.width as i64, 4, 8),
+            _ => (-1, -1, 0),
         };
         self.global("numpy", "dtype");
         self.tuple(3, |w, i| match i {
@@ -286,7 +290,7 @@ impl Writer {
         let index = self.memoize();
         let state = [
             Value::Int(3),
-            Value::Str(order.into()),
+            Value::Str(dtype.byte_order().into()),
             Value::None,
             Value::None,
             Value::None,
@@ -296,7 +300,7 @@ impl Writer {
         ];
         self.tuple(state.len(), |w, i| w.save(&state[i]));
         self.write(b"b");
-        self.dtypes.insert((dtype, width), index);
+        self.dtypes.insert(dtype, index);
     }
 
     fn array(&mut self, a: &std::sync::Arc<NdArray>) {
@@ -325,14 +329,15 @@ impl Writer {
         });
         self.write(b"R");
         let index = self.memoize();
-        let (width, raw) = raw_le(a);
+        let dtype = NumpyDtype::of(a);
+        let raw = le_bytes(a);
         let shape = a.shape().to_vec();
         self.tuple(5, |w, i| match i {
             0 => w.int(1),
             1 => {
                 w.tuple(shape.len(), |w, k| w.int(shape[k] as i64));
             }
-            2 => w.dtype(a.dtype(), width),
+            2 => w.dtype(dtype),
             3 => w.save(&Value::Bool(false)),
             _ => {
                 w.bytes(&raw);
@@ -341,44 +346,5 @@ impl Writer {
         });
         self.write(b"b");
         self.arrays.insert(key, index);
-    }
-}
-
-/// The little-endian C-order bytes of an array and, for text, its width in characters.
-fn raw_le(a: &NdArray) -> (usize, Vec<u8>) {
-    macro_rules! le {
-        ($v:expr) => {
-            $v.iter().flat_map(|x| x.to_le_bytes()).collect()
-        };
-    }
-    match a.data() {
-        ArrayData::Bool(v) => (0, v.iter().map(|&b| u8::from(b)).collect()),
-        ArrayData::I8(v) => (0, le!(v)),
-        ArrayData::I16(v) => (0, le!(v)),
-        ArrayData::I32(v) => (0, le!(v)),
-        ArrayData::I64(v) => (0, le!(v)),
-        ArrayData::U8(v) => (0, v.clone()),
-        ArrayData::U16(v) => (0, le!(v)),
-        ArrayData::U32(v) => (0, le!(v)),
-        ArrayData::U64(v) => (0, le!(v)),
-        ArrayData::F32(v) => (0, le!(v)),
-        ArrayData::F64(v) => (0, le!(v)),
-        ArrayData::Str(v) => {
-            let width = v
-                .iter()
-                .map(|s| s.chars().count())
-                .max()
-                .unwrap_or(0)
-                .max(1);
-            let mut raw = Vec::with_capacity(v.len() * width * 4);
-            for s in v {
-                let n = s.chars().count();
-                for c in s.chars() {
-                    raw.extend(u32::from(c).to_le_bytes());
-                }
-                raw.extend(std::iter::repeat_n(0u8, 4 * (width - n)));
-            }
-            (width, raw)
-        }
     }
 }

@@ -2,8 +2,7 @@
 //! (`_reconstruct`, `dtype`, `scalar`, `_frombuffer`, `_codecs.encode`) and BUILD of an
 //! array from its state tuple. Nothing is ever called.
 
-use std::sync::Arc;
-
+use super::super::Value;
 use super::super::numpy::{Callable, decode, parse_dtype};
 use super::{Machine, Obj, Step};
 use crate::array::ArrayData;
@@ -42,18 +41,18 @@ impl Machine<'_> {
                 };
                 let raw = self.raw_bytes(args[1])?;
                 let a = decode(&dt, &raw, vec![], false)?;
-                Ok(match a.data() {
+                Ok(Obj::Plain(match a.data() {
                     ArrayData::F32(_) | ArrayData::F64(_) => {
-                        Obj::Float(a.scalar_f64().ok_or("empty scalar")?)
+                        Value::Float(a.scalar_f64().ok_or("empty scalar")?)
                     }
-                    ArrayData::Bool(v) => Obj::Bool(v[0]),
-                    ArrayData::Str(v) => Obj::Str(v[0].clone()),
-                    _ => Obj::Int(
+                    ArrayData::Bool(v) => Value::Bool(v[0]),
+                    ArrayData::Str(v) => Value::Str(v[0].clone()),
+                    _ => Value::Int(
                         a.to_i64()
                             .and_then(|v| v.first().copied())
                             .ok_or("an unsigned 64-bit scalar beyond the range of a signed one")?,
                     ),
-                })
+                }))
             }
             Callable::CodecsEncode => {
                 if args.is_empty() || args.len() > 2 {
@@ -69,7 +68,7 @@ impl Machine<'_> {
                 text.chars()
                     .map(|c| u8::try_from(u32::from(c)).map_err(|_| "a character beyond Latin-1"))
                     .collect::<Result<Vec<u8>, _>>()
-                    .map(Obj::Bytes)
+                    .map(|b| Obj::Plain(Value::Bytes(b)))
                     .map_err(String::from)
             }
             Callable::FromBuffer => {
@@ -84,7 +83,7 @@ impl Machine<'_> {
                     "F" => true,
                     o => return Err(format!("unknown array order {o:?}")),
                 };
-                Ok(Obj::Array(Arc::new(decode(&dt, &raw, shape, fortran)?)))
+                Ok(Obj::Plain(Value::array(decode(&dt, &raw, shape, fortran)?)))
             }
             Callable::NdarrayClass => Err("calling numpy.ndarray directly is not supported".into()),
         }
@@ -92,8 +91,8 @@ impl Machine<'_> {
 
     fn raw_bytes(&self, id: usize) -> Result<Vec<u8>, String> {
         match &self.objs[id] {
-            Obj::Bytes(b) | Obj::Py2Str(b) => Ok(b.clone()),
-            Obj::Str(s) => Ok(s.chars().map(|c| c as u32 as u8).collect()),
+            Obj::Plain(Value::Bytes(b)) | Obj::Py2Str(b) => Ok(b.clone()),
+            Obj::Plain(Value::Str(s)) => Ok(s.chars().map(|c| c as u32 as u8).collect()),
             o => Err(format!(
                 "expected raw array bytes, found {} (object arrays are not read)",
                 o.kind()
@@ -117,7 +116,7 @@ impl Machine<'_> {
                 if let Some(&order) = fields.get(1) {
                     dt.big_endian = self.text(order)? == ">";
                 }
-                if fields.len() > 3 && !matches!(self.objs[fields[3]], Obj::None) {
+                if fields.len() > 3 && !matches!(self.objs[fields[3]], Obj::Plain(Value::None)) {
                     return Err("structured dtypes are not read".into());
                 }
                 self.objs[target] = Obj::Dtype(dt);
@@ -139,7 +138,7 @@ impl Machine<'_> {
                     return Err("object arrays (dtype O) are not read".into());
                 }
                 let raw = self.raw_bytes(f[3])?;
-                self.objs[target] = Obj::Array(Arc::new(decode(&dt, &raw, shape, fortran)?));
+                self.objs[target] = Obj::Plain(Value::array(decode(&dt, &raw, shape, fortran)?));
                 Ok(())
             }
             o => Err(format!("BUILD of a {} is not supported", o.kind())),
