@@ -6,7 +6,7 @@
 //! GPU a few steps' losses at a time, read in one transfer by `pending`) and the avatar's
 //! checkpoints. A run is told
 //! its [`recipe`] (on a camera capture, the capture recipe wherever the command line
-//! named nothing; runs record it as a [`record`], versioned), whose [`preset`] names the architecture and optimiser settings; with
+//! named nothing; runs record it as [`record`] declares, versioned), whose [`preset`] names the architecture and optimiser settings; with
 //! [`refine`] it also learns per-frame corrections of the training fits.
 //!
 //! Must not know about rendering whole frames, evaluation, the server or the

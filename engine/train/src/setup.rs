@@ -14,7 +14,7 @@ use talkin_nets::FieldConfig;
 use crate::error::TrainError;
 use crate::log::LOG_FILE;
 use crate::recipe::TrainOptions;
-use crate::record::RecordedOptions;
+use crate::record;
 use crate::{loss, rays, schedule};
 
 /// The recipe (options and the derived schedule) inside the run directory.
@@ -190,9 +190,7 @@ pub(crate) fn write_recipe(
         schedule["extended"] = extended;
     }
     let recipe = json!({
-        "options": RecordedOptions::of(opts)
-            .and_then(|r| r.to_json())
-            .map_err(unserialisable)?,
+        "options": record::to_json(opts).map_err(unserialisable)?,
         "initial_lr": opts.initial_lr(),
         "loss": loss,
         "schedule": schedule,

@@ -12,9 +12,7 @@ use crate::DEFAULT_LPIPS_DIR;
 const UNVERSIONED: &str = include_str!("../../tests/fixtures/options-unversioned.json");
 
 fn read(json: Value) -> Result<TrainOptions, String> {
-    serde_json::from_value::<RecordedOptions>(json)
-        .map_err(|e| e.to_string())?
-        .into_options()
+    from_json(json)
 }
 
 #[test]
@@ -61,7 +59,7 @@ fn the_record_round_trips_and_keeps_its_names() {
         mlp_slice_rows: 0,
         ..TrainOptions::default()
     };
-    let json = RecordedOptions::of(&opts).unwrap().to_json().unwrap();
+    let json = to_json(&opts).unwrap();
     assert_eq!(json["version"], RECIPE_VERSION);
     assert_eq!(json["preset"], "fast");
     assert_eq!(json["sampler"], "accelerated");
@@ -75,10 +73,7 @@ fn the_record_round_trips_and_keeps_its_names() {
     let old_names: Vec<&String> = unversioned.as_object().unwrap().keys().collect();
     assert_eq!(names, old_names);
     assert_eq!(read(json).unwrap(), opts);
-    let all = RecordedOptions::of(&TrainOptions::default())
-        .unwrap()
-        .to_json()
-        .unwrap();
+    let all = to_json(&TrainOptions::default()).unwrap();
     assert!(all["identities"].is_null());
 }
 
@@ -91,7 +86,7 @@ fn a_lpips_path_that_is_not_utf8_round_trips() {
         perceptual: Some(dir),
         ..TrainOptions::default()
     };
-    let json = RecordedOptions::of(&opts).unwrap().to_json().unwrap();
+    let json = to_json(&opts).unwrap();
     assert!(json["perceptual"].is_object());
     assert_eq!(read(json).unwrap(), opts);
 }

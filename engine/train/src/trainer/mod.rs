@@ -28,7 +28,6 @@ use crate::journal::Journal;
 use crate::log::{LOG_FILE, StepLog};
 use crate::rays::FrameCaches;
 use crate::recipe::TrainOptions;
-use crate::record::RecordedOptions;
 use crate::refine::PoseRefiner;
 use crate::rng::SplitMix64;
 use crate::schedule;
@@ -68,7 +67,8 @@ struct TrainState {
     field_step: usize,
     elapsed_seconds: f64,
     rng_state: u64,
-    options: RecordedOptions,
+    /// The options as [`crate::record`] writes them.
+    options: serde_json::Value,
     /// The dataset directory, as given (for messages).
     #[serde(with = "path_json::serde_path")]
     data: PathBuf,

@@ -10,6 +10,7 @@ use talkin_nets::ComputeDevice;
 use crate::error::TrainError;
 use crate::log::{LOG_FILE, TrainLog};
 use crate::recipe::TrainOptions;
+use crate::record;
 use crate::refine::PoseRefiner;
 use crate::rng::SplitMix64;
 
@@ -75,14 +76,10 @@ impl<'a> Trainer<'a> {
             });
         }
         let options =
-            state
-                .options
-                .clone()
-                .into_options()
-                .map_err(|problem| TrainError::Resume {
-                    file: state_file.clone(),
-                    problem: format!("`options`: {problem}"),
-                })?;
+            record::from_json(state.options.clone()).map_err(|problem| TrainError::Resume {
+                file: state_file.clone(),
+                problem: format!("`options`: {problem}"),
+            })?;
         let device = open_device(on)?;
         let field = checkpoint.field(&device)?;
         let optim_bytes = checkpoint

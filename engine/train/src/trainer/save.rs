@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 use talkin_avatar::checkpoint::{CheckpointContents, CheckpointError};
 
 use crate::error::TrainError;
-use crate::record::RecordedOptions;
+use crate::record;
 
 use super::{TrainState, Trainer};
 
@@ -82,7 +82,7 @@ impl Trainer<'_> {
         })?;
         let state_file = talkin_avatar::checkpoint::checkpoint_root(&self.out)
             .join(talkin_avatar::checkpoint::STATE_FILE);
-        let options = RecordedOptions::of(&self.opts)
+        let options = record::to_json(&self.opts)
             .map_err(|e| CheckpointError::format(&state_file, "options", e))?;
         let state = TrainState {
             step: self.step,
