@@ -91,3 +91,80 @@ impl Journal {
         Ok(Completed { entries, waited_s })
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::log::LOG_FILE;
+
+    fn entry(step: usize) -> StepLog {
+        StepLog {
+            step,
+            seconds: step as f64,
+            loss: f32::NAN,
+            mse: f32::NAN,
+            psnr: f32::NAN,
+            rays: 8,
+            samples: 80,
+            rays_per_s: 8.0,
+            samples_per_s: 80.0,
+            lr: 1e-2,
+            progress: 0.5,
+            grid_occupied: 1.0,
+            sampling_s: 0.01,
+            bones_per_sample: 2.5,
+        }
+    }
+
+    fn values(step: usize) -> Tensor<1> {
+        Tensor::from_floats([step as f32, 0.01], &Device::flex())
+    }
+
+    fn steps(entries: &[StepLog]) -> Vec<usize> {
+        entries.iter().map(|e| e.step).collect()
+    }
+
+    /// The device path run on the CPU: queued steps come back, written, in order, once
+    /// `READ_EVERY` are queued; a checkpoint's sync writes the rest at once and they
+    /// come back with the next step; read steps come back at once, after those.
+    #[test]
+    fn every_step_is_written_and_handed_back_once_in_order() {
+        let dir = std::env::temp_dir().join(format!("talkin_journal_{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join(LOG_FILE);
+        let mut journal = Journal::new(TrainLog::open(&path, None).unwrap());
+        let mut handed = Vec::new();
+        for step in 1..READ_EVERY {
+            let done = journal.queue(entry(step), 1.0, values(step)).unwrap();
+            assert!(done.entries.is_empty() && done.waited_s == 0.0);
+        }
+        let done = journal
+            .queue(entry(READ_EVERY), 1.0, values(READ_EVERY))
+            .unwrap();
+        assert_eq!(steps(&done.entries), (1..=READ_EVERY).collect::<Vec<_>>());
+        assert_eq!(done.entries[2].loss, 3.0);
+        handed.extend(done.entries);
+        let next = READ_EVERY + 1;
+        assert!(
+            journal
+                .queue(entry(next), 1.0, values(next))
+                .unwrap()
+                .entries
+                .is_empty()
+        );
+        journal.sync().unwrap();
+        let rows = std::fs::read_to_string(&path).unwrap().lines().count() - 1;
+        assert_eq!(rows, next, "the log reaches the last step at a checkpoint");
+        let mut read = entry(next + 1);
+        read.loss = 0.5;
+        let done = journal.record(read).unwrap();
+        assert_eq!(steps(&done), [next, next + 1]);
+        handed.extend(done);
+        assert!(journal.settle().unwrap().entries.is_empty());
+        assert_eq!(steps(&handed), (1..=next + 1).collect::<Vec<_>>());
+        journal.sync().unwrap();
+        let rows = std::fs::read_to_string(&path).unwrap().lines().count() - 1;
+        assert_eq!(rows, next + 1);
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+}
