@@ -16,6 +16,8 @@ use crate::pending::psnr;
 use crate::rays::{Batch, BatchSpec, CacheError, FrameCache, PATCH, draw_batch};
 use crate::refine::chain::correction_gradient;
 use crate::schedule;
+use talkin_avatar::subject::{SubjectModel, SubjectSlot};
+use talkin_data::dataset::Dataset;
 use talkin_nets::PoseGrads;
 use talkin_nets::skinning::skinned_candidates;
 
@@ -132,12 +134,7 @@ impl Trainer<'_> {
         let i = self.frames[k];
         // A run's frame codes are its training frames', in order.
         let code = (k < self.field().n_frame_codes()).then_some(k);
-        let slot = self.slot_of[self.dataset.frames[i].subject]
-            .expect("training frames belong to trained subjects");
-        let model = self.subjects[slot]
-            .model
-            .as_ref()
-            .expect("a trained subject has a model");
+        let (slot, model) = trained_subject(self.dataset, &self.slot_of, &self.subjects, i);
         let mask_edge = self.opts.mask_edge_in(self.dataset, i);
         let fingers = self.config.skinning.skins_fingers();
         let dataset = self.dataset;
@@ -226,12 +223,7 @@ impl Trainer<'_> {
         if current {
             return Ok(());
         }
-        let slot = self.slot_of[self.dataset.frames[frame].subject]
-            .expect("training frames belong to trained subjects");
-        let model = self.subjects[slot]
-            .model
-            .as_ref()
-            .expect("a trained subject has a model");
+        let (slot, model) = trained_subject(self.dataset, &self.slot_of, &self.subjects, frame);
         let params = refiner.params_of(self.dataset, frame);
         cache
             .repose(
@@ -338,14 +330,26 @@ impl Trainer<'_> {
     }
 
     /// The model of the subject dataset frame `frame` shows.
-    fn model_of(&self, frame: usize) -> &talkin_avatar::subject::SubjectModel {
-        let slot = self.slot_of[self.dataset.frames[frame].subject]
-            .expect("training frames belong to trained subjects");
-        self.subjects[slot]
-            .model
-            .as_ref()
-            .expect("a trained subject has a model")
+    fn model_of(&self, frame: usize) -> &SubjectModel {
+        trained_subject(self.dataset, &self.slot_of, &self.subjects, frame).1
     }
+}
+
+/// The identity slot and model of the trained subject dataset frame `frame` shows (a
+/// free function so that a caller may hold another part of the trainer meanwhile).
+fn trained_subject<'s>(
+    dataset: &Dataset,
+    slot_of: &[Option<usize>],
+    subjects: &'s [SubjectSlot],
+    frame: usize,
+) -> (usize, &'s SubjectModel) {
+    let slot =
+        slot_of[dataset.frames[frame].subject].expect("training frames belong to trained subjects");
+    let model = subjects[slot]
+        .model
+        .as_ref()
+        .expect("a trained subject has a model");
+    (slot, model)
 }
 
 /// The mean number of bones inverse skinning evaluates per sample: each sample's
@@ -384,11 +388,7 @@ fn take_grads<M: Module>(module: &M, grads: &mut GradientsParams) -> GradientsPa
 }
 
 /// A sampling error at dataset frame `frame`, naming the index file.
-fn grid_error(
-    dataset: &talkin_data::dataset::Dataset,
-    frame: usize,
-    source: GridError,
-) -> TrainError {
+fn grid_error(dataset: &Dataset, frame: usize, source: GridError) -> TrainError {
     TrainError::Grid {
         file: dataset.root.join(talkin_data::dataset::INDEX_FILE),
         frame,
