@@ -336,7 +336,8 @@ impl std::fmt::Display for Identities {
 pub struct Ablation {
     /// D_hands, the paper's offset for hand samples from the hand pose: `on` or `off`.
     /// With `--skin-fingers bones` the finger bones already undo the fingers' motion, and
-    /// on the demo `off` scored higher in the same minutes (docs/results.md).
+    /// D_hands moves the hands' scores by less than the noise of 2-minute runs
+    /// (docs/results.md, "Ablations").
     #[arg(long = "hand-deform", value_name = "on|off", default_value = "on", value_parser = PossibleValuesParser::new(["on", "off"]).map(|s| s == "on"), action = clap::ArgAction::Set, help_heading = "Model and device")]
     pub use_d_hands: bool,
     /// D_nr, the non-rigid offset of every body sample from the body pose: `on` or `off`
