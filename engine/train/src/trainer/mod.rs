@@ -1,7 +1,7 @@
 //! The run around the step: a trainer is built fresh ([`Trainer::new`]), adapted from
 //! another run to a novel subject ([`Trainer::adapt`]) or resumed exactly from its newest
 //! checkpoint ([`Trainer::resume`]), optionally to a new budget ([`Trainer::set_budget`]);
-//! [`Trainer::run`] steps it ([`crate::step`]) until its budget is spent or it is told to
+//! [`Trainer::run`] steps it ([`Trainer::step`]) until its budget is spent or it is told to
 //! stop ([`Trainer::run_until`]), checkpointing every few minutes and at the end.
 //!
 //! This file holds the trainer's state, its accessors and the run loop; `construct`
@@ -89,9 +89,9 @@ struct TrainState {
     pose_refinement: Option<RefinerState>,
 }
 
-/// A run in progress. Its parts own their state: the frames' caches
-/// ([`FrameCaches`]), the log ([`Journal`]), the checkpoints ([`save::Checkpoints`]) and
-/// the grid updates ([`GridUpdates`]); the files of this module build it (`construct`,
+/// A run in progress. Its parts own their state: the frames' caches (`FrameCaches`), the
+/// log (`Journal`), the checkpoints (`save::Checkpoints`) and the grid updates
+/// (`GridUpdates`); the files of this module build it (`construct`,
 /// `resume`), step it (`step`), save it (`save`) and place it on the schedule (`budget`).
 pub struct Trainer<'a> {
     dataset: &'a Dataset,
