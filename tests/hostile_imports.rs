@@ -7,34 +7,24 @@
 //! 64 cases per property from a fixed seed; `PROPTEST_CASES=N` runs more (see
 //! docs/results.md).
 
+#[path = "../engine/data/tests/support/json_mutation.rs"]
+mod json_mutation;
+#[path = "../engine/data/tests/support/proptest_config.rs"]
+mod proptest_config;
+
 mod common;
 
 use std::path::{Path, PathBuf};
 use std::sync::{Mutex, MutexGuard, OnceLock};
 
 use common::layouts::{Clip, SmplerxFixture, write_humannerf_wild, write_smplerx};
+use json_mutation::{mutate_leaf, odd_value};
 use proptest::prelude::*;
-use proptest::test_runner::RngSeed;
+use proptest_config::config;
 use serde_json::Value;
 use talkin::data::dataset::Dataset;
 use talkin::data::import::{Format, ImportOptions, Source, read_source};
 use talkin::data::params_json::PARAM_LIMIT;
-
-fn config() -> ProptestConfig {
-    let default = ProptestConfig::default();
-    ProptestConfig {
-        cases: std::env::var("PROPTEST_CASES")
-            .ok()
-            .and_then(|v| v.parse().ok())
-            .unwrap_or(64),
-        rng_seed: match default.rng_seed {
-            RngSeed::Random => RngSeed::Fixed(0x1a90_57e5),
-            seed => seed,
-        },
-        failure_persistence: None,
-        ..default
-    }
-}
 
 fn scene() -> &'static Dataset {
     static SCENE: OnceLock<Dataset> = OnceLock::new();
@@ -158,38 +148,6 @@ fn damaged(
     bytes
 }
 
-/// Sets a leaf of `v` picked by `pick` to `to`.
-fn mutate_leaf(v: &mut Value, pick: &mut impl FnMut(usize) -> usize, to: Value) {
-    match v {
-        Value::Object(m) if !m.is_empty() => {
-            let key = m.keys().nth(pick(m.len())).cloned().unwrap_or_default();
-            if let Some(child) = m.get_mut(&key) {
-                mutate_leaf(child, pick, to);
-            }
-        }
-        Value::Array(a) if !a.is_empty() => {
-            let k = pick(a.len());
-            mutate_leaf(&mut a[k], pick, to);
-        }
-        leaf => *leaf = to,
-    }
-}
-
-fn odd_value() -> impl Strategy<Value = Value> {
-    prop_oneof![
-        Just(Value::Null),
-        any::<bool>().prop_map(Value::Bool),
-        any::<f64>().prop_map(|x| serde_json::json!(x)),
-        prop::sample::select(vec![1e300, -1e300, 1e3, 1e6, 0.0, -0.0, 1e-320])
-            .prop_map(|x| serde_json::json!(x)),
-        any::<i64>().prop_map(|x| serde_json::json!(x)),
-        ".{0,12}".prop_map(Value::String),
-        Just(serde_json::json!([])),
-        Just(serde_json::json!({})),
-        Just(serde_json::json!([[1.0, 2.0], [3.0]])),
-    ]
-}
-
 /// `file`'s JSON with one leaf swapped for `to`.
 fn with_odd_leaf(file: &Path, to: Value, picks: &[usize]) -> Vec<u8> {
     let mut doc: Value = serde_json::from_slice(&std::fs::read(file).unwrap()).unwrap();
@@ -214,7 +172,7 @@ fn splice() -> impl Strategy<Value = Option<(prop::sample::Index, Vec<u8>)>> {
 }
 
 proptest! {
-    #![proptest_config(config())]
+    #![proptest_config(config(0x1a90_57e5))]
 
     #[test]
     fn damaged_smplerx_files_never_panic(

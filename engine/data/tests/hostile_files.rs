@@ -11,13 +11,16 @@
 //! docs/results.md for the 20 000-case run) and `PROPTEST_RNG_SEED=S` picks another seed.
 #![allow(unsafe_code)] // the capped allocator below
 
+#[path = "support/proptest_config.rs"]
+mod proptest_config;
+
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicUsize, Ordering};
 
 use image::{GrayImage, RgbImage};
 use proptest::prelude::*;
-use proptest::test_runner::RngSeed;
+use proptest_config::config;
 use talkin_data::array::{ArrayData, NdArray};
 use talkin_data::dataset::{Dataset, Frame, Matting, Split, Subject};
 use talkin_data::import::peoplesnapshot::parse_splits_yaml;
@@ -66,23 +69,6 @@ unsafe impl GlobalAlloc for Capped {
 
 #[global_allocator]
 static ALLOCATOR: Capped = Capped;
-
-fn config() -> ProptestConfig {
-    let default = ProptestConfig::default();
-    ProptestConfig {
-        cases: std::env::var("PROPTEST_CASES")
-            .ok()
-            .and_then(|v| v.parse().ok())
-            .unwrap_or(64),
-        // Same command, same cases (proptest's own default is a random seed).
-        rng_seed: match default.rng_seed {
-            RngSeed::Random => RngSeed::Fixed(0x4f57_11e5),
-            seed => seed,
-        },
-        failure_persistence: None,
-        ..default
-    }
-}
 
 /// A fresh path per call under one directory per process (properties run in parallel).
 fn temp(ext: &str) -> PathBuf {
@@ -218,7 +204,7 @@ fn assert_consistent(a: &NdArray) {
 }
 
 proptest! {
-    #![proptest_config(config())]
+    #![proptest_config(config(0x4f57_11e5))]
 
     #[test]
     fn npy_arbitrary_bytes_never_panic(bytes in prop::collection::vec(any::<u8>(), 0..512)) {
@@ -367,7 +353,7 @@ fn assert_model_sound(model: &SmplxModel) {
 }
 
 proptest! {
-    #![proptest_config(config())]
+    #![proptest_config(config(0x4f57_11e5))]
 
     #[test]
     fn damaged_model_files_never_panic(damage in damage()) {
@@ -422,7 +408,7 @@ fn motion_npz(n: usize) -> Vec<u8> {
 }
 
 proptest! {
-    #![proptest_config(config())]
+    #![proptest_config(config(0x4f57_11e5))]
 
     #[test]
     fn damaged_beat2_motions_never_panic(damage in damage(), n in 1usize..4, forced in any::<bool>()) {
@@ -526,7 +512,7 @@ fn decode_frame(files: &[Vec<u8>; 3]) -> Result<(), String> {
 }
 
 proptest! {
-    #![proptest_config(config())]
+    #![proptest_config(config(0x4f57_11e5))]
 
     #[test]
     fn frame_files_of_arbitrary_bytes_are_refused(
@@ -603,7 +589,7 @@ fn assert_ranges_sound(text: &str) {
 }
 
 proptest! {
-    #![proptest_config(config())]
+    #![proptest_config(config(0x4f57_11e5))]
 
     #[test]
     fn split_yaml_of_arbitrary_text_never_panics(text in "(?s).{0,256}") {

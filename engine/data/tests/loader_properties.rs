@@ -7,19 +7,19 @@
 
 use std::path::Path;
 
+#[path = "support/json_mutation.rs"]
+mod json_mutation;
+#[path = "support/proptest_config.rs"]
+mod proptest_config;
+
+use json_mutation::{mutate_leaf, odd_value};
 use proptest::prelude::*;
+use proptest_config::config;
 use serde_json::Value;
 use talkin_data::dataset::{Dataset, Frame, Split, Subject};
 use talkin_data::params_json::PARAM_LIMIT;
 use talkin_human::body::{FrameParams, Skeleton};
 use talkin_human::camera::Camera;
-
-fn cases() -> u32 {
-    std::env::var("PROPTEST_CASES")
-        .ok()
-        .and_then(|v| v.parse().ok())
-        .unwrap_or(64)
-}
 
 /// A small valid dataset.json document.
 fn valid_document() -> Value {
@@ -88,41 +88,8 @@ fn assert_sound(d: &Dataset) {
     }
 }
 
-/// Sets a random leaf of `v` (picked by `pick`) to `to`.
-fn mutate_leaf(v: &mut Value, pick: &mut impl FnMut(usize) -> usize, to: Value) {
-    match v {
-        Value::Object(m) if !m.is_empty() => {
-            let k = pick(m.len());
-            let key = m.keys().nth(k).cloned().unwrap_or_default();
-            if let Some(child) = m.get_mut(&key) {
-                mutate_leaf(child, pick, to);
-            }
-        }
-        Value::Array(a) if !a.is_empty() => {
-            let k = pick(a.len());
-            mutate_leaf(&mut a[k], pick, to);
-        }
-        leaf => *leaf = to,
-    }
-}
-
-fn odd_value() -> impl Strategy<Value = Value> {
-    prop_oneof![
-        Just(Value::Null),
-        any::<bool>().prop_map(Value::Bool),
-        any::<f64>().prop_map(|x| serde_json::json!(x)),
-        prop::sample::select(vec![1e300, -1e300, 1e3, 1e3 + 1e-9, 0.0, -0.0, 1e-320])
-            .prop_map(|x| serde_json::json!(x)),
-        any::<i64>().prop_map(|x| serde_json::json!(x)),
-        ".{0,12}".prop_map(Value::String),
-        Just(serde_json::json!([])),
-        Just(serde_json::json!({})),
-        Just(serde_json::json!([[1.0, 2.0], [3.0]])),
-    ]
-}
-
 proptest! {
-    #![proptest_config(ProptestConfig::with_cases(cases()))]
+    #![proptest_config(config(0x10ad_e125))]
 
     #[test]
     fn arbitrary_bytes_never_panic(bytes in prop::collection::vec(any::<u8>(), 0..512)) {

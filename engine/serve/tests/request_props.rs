@@ -6,9 +6,12 @@
 //! 64 cases per property by default, from a fixed seed; `PROPTEST_CASES=N` runs more and
 //! `PROPTEST_RNG_SEED=S` picks another seed (see docs/server-api.md).
 
+#[path = "../../data/tests/support/proptest_config.rs"]
+mod proptest_config;
+
 use glam::DVec3;
 use proptest::prelude::*;
-use proptest::test_runner::RngSeed;
+use proptest_config::config;
 use serde_json::{Value, json};
 use talkin_data::params_json::ParamsJson;
 use talkin_human::body::FrameParams;
@@ -17,23 +20,6 @@ use talkin_serve::request::{
     self, CAMERA_DISTANCE_LIMIT, FOCAL_RANGE_PX, PARAM_LIMIT, RenderRequest, SequenceRequest,
 };
 use talkin_serve::{ServeConfig, ServedSubject};
-
-fn config() -> ProptestConfig {
-    let default = ProptestConfig::default();
-    ProptestConfig {
-        cases: std::env::var("PROPTEST_CASES")
-            .ok()
-            .and_then(|v| v.parse().ok())
-            .unwrap_or(64),
-        // Same command, same cases (proptest's own default is a random seed).
-        rng_seed: match default.rng_seed {
-            RngSeed::Random => RngSeed::Fixed(0x7a1c_5e12),
-            seed => seed,
-        },
-        failure_persistence: None,
-        ..default
-    }
-}
 
 fn subjects() -> Vec<ServedSubject> {
     let camera = Camera::look_at(
@@ -283,7 +269,7 @@ fn the_valid_bodies_are_accepted() {
 }
 
 proptest! {
-    #![proptest_config(config())]
+    #![proptest_config(config(0x7a1c_5e12))]
 
     #[test]
     fn arbitrary_bytes(body in prop::collection::vec(any::<u8>(), 0..512)) {

@@ -6,6 +6,9 @@
 use std::path::Path;
 use std::sync::Arc;
 
+#[path = "../../tests/support/proptest_config.rs"]
+mod proptest_config;
+
 use proptest::prelude::*;
 
 use super::*;
@@ -308,9 +311,7 @@ fn written_pickles_read_back() {
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig::with_cases(
-        std::env::var("PROPTEST_CASES").ok().and_then(|s| s.parse().ok()).unwrap_or(64)
-    ))]
+    #![proptest_config(proptest_config::config(0x91c_1e5))]
 
     #[test]
     fn arbitrary_bytes_never_panic(b in proptest::collection::vec(any::<u8>(), 0..512)) {
