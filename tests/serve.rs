@@ -821,11 +821,7 @@ fn sigterm_stops_the_cli_server_after_its_requests() {
     std::thread::scope(|s| {
         let request = s.spawn(|| post(addr, "/render/sequence", &body));
         wait_until_busy(addr, &|| request.is_finished());
-        let kill = Command::new("kill")
-            .args(["-TERM", &child.id().to_string()])
-            .status()
-            .unwrap();
-        assert!(kill.success());
+        signal(&child, "TERM");
         let r = request.join().unwrap();
         assert_eq!(r.status, 200, "{}", String::from_utf8_lossy(&r.body));
     });
@@ -905,4 +901,14 @@ fn page_in_headless_chromium() {
     }
     eprintln!("page self-test: {full}\norbit: {orbit}\nscreenshots: {shots:?}");
     server.shutdown().unwrap();
+}
+
+/// Sends signal `name` (`TERM`, `KILL`, `STOP`, `CONT`) to `child` with `kill`.
+fn signal(child: &std::process::Child, name: &str) {
+    let ok = Command::new("kill")
+        .args([&format!("-{name}"), &child.id().to_string()])
+        .status()
+        .unwrap()
+        .success();
+    assert!(ok, "kill -{name} {}", child.id());
 }

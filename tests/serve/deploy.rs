@@ -21,7 +21,7 @@ use talkin::data::params_json::ParamsJson;
 use talkin::serve::bench::{self, Load, LoadReport};
 use talkin::serve::client;
 
-use super::{WAIT, fixture, subject};
+use super::{WAIT, fixture, signal, subject};
 
 /// HAProxy's timeout for one frame here: a hung replica's requests move on after it.
 const FRAME_TIMEOUT: &str = "2s";
@@ -36,15 +36,6 @@ fn free_port() -> u16 {
         .local_addr()
         .unwrap()
         .port()
-}
-
-fn signal(child: &Child, name: &str) {
-    let ok = Command::new("kill")
-        .args([&format!("-{name}"), &child.id().to_string()])
-        .status()
-        .unwrap()
-        .success();
-    assert!(ok, "kill -{name} {}", child.id());
 }
 
 /// A `talkin serve` replica on a fixed port; killed (and continued first) when dropped.

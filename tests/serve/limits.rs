@@ -13,7 +13,7 @@ use serde_json::json;
 use talkin::data::params_json::ParamsJson;
 use talkin::serve::ServeConfig;
 
-use super::{WAIT, config, fixture, frame_body, get, post, spawn_cli_with, start, subject};
+use super::{WAIT, config, fixture, frame_body, get, post, signal, spawn_cli_with, start, subject};
 
 fn connect(addr: SocketAddr) -> TcpStream {
     let stream = TcpStream::connect_timeout(&addr, WAIT).unwrap();
@@ -277,11 +277,7 @@ fn sigterm_ends_the_cli_server_within_its_grace_period() {
     );
     let _clients = half_sent_requests(addr);
     assert_eq!(get(addr, "/health").status, 200);
-    let kill = Command::new("kill")
-        .args(["-TERM", &child.id().to_string()])
-        .status()
-        .unwrap();
-    assert!(kill.success());
+    signal(&child, "TERM");
     let t = Instant::now();
     let status = loop {
         if let Some(status) = child.try_wait().unwrap() {

@@ -10,7 +10,7 @@ use talkin::data::params_json::ParamsJson;
 use talkin::serve::client::{self, HttpResponse};
 use talkin::serve::{REQUEST_ID_HEADER, Readiness, ServeConfig, Server};
 
-use super::{WAIT, config, fixture, frame_body, get, post, spawn_cli_with};
+use super::{WAIT, config, fixture, frame_body, get, post, signal, spawn_cli_with};
 
 fn assert_not_ready(r: &HttpResponse, status: &str) {
     assert_eq!(r.status, 503, "{r:?}");
@@ -98,11 +98,7 @@ fn every_answer_echoes_the_request_id() {
 fn sigterm_drains_before_the_listener_closes() {
     let (mut child, addr) = spawn_cli_with(&fixture().run, &["--drain-delay", "1"]);
     assert_eq!(get(addr, "/health").status, 200);
-    let kill = Command::new("kill")
-        .args(["-TERM", &child.id().to_string()])
-        .status()
-        .unwrap();
-    assert!(kill.success());
+    signal(&child, "TERM");
     let t = Instant::now();
     let health = loop {
         let h = get(addr, "/health");
