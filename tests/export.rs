@@ -455,32 +455,17 @@ fn glb_in_validator_and_three() {
         ("/three", modules.join("three")),
         ("/", repo.join("scripts/glb/three_check.html")),
     ]);
-    let chromium = std::env::var("CHROMIUM").unwrap_or_else(|_| "chromium".into());
     let profile = common::temp_dir("export_chromium_profile");
+    let url = format!("http://{addr}/");
     let headless = |extra: &[&str]| {
-        let out = std::process::Command::new(&chromium)
-            .args([
-                "--headless",
-                "--no-sandbox",
-                "--no-first-run",
-                // WebGL on the CPU.
-                "--use-angle=swiftshader",
-                "--enable-unsafe-swiftshader",
-                "--run-all-compositor-stages-before-draw",
-                "--virtual-time-budget=60000",
-                "--window-size=800,600",
-            ])
-            .arg(format!("--user-data-dir={}", profile.display()))
-            .args(extra)
-            .arg(format!("http://{addr}/"))
-            .output()
-            .expect("chromium runs");
-        assert!(
-            out.status.success(),
-            "{}",
-            String::from_utf8_lossy(&out.stderr)
-        );
-        String::from_utf8_lossy(&out.stdout).into_owned()
+        let flags = [
+            // WebGL on the CPU.
+            "--use-angle=swiftshader",
+            "--enable-unsafe-swiftshader",
+            "--virtual-time-budget=60000",
+            "--window-size=800,600",
+        ];
+        common::browser::headless_chromium(&url, &profile, &[&flags[..], extra].concat())
     };
     let dom = headless(&["--dump-dom"]);
     let verdict = dom

@@ -838,7 +838,6 @@ fn sigterm_stops_the_cli_server_after_its_requests() {
 #[test]
 #[ignore = "needs chromium"]
 fn page_in_headless_chromium() {
-    let chromium = std::env::var("CHROMIUM").unwrap_or_else(|_| "chromium".into());
     let server = start(ServeConfig {
         max_pixels: 256 * 256,
         default_width: 72,
@@ -852,29 +851,14 @@ fn page_in_headless_chromium() {
     let profile = common::temp_dir("serve_chromium_profile");
     let headless = |test: &str, extra: &[&str]| {
         let url = format!("http://{}/?selftest={test}", server.addr());
-        let out = Command::new(&chromium)
-            .args([
-                "--headless",
-                "--no-sandbox",
-                "--disable-gpu",
-                "--no-first-run",
-                "--run-all-compositor-stages-before-draw",
-                // Virtual time only advances while nothing loads, so the render requests
-                // finish before the budget runs out.
-                "--virtual-time-budget=120000",
-                "--window-size=900,760",
-            ])
-            .arg(format!("--user-data-dir={}", profile.display()))
-            .args(extra)
-            .arg(&url)
-            .output()
-            .expect("chromium runs");
-        assert!(
-            out.status.success(),
-            "{}",
-            String::from_utf8_lossy(&out.stderr)
-        );
-        String::from_utf8_lossy(&out.stdout).into_owned()
+        let flags = [
+            "--disable-gpu",
+            // Virtual time only advances while nothing loads, so the render requests
+            // finish before the budget runs out.
+            "--virtual-time-budget=120000",
+            "--window-size=900,760",
+        ];
+        common::browser::headless_chromium(&url, &profile, &[&flags[..], extra].concat())
     };
     let verdict = |dom: &str| {
         dom.split("data-selftest=\"")

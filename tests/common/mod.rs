@@ -1,8 +1,10 @@
 //! Test fixtures: a plausible T-pose skeleton and a tiny hand-made dataset, independent of
 //! the synthetic generator so that loader tests do not depend on it; the fitters' layouts
-//! (`layouts`), camera-like frames (`capture`) and running the binary (`cli`).
+//! (`layouts`), camera-like frames (`capture`), running the binary (`cli`) and headless Chromium
+//! (`browser`).
 #![allow(dead_code)]
 
+pub mod browser;
 pub mod capture;
 pub mod cli;
 pub mod layouts;
