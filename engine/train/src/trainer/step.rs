@@ -134,11 +134,13 @@ impl Trainer<'_> {
         let i = self.frames[k];
         // A run's frame codes are its training frames', in order.
         let code = (k < self.field().n_frame_codes()).then_some(k);
-        let (slot, model) = trained_subject(self.dataset, &self.slot_of, &self.subjects, i);
-        let mask_edge = self.opts.mask_edge_in(self.dataset, i);
-        let fingers = self.config.skinning.skins_fingers();
+        // Only a frame's first draw builds its cache (the closure borrows the fields it
+        // reads beside the caches it fills).
         let dataset = self.dataset;
         self.frame_caches.get_or_build(i, || {
+            let (slot, model) = trained_subject(dataset, &self.slot_of, &self.subjects, i);
+            let mask_edge = self.opts.mask_edge_in(dataset, i);
+            let fingers = self.config.skinning.skins_fingers();
             FrameCache::new(dataset, i, slot, model, mask_edge, fingers, code).map_err(
                 |e| match e {
                     CacheError::Dataset(e) => TrainError::Dataset(e),
