@@ -71,6 +71,7 @@ pub fn ablations(
         renders_dir: None,
         lpips_dir: opts.lpips_dir.clone(),
         smooth: false,
+        anchors: false,
     };
     let mut rows = variant_rows(dataset, out, opts, &base, &eval_opts, progress)?;
     rows.extend(single_identity_rows(

@@ -112,6 +112,7 @@ pub fn novel_identity(
         renders_dir: None,
         lpips_dir: opts.lpips_dir.clone(),
         smooth: false,
+        anchors: false,
     };
     // The baseline: the subject alone, from a fresh field, on the same clip and budget,
     // at the recipe's own rate.

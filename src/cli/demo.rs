@@ -144,6 +144,7 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
             renders: None,
             lpips_dir: DEFAULT_LPIPS_DIR.clone(),
             smooth: false,
+            anchors: None,
             background: None,
             device: args.device.clone(),
         })?;

@@ -94,6 +94,7 @@ pub fn noisy_fits(
         renders_dir: None,
         lpips_dir: opts.lpips_dir.clone(),
         smooth: false,
+        anchors: false,
     };
     let mut levels = Vec::new();
     for &deg in &opts.levels_deg {

@@ -101,6 +101,7 @@ pub fn speed_vs_error(
             renders_dir: None,
             lpips_dir: opts.lpips_dir.clone(),
             smooth: false,
+            anchors: false,
         },
     };
     let highest_target = opts.targets_db.iter().copied().fold(f64::MIN, f64::max);

@@ -1,4 +1,5 @@
-//! LPIPS (AlexNet, v0.1 heads) of image regions through `nets::loss::Lpips` on the CPU.
+//! LPIPS (v0.1 heads; AlexNet for the engine's LPIPS*, VGG16 for the anchors' protocol)
+//! of image regions through `nets::loss::Lpips`.
 
 use std::path::Path;
 
@@ -15,6 +16,7 @@ pub const BACKBONE: Backbone = Backbone::Alex;
 /// LPIPS weights loaded on the device of the renders they score.
 pub struct LpipsScorer {
     lpips: Lpips,
+    backbone: Backbone,
     device: Device,
 }
 
@@ -26,12 +28,21 @@ impl LpipsScorer {
         dir: Option<&Path>,
         device: &Device,
     ) -> Result<Result<LpipsScorer, String>, LossError> {
+        LpipsScorer::with_backbone(dir, BACKBONE, device)
+    }
+
+    /// [`LpipsScorer::from_dir`] with `backbone`'s weights (`dir/<name>.safetensors`).
+    pub fn with_backbone(
+        dir: Option<&Path>,
+        backbone: Backbone,
+        device: &Device,
+    ) -> Result<Result<LpipsScorer, String>, LossError> {
         let Some(dir) = dir else {
             return Ok(Err(
                 "LPIPS not computed: no LPIPS weights directory was given".into(),
             ));
         };
-        let file = dir.join(BACKBONE.file_name());
+        let file = dir.join(backbone.file_name());
         if !file.exists() {
             return Ok(Err(format!(
                 "LPIPS not computed: weights not found at {} \
@@ -39,15 +50,21 @@ impl LpipsScorer {
                 file.display()
             )));
         }
-        let lpips = Lpips::load(&file, BACKBONE, device)?;
+        let lpips = Lpips::load(&file, backbone, device)?;
         Ok(Ok(LpipsScorer {
             lpips,
+            backbone,
             device: device.clone(),
         }))
     }
 
+    /// The backbone it scores with.
+    pub fn backbone(&self) -> Backbone {
+        self.backbone
+    }
+
     /// LPIPS distance of `a` and `b` over `r` (not scaled); `None` for a region smaller
-    /// than [`MIN_CROP`] on a side, which AlexNet cannot see.
+    /// than [`MIN_CROP`] on a side, which AlexNet cannot see (VGG16 sees 16 px).
     pub fn distance(&self, a: &RgbImage, b: &RgbImage, r: Rect) -> Option<f64> {
         if r.width < MIN_CROP || r.height < MIN_CROP {
             return None;

@@ -8,6 +8,7 @@
 //! frame's camera ([`frame_crops`]); a crop that misses the image is skipped and reported,
 //! never faked, and without LPIPS weights every LPIPS value is `null` with a note.
 
+pub mod anchors;
 pub mod lpips;
 mod regions;
 mod report;
@@ -19,9 +20,12 @@ use image::RgbImage;
 
 pub use crate::crops::{CropKind, MIN_CROP, frame_crops};
 pub use crate::metrics::{PSNR_CAP_DB, Rect, psnr, ssim};
+pub use anchors::{ANCHOR_SSIM_RANGE, AnchorScore, anchor_score, ssim_skimage};
 pub use lpips::LpipsScorer;
 pub use regions::{PersonRegions, RegionScore, outline_px, person_regions};
-pub use report::{CropScore, EvalReport, FrameScore, LPIPS_SCALE, RegionMeans, SkippedCrop};
+pub use report::{
+    AnchorMeans, CropScore, EvalReport, FrameScore, LPIPS_SCALE, RegionMeans, SkippedCrop,
+};
 
 use crate::avatar::{Avatar, AvatarError};
 use crate::sequence::{
@@ -41,6 +45,9 @@ pub struct EvalOptions {
     /// Smooth each subject's poses and cameras over time (in the evaluated frames' time
     /// order) before rendering, with the paper's filter.
     pub smooth: bool,
+    /// Also score every frame by the anchors' protocol ([`anchors`]); its LPIPS-VGG needs
+    /// `vgg.safetensors` in `lpips_dir` and costs about 10 s a 512x512 frame on 2 cores.
+    pub anchors: bool,
 }
 
 /// Why an evaluation failed.
@@ -106,6 +113,16 @@ pub fn evaluate_with_progress(
             Ok(s) => (Some(s), None),
             Err(note) => (None, Some(note)),
         };
+    // The anchors' LPIPS, where its weights are beside AlexNet's.
+    let vgg = match opts.anchors {
+        true => LpipsScorer::with_backbone(
+            opts.lpips_dir.as_deref(),
+            talkin_nets::loss::Backbone::Vgg,
+            &avatar.device(),
+        )?
+        .ok(),
+        false => None,
+    };
     if let Some(dir) = &opts.renders_dir {
         std::fs::create_dir_all(dir).map_err(|source| EvalError::Io {
             file: dir.clone(),
@@ -120,7 +137,7 @@ pub fn evaluate_with_progress(
             dataset,
             shot,
             opts.renders_dir.as_deref(),
-            scorer.as_ref(),
+            (scorer.as_ref(), opts.anchors.then_some(vgg.as_ref())),
         )?;
         scores.push(score);
         hands.extend(hand_rows);
@@ -147,7 +164,7 @@ fn score_shot(
     dataset: &Dataset,
     shot: &Shot,
     renders_dir: Option<&Path>,
-    scorer: Option<&LpipsScorer>,
+    (scorer, anchors): (Option<&LpipsScorer>, Option<Option<&LpipsScorer>>),
 ) -> Result<(FrameScore, Vec<SheetRow>), EvalError> {
     let index = shot
         .ground_truth
@@ -181,6 +198,7 @@ fn score_shot(
         )
     };
     let (psnr_full, ssim_full, lpips_full) = score_rect(Rect::full(&render));
+    let anchors = anchors.and_then(|vgg| anchor_score(&truth, &render, vgg));
     let skeleton = &dataset.subjects[frame.subject].skeleton;
     let mut crops = Vec::new();
     let mut skipped = Vec::new();
@@ -227,6 +245,7 @@ fn score_shot(
         psnr: psnr_full,
         ssim: ssim_full,
         lpips: lpips_full,
+        anchors,
         crops,
         person_regions: regions,
         skipped_crops: skipped,

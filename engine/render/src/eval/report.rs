@@ -6,6 +6,7 @@ use std::path::{Path, PathBuf};
 use serde::Serialize;
 
 use super::EvalError;
+use super::anchors::{ANCHOR_SSIM_RANGE, AnchorScore};
 use super::lpips::BACKBONE;
 use super::regions::{PersonRegions, RegionScore};
 use crate::crops::CropKind;
@@ -62,6 +63,8 @@ pub struct FrameScore {
     pub psnr: f64,
     pub ssim: Option<f64>,
     pub lpips: Option<f64>,
+    /// The whole frame by the anchors' protocol (`None` below SSIM's 7x7 window).
+    pub anchors: Option<AnchorScore>,
     pub crops: Vec<CropScore>,
     /// The person box split by the target's mask (`None` where the box was skipped).
     pub person_regions: Option<PersonRegions>,
@@ -97,6 +100,9 @@ pub struct EvalReport {
     pub psnr_person: Option<f64>,
     pub ssim_person: Option<f64>,
     pub lpips_person: Option<f64>,
+    /// Means over frames by the anchors' protocol (HumanNeRF's and Neural Body's tables:
+    /// whole frame, SSIM as scikit-image 0.19 on floats, LPIPS-VGG x1000).
+    pub anchors: Option<AnchorMeans>,
     /// The person boxes split by the targets' masks: means over frames of each region's
     /// PSNR and share of the box's squared error.
     pub person_inside: Option<RegionMeans>,
@@ -123,6 +129,31 @@ pub struct EvalReport {
     pub notes: Vec<String>,
     pub seconds: f64,
     pub frames: Vec<FrameScore>,
+}
+
+/// The anchors' protocol ([`super::anchors`]) averaged over the frames.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct AnchorMeans {
+    pub psnr: f64,
+    pub ssim: f64,
+    /// The data range of `ssim` (scikit-image 0.19's for floats).
+    pub ssim_data_range: f64,
+    /// x1000; `None` without the VGG16 weights.
+    pub lpips_vgg: Option<f64>,
+    pub frames: usize,
+}
+
+impl AnchorMeans {
+    fn over(frames: &[FrameScore]) -> Option<AnchorMeans> {
+        let scores: Vec<AnchorScore> = frames.iter().map(|f| f.anchors).collect::<Option<_>>()?;
+        Some(AnchorMeans {
+            psnr: mean(scores.iter().map(|a| a.psnr))?,
+            ssim: mean(scores.iter().map(|a| a.ssim))?,
+            ssim_data_range: ANCHOR_SSIM_RANGE,
+            lpips_vgg: mean_all(&scores.iter().map(|a| a.lpips_vgg).collect::<Vec<_>>()),
+            frames: scores.len(),
+        })
+    }
 }
 
 /// A person-box region ([`PersonRegions`]) averaged over the frames that have it.
@@ -226,6 +257,7 @@ impl EvalReport {
             psnr: mean(frames.iter().map(|f| f.psnr)).unwrap_or(f64::NAN),
             ssim: mean_all(&frames.iter().map(|f| f.ssim).collect::<Vec<_>>()).unwrap_or(f64::NAN),
             lpips: mean_all(&frames.iter().map(|f| f.lpips).collect::<Vec<_>>()),
+            anchors: AnchorMeans::over(&frames),
             psnr_person,
             ssim_person,
             lpips_person,
@@ -345,6 +377,15 @@ impl EvalReport {
                     None => writeln!(s, "  {name:<12}{:>9}", "-"),
                 };
             }
+        }
+        if let Some(a) = &self.anchors {
+            let _ = writeln!(
+                s,
+                "anchors' protocol (HumanNeRF's table: whole frame, SSIM as scikit-image 0.19 on floats, LPIPS-VGG x1000): PSNR {:.2}  SSIM {:.4}  LPIPS-VGG {}",
+                a.psnr,
+                a.ssim,
+                num(a.lpips_vgg, 1)
+            );
         }
         for note in &self.notes {
             let _ = writeln!(s, "note: {note}");
