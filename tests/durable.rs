@@ -446,6 +446,7 @@ fn paths_that_are_not_utf8_round_trip() {
         size: 48,
         seed: 1,
         motion: None,
+        capture: None,
     };
     talkin::synth::generate(&cfg, &data, &mut |_, _| {}).unwrap();
     let dataset = Dataset::load(&data).unwrap();

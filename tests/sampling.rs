@@ -31,6 +31,7 @@ fn accelerated_sampling_keeps_every_training_surface_point() {
         size: 96,
         seed: 3,
         motion: None,
+        capture: None,
     };
     generate(&cfg, &dir, &mut |_, _| {}).unwrap();
     let dataset = Dataset::load(&dir).unwrap();

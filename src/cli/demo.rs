@@ -97,6 +97,10 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
         size: defaults.size,
         seed: args.seed,
         motion: None,
+        capture: false,
+        smooth_skin: 0.0,
+        fit_bias: "0,0".into(),
+        masks_only: false,
     })?;
     println!("== 2/4 validate it and write a contact sheet");
     inspect::run(InspectArgs {

@@ -1,5 +1,6 @@
-//! Camera framing: one frontal camera per identity, framed from mid-thigh up and widened
-//! until the head with its hair and both hands stay inside every frame.
+//! Camera framing: one frontal camera per identity, framed from mid-thigh up (or, for the
+//! capture-like scene, the whole body) and widened until the head with its hair and both
+//! hands (and then the feet) stay inside every frame.
 
 use glam::DVec3;
 
@@ -8,7 +9,7 @@ use talkin_human::body::{PosedSkeleton, Skeleton};
 use talkin_human::camera::{Camera, CameraError};
 
 /// Points that must stay inside the image: the head with its hair, the hands.
-fn keypoints(head_scale: f64, posed: &PosedSkeleton) -> Vec<DVec3> {
+fn keypoints(head_scale: f64, posed: &PosedSkeleton, full_body: bool) -> Vec<DVec3> {
     let mut pts = Vec::new();
     let head = &posed.world_from_joint[joint::HEAD];
     for off in [
@@ -21,8 +22,14 @@ fn keypoints(head_scale: f64, posed: &PosedSkeleton) -> Vec<DVec3> {
     ] {
         pts.push(head.transform_point3(off * head_scale));
     }
+    let feet: &[usize] = if full_body {
+        &[joint::LEFT_ANKLE, joint::RIGHT_ANKLE, joint::LEFT_FOOT, joint::RIGHT_FOOT]
+    } else {
+        &[]
+    };
     for j in [joint::LEFT_WRIST, joint::RIGHT_WRIST]
         .into_iter()
+        .chain(feet.iter().copied())
         .chain(joint::LEFT_HAND_FIRST..talkin_human::body::N_JOINTS)
     {
         pts.push(posed.joint(j));
@@ -40,18 +47,23 @@ fn keypoints(head_scale: f64, posed: &PosedSkeleton) -> Vec<DVec3> {
     pts
 }
 
-/// A frontal camera for one identity, framed from mid-thigh up and widened so every
-/// keypoint of every frame lies at least `margin` pixels inside.
+/// A frontal camera for one identity, framed from mid-thigh up (`full_body`: from below
+/// the feet, which then stay inside too) and widened so every keypoint of every frame lies
+/// at least `margin` pixels inside.
 pub(crate) fn frame_camera(
     skeleton: &Skeleton,
     head_scale: f64,
-    width: u32,
-    height: u32,
+    (width, height): (u32, u32),
     posed: &[PosedSkeleton],
     aim: DVec3,
+    full_body: bool,
 ) -> Result<Camera, CameraError> {
     let r = &skeleton.rest_joints;
-    let bottom = (r[joint::LEFT_HIP].y + r[joint::LEFT_KNEE].y) * 0.5;
+    let bottom = if full_body {
+        r[joint::LEFT_ANKLE].y - 0.1
+    } else {
+        (r[joint::LEFT_HIP].y + r[joint::LEFT_KNEE].y) * 0.5
+    };
     let top = r[joint::HEAD].y + 0.24 * head_scale;
     let centre = DVec3::new(0.0, (top + bottom) * 0.5, 0.0) + aim;
     let distance = 3.2;
@@ -62,7 +74,7 @@ pub(crate) fn frame_camera(
     let (half_w, half_h) = (width as f64 / 2.0 - margin, height as f64 / 2.0 - margin);
     let mut focal = f0;
     for p in posed {
-        for k in keypoints(head_scale, p) {
+        for k in keypoints(head_scale, p, full_body) {
             let c = probe.camera_from_world.transform_point3(k);
             if c.z > 0.1 {
                 focal = focal

@@ -29,6 +29,7 @@
 //! `time = index / 25`, the camera aimed at the clip's mean translation.
 
 pub mod body;
+pub mod capture;
 mod framing;
 mod plan;
 pub mod render;
@@ -45,6 +46,7 @@ use talkin_human::body::FrameParams;
 use talkin_human::camera::CameraError;
 
 pub use body::{default_rest_joints, look, proportions};
+pub use capture::{CAPTURE_FPS, CaptureConfig, TRUE_FITS_FILE, biased_fits, capture_clip};
 pub use talk::{FPS, Style, talking_clip};
 
 /// Background colour of every synthetic image (white), also the dataset's `background`.
@@ -63,6 +65,9 @@ pub struct SynthConfig {
     pub seed: u64,
     /// Render this motion instead of the built-in one (all frames `train`).
     pub motion: Option<Vec<FrameParams>>,
+    /// The capture-like scene ([`capture`]): its performance (unless `motion` is given),
+    /// the whole body in frame, and its flaws; `None`: the clean talking scene.
+    pub capture: Option<CaptureConfig>,
 }
 
 impl Default for SynthConfig {
@@ -73,11 +78,19 @@ impl Default for SynthConfig {
             size: 192,
             seed: 0,
             motion: None,
+            capture: None,
         }
     }
 }
 
 impl SynthConfig {
+    /// The authored person (proportions and look) identity `i` is: itself, and in the
+    /// capture-like scene the next one, so that its first identity wears a jacket and
+    /// trousers as people in captures mostly do (the first talking identity wears a skirt).
+    pub fn appearance(&self, i: usize) -> usize {
+        i + usize::from(self.capture.is_some())
+    }
+
     /// Image (width, height).
     pub fn image_size(&self) -> (u32, u32) {
         let w = ((self.size as f64 * 0.75 / 8.0).round() as u32 * 8).max(8);
@@ -148,7 +161,13 @@ pub fn generate(
 ) -> Result<Dataset, SynthError> {
     check(cfg)?;
     let (width, height) = cfg.image_size();
-    for dir in write::DIRS {
+    let masks_only = cfg.capture.is_some_and(|c| c.masks_only);
+    let dirs = if masks_only {
+        &write::DIRS[..2]
+    } else {
+        &write::DIRS[..]
+    };
+    for dir in dirs {
         let d = out.join(dir);
         std::fs::create_dir_all(&d).map_err(|source| SynthError::Io {
             file: d.clone(),
@@ -159,28 +178,33 @@ pub fn generate(
     let total = jobs.len();
     progress(0, total);
     let background = Vec3::from(BACKGROUND);
+    let smooth_skin = cfg.capture.map_or(0.0, |c| c.smooth_skin_m);
     let mut frames = Vec::with_capacity(total);
+    let mut true_fits = Vec::with_capacity(total);
     for (index, (job, camera)) in jobs.into_iter().enumerate() {
         let skeleton = &subjects[job.subject].skeleton;
         let fig = body::figure(
             skeleton,
-            &proportions(job.subject),
-            &look(job.subject),
+            &proportions(cfg.appearance(job.subject)),
+            &look(cfg.appearance(job.subject)),
             &job.params,
         );
         let posed = skeleton.pose(&job.params);
-        let img = render::Scene::new(&fig, &posed, background).render(&camera);
-        let paths = write::write_frame(out, index, &img, width, height)?;
+        let img = render::Scene::new(&fig, &posed, background)
+            .with_smooth_skin(smooth_skin)
+            .render(&camera);
+        let paths = write::write_frame(out, index, &img, (width, height), masks_only)?;
+        true_fits.push(job.params);
         frames.push(Frame {
             subject: job.subject,
             split: job.split,
             time: job.time,
             image: paths.image,
             mask: paths.mask,
-            segmentation: Some(paths.segmentation),
-            depth: Some(paths.depth),
+            segmentation: paths.segmentation,
+            depth: paths.depth,
             camera,
-            params: job.params,
+            params: job.fit,
         });
         progress(index + 1, total);
     }
@@ -195,5 +219,8 @@ pub fn generate(
         frames,
     };
     dataset.save_index()?;
+    if cfg.capture.is_some_and(|c| c.biased()) {
+        write::write_true_fits(&dataset, true_fits)?;
+    }
     Ok(dataset)
 }

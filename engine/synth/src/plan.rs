@@ -8,6 +8,7 @@ use talkin_data::dataset::{Split, Subject};
 use talkin_human::body::FrameParams;
 use talkin_human::camera::Camera;
 
+use crate::capture::{CAPTURE_FPS, biased_fits, capture_clip};
 use crate::framing::frame_camera;
 use crate::talk::{self, FPS, Style, talking_clip};
 use crate::{SynthConfig, SynthError, default_rest_joints, proportions};
@@ -26,7 +27,22 @@ pub(crate) struct Job {
     pub subject: usize,
     pub split: Split,
     pub time: f64,
+    /// The pose rendered.
     pub params: FrameParams,
+    /// The pose the dataset records: `params`, or the capture-like scene's biased fit.
+    pub fit: FrameParams,
+}
+
+impl Job {
+    fn exact(subject: usize, split: Split, time: f64, params: FrameParams) -> Job {
+        Job {
+            subject,
+            split,
+            time,
+            fit: params.clone(),
+            params,
+        }
+    }
 }
 
 fn mix(seed: u64, stream: u64) -> u64 {
@@ -62,12 +78,7 @@ fn builtin_jobs(cfg: &SynthConfig, i: usize) -> Vec<Job> {
         } else {
             Split::Train
         };
-        jobs.push(Job {
-            subject: i,
-            split,
-            time: s as f64 / FPS,
-            params,
-        });
+        jobs.push(Job::exact(i, split, s as f64 / FPS, params));
     }
     let k = eval_count(cfg.frames);
     // Another identity's motion (or, alone, another clip).
@@ -79,12 +90,12 @@ fn builtin_jobs(cfg: &SynthConfig, i: usize) -> Vec<Job> {
     let other_clip = talking_clip(mix(cfg.seed, other as u64), n, style_of(other));
     for c in 0..k {
         let s = (c * n) / k + (n / k) / 2;
-        jobs.push(Job {
-            subject: i,
-            split: Split::TestCross,
-            time: s as f64 / FPS,
-            params: other_clip[s].clone(),
-        });
+        jobs.push(Job::exact(
+            i,
+            Split::TestCross,
+            s as f64 / FPS,
+            other_clip[s].clone(),
+        ));
     }
     let ood_stride = 6;
     let ood = talking_clip(
@@ -97,12 +108,57 @@ fn builtin_jobs(cfg: &SynthConfig, i: usize) -> Vec<Job> {
     );
     for c in 0..k {
         let s = c * ood_stride + ood_stride / 2;
-        jobs.push(Job {
-            subject: i,
-            split: Split::TestOod,
-            time: s as f64 / FPS,
-            params: ood[s].clone(),
-        });
+        jobs.push(Job::exact(
+            i,
+            Split::TestOod,
+            s as f64 / FPS,
+            ood[s].clone(),
+        ));
+    }
+    jobs
+}
+
+/// The capture-like frames of identity `i` (`capture` module docs): a clip with every
+/// sixth frame `test_same`, then a separate wider clip for `test_ood`; each clip's fits
+/// biased as `cfg.capture` asks.
+fn capture_jobs(cfg: &SynthConfig, i: usize) -> Vec<Job> {
+    let capture = cfg.capture.unwrap_or_default();
+    let n = (cfg.frames..)
+        .find(|&n| n - (n + 1) / 6 >= cfg.frames)
+        .expect("unbounded");
+    let k = eval_count(cfg.frames);
+    let ood_stride = 6;
+    let clips = [
+        (capture_clip(mix(cfg.seed, 2000 + i as u64), n, false), 1),
+        (
+            capture_clip(mix(cfg.seed, 3000 + i as u64), k * ood_stride, true),
+            ood_stride,
+        ),
+    ];
+    let mut jobs = Vec::new();
+    for (c, (clip, stride)) in clips.into_iter().enumerate() {
+        let times: Vec<f64> = (0..clip.len()).map(|s| s as f64 / CAPTURE_FPS).collect();
+        let fits = biased_fits(
+            &clip,
+            &times,
+            capture.fit_bias_deg,
+            capture.fit_bias_m,
+            mix(cfg.seed, 4000 + 2 * i as u64 + c as u64),
+        );
+        for s in (0..clip.len()).skip(stride / 2).step_by(stride) {
+            let split = match c {
+                0 if s % 6 == 5 => Split::TestSame,
+                0 => Split::Train,
+                _ => Split::TestOod,
+            };
+            jobs.push(Job {
+                subject: i,
+                split,
+                time: times[s],
+                params: clip[s].clone(),
+                fit: fits[s].clone(),
+            });
+        }
     }
     jobs
 }
@@ -112,12 +168,7 @@ fn motion_jobs(motion: &[FrameParams], i: usize) -> Vec<Job> {
     motion
         .iter()
         .enumerate()
-        .map(|(k, p)| Job {
-            subject: i,
-            split: Split::Train,
-            time: k as f64 / FPS,
-            params: p.clone(),
-        })
+        .map(|(k, p)| Job::exact(i, Split::Train, k as f64 / FPS, p.clone()))
         .collect()
 }
 
@@ -134,11 +185,12 @@ pub(crate) fn plan(cfg: &SynthConfig) -> Result<Plan, SynthError> {
     let mut subjects = Vec::new();
     let mut planned: Vec<(Job, Camera)> = Vec::new();
     for i in 0..cfg.identities {
-        let skeleton = default_rest_joints(i);
-        let prop = proportions(i);
-        let jobs = match &cfg.motion {
-            None => builtin_jobs(cfg, i),
-            Some(m) => motion_jobs(m, i),
+        let skeleton = default_rest_joints(cfg.appearance(i));
+        let prop = proportions(cfg.appearance(i));
+        let jobs = match (&cfg.motion, cfg.capture) {
+            (Some(m), _) => motion_jobs(m, i),
+            (None, Some(_)) => capture_jobs(cfg, i),
+            (None, None) => builtin_jobs(cfg, i),
         };
         // A given motion may walk off: aim at where it stays on average.
         let aim = match &cfg.motion {
@@ -146,16 +198,21 @@ pub(crate) fn plan(cfg: &SynthConfig) -> Result<Plan, SynthError> {
             Some(m) => m.iter().map(|p| p.transl).sum::<DVec3>() / m.len() as f64,
         };
         let posed: Vec<_> = jobs.iter().map(|j| skeleton.pose(&j.params)).collect();
-        let camera =
-            frame_camera(&skeleton, prop.head, width, height, &posed, aim).map_err(|source| {
-                SynthError::Camera {
-                    identity: i,
-                    source,
-                }
-            })?;
+        let camera = frame_camera(
+            &skeleton,
+            prop.head,
+            (width, height),
+            &posed,
+            aim,
+            cfg.capture.is_some(),
+        )
+        .map_err(|source| SynthError::Camera {
+            identity: i,
+            source,
+        })?;
         planned.extend(jobs.into_iter().map(|j| (j, camera)));
         subjects.push(Subject {
-            name: subject_name(i),
+            name: subject_name(cfg.appearance(i)),
             skeleton,
         });
     }

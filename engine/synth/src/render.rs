@@ -44,6 +44,11 @@ pub struct Scene<'a> {
     placed: Vec<Placed>,
     light: Vec3,
     background: Vec3,
+    /// Smooth skinning: the width (metres) over which skin bends at a joint
+    /// ([`Scene::with_smooth_skin`]); `None`: every primitive rigid with its joint.
+    smooth: Option<f32>,
+    joint_rest_from_world: [Affine3A; N_JOINTS],
+    rest_joints: [Vec3; N_JOINTS],
 }
 
 /// A pixel's centre ray: what it hit, its shaded colour, its camera z.
@@ -79,12 +84,94 @@ impl<'a> Scene<'a> {
             placed,
             light: Vec3::new(-0.45, 0.65, 0.62).normalize(),
             background,
+            joint_rest_from_world: world_from_rest.map(|w| w.inverse()),
+            rest_joints: std::array::from_fn(|j| {
+                world_from_rest[j]
+                    .inverse()
+                    .transform_point3(posed.joint(j).as_vec3())
+            }),
+            smooth: None,
         }
+    }
+
+    /// The scene with skin that bends over `width` metres at every joint (the capture-like
+    /// scene's flaw; see [`Scene::rest_point`]); `width <= 0` keeps it rigid.
+    pub fn with_smooth_skin(mut self, width: f32) -> Self {
+        self.smooth = (width > 0.0).then_some(width);
+        self
+    }
+
+    /// The rest point of world point `p` under smooth skinning: the owner joint's rest
+    /// image (the joint of the nearest primitive, evaluated rigidly), blended with its
+    /// parent's and children's images near the joint they share: a neighbour weighs
+    /// `exp(-r^2 / 2 sigma^2)` against the owner's 1, `r` the owner image's distance from
+    /// the shared joint in rest space, so skin bends smoothly over a few centimetres at
+    /// every joint and moves rigidly elsewhere.
+    fn rest_point(&self, p: Vec3, cands: &[usize], sigma: f32) -> (Vec3, u64) {
+        use talkin_human::body::PARENTS;
+        let mut owner = (f32::INFINITY, usize::MAX);
+        for &i in cands {
+            let prim = &self.fig.prims[i];
+            let d = prim
+                .shape
+                .distance(self.placed[i].rest_from_world.transform_point3(p));
+            if d < owner.0 {
+                owner = (d, prim.joint);
+            }
+        }
+        let o = owner.1;
+        if o == usize::MAX {
+            return (p, 0);
+        }
+        let mut set = 1u64 << o;
+        let q = |j: usize| self.joint_rest_from_world[j].transform_point3(p);
+        let qo = q(o);
+        let inv = 1.0 / (2.0 * sigma * sigma);
+        let (mut acc, mut sum) = (qo, 1.0f32);
+        for n in 0..N_JOINTS {
+            let shared = if PARENTS[o] >= 0 && PARENTS[o] as usize == n {
+                o
+            } else if PARENTS[n] >= 0 && PARENTS[n] as usize == o {
+                n
+            } else {
+                continue;
+            };
+            let w = (-(qo - self.rest_joints[shared]).length_squared() * inv).exp();
+            set |= 1 << n;
+            if w > 1e-4 {
+                acc += q(n) * w;
+                sum += w;
+            }
+        }
+        (acc / sum, set)
     }
 
     /// Scene SDF at `p` over the candidate primitives; returns (distance, nearest prim).
     #[inline]
     fn sdf(&self, p: Vec3, cands: &[usize]) -> (f32, usize) {
+        if let Some(sigma) = self.smooth {
+            let (r, set) = self.rest_point(p, cands, sigma);
+            let mut d = f32::INFINITY;
+            let mut nearest = (f32::INFINITY, usize::MAX);
+            for &i in cands {
+                let prim = &self.fig.prims[i];
+                let di = if set >> prim.joint & 1 == 1 {
+                    prim.shape.distance(r)
+                } else {
+                    prim.shape
+                        .distance(self.placed[i].rest_from_world.transform_point3(p))
+                };
+                if di < nearest.0 {
+                    nearest = (di, i);
+                }
+                d = if d.is_finite() {
+                    super::sdf::smin(d, di, prim.blend)
+                } else {
+                    di
+                };
+            }
+            return (d, nearest.1);
+        }
         let mut d = f32::INFINITY;
         let mut nearest = (f32::INFINITY, usize::MAX);
         for &i in cands {
@@ -131,12 +218,12 @@ impl<'a> Scene<'a> {
 
     fn trace(&self, o: Vec3, dir: Vec3, cands: &mut Vec<usize>) -> Option<Hit> {
         let (mut t, t_end) = self.cull(o, dir, cands)?;
-        for _ in 0..MAX_STEPS {
+        for _ in 0..MAX_STEPS * if self.smooth.is_some() { 3 } else { 1 } {
             let (d, prim) = self.sdf(o + dir * t, cands);
             if d < HIT_EPS {
                 return Some(Hit { t, prim });
             }
-            t += d * 0.9;
+            t += d * if self.smooth.is_some() { 0.5 } else { 0.9 };
             if t > t_end {
                 return None;
             }
@@ -159,7 +246,12 @@ impl<'a> Scene<'a> {
         });
         let n = n.try_normalize().unwrap_or(-dir);
         let prim = &self.fig.prims[hit.prim];
-        let p_rest = self.placed[hit.prim].rest_from_world.transform_point3(p);
+        let p_rest = match self.smooth {
+            Some(sigma) if self.rest_point(p, cands, sigma).1 >> prim.joint & 1 == 1 => {
+                self.rest_point(p, cands, sigma).0
+            }
+            _ => self.placed[hit.prim].rest_from_world.transform_point3(p),
+        };
         let base = match prim.material {
             Material::Eye => {
                 let c = match prim.shape {

@@ -15,8 +15,9 @@ pub(crate) const DIRS: [&str; 4] = ["images", "masks", "segmentation", "depth"];
 pub(crate) struct FramePaths {
     pub image: PathBuf,
     pub mask: PathBuf,
-    pub segmentation: PathBuf,
-    pub depth: PathBuf,
+    /// `None` for a scene written with masks only.
+    pub segmentation: Option<PathBuf>,
+    pub depth: Option<PathBuf>,
 }
 
 fn png_err(file: &Path) -> impl Fn(image::ImageError) -> SynthError + '_ {
@@ -26,13 +27,14 @@ fn png_err(file: &Path) -> impl Fn(image::ImageError) -> SynthError + '_ {
     }
 }
 
-/// Writes frame `index` (a `w` x `h` render) under `out` and returns where.
+/// Writes frame `index` (a `w` x `h` render) under `out` and returns where; with
+/// `masks_only`, its image and mask alone (what a matting tool gives).
 pub(crate) fn write_frame(
     out: &Path,
     index: usize,
     img: &Rendered,
-    w: u32,
-    h: u32,
+    (w, h): (u32, u32),
+    masks_only: bool,
 ) -> Result<FramePaths, SynthError> {
     let name = format!("{index:05}.png");
     let rel = |dir: &str| PathBuf::from(dir).join(&name);
@@ -46,6 +48,14 @@ pub(crate) fn write_frame(
         .expect("buffer matches the camera")
         .save_with_format(&file, image::ImageFormat::Png)
         .map_err(png_err(&file))?;
+    if masks_only {
+        return Ok(FramePaths {
+            image: rel("images"),
+            mask: rel("masks"),
+            segmentation: None,
+            depth: None,
+        });
+    }
     let file = out.join(rel("segmentation"));
     image::GrayImage::from_raw(w, h, img.label.clone())
         .expect("buffer matches the camera")
@@ -71,7 +81,24 @@ pub(crate) fn write_frame(
     Ok(FramePaths {
         image: rel("images"),
         mask: rel("masks"),
-        segmentation: rel("segmentation"),
-        depth: rel("depth"),
+        segmentation: Some(rel("segmentation")),
+        depth: Some(rel("depth")),
     })
+}
+
+/// Writes `dataset` with each frame's pose replaced by the true one (`fits`, dataset
+/// order) beside `dataset.json` ([`crate::TRUE_FITS_FILE`]: the layout of `dataset.json`
+/// and of `talkin export-poses`), atomically.
+pub(crate) fn write_true_fits(
+    dataset: &talkin_data::dataset::Dataset,
+    fits: Vec<talkin_human::body::FrameParams>,
+) -> Result<(), SynthError> {
+    let mut truth = dataset.clone();
+    for (frame, fit) in truth.frames.iter_mut().zip(fits) {
+        frame.params = fit;
+    }
+    let file = dataset.root.join(crate::TRUE_FITS_FILE);
+    let text = serde_json::to_string_pretty(&truth.to_json()).expect("numbers and strings serialise");
+    talkin_data::atomic::write_atomic(&file, text.as_bytes())
+        .map_err(|source| SynthError::Io { file, source })
 }

@@ -13,6 +13,7 @@ fn derived_labels_agree_with_the_scenes_own() {
         size: 96,
         seed: 0,
         motion: None,
+        capture: None,
     };
     let ds = generate(&cfg, &dir, &mut |_, _| {}).unwrap();
     // confusion[true][derived] over person pixels.

@@ -10,7 +10,7 @@ use talkin_data::motion::{MotionError, load_motion};
 use talkin_data::params_json::ParamsJson;
 use talkin_human::body::skeleton::joint;
 use talkin_human::body::{FrameParams, limb_capsules};
-use talkin_synth::{SynthConfig, generate};
+use talkin_synth::{CaptureConfig, SynthConfig, TRUE_FITS_FILE, generate};
 
 fn temp_dir(name: &str) -> PathBuf {
     let d = std::env::temp_dir().join(format!("talkin-synth-test-{}-{name}", std::process::id()));
@@ -26,6 +26,7 @@ fn tiny() -> SynthConfig {
         size: 64,
         seed: 3,
         motion: None,
+        capture: None,
     }
 }
 
@@ -243,6 +244,7 @@ fn jaw_and_expressions_move_only_the_face() {
         size: 160,
         seed: 0,
         motion: Some(vec![pose, jaw, brows, smile, blink]),
+        capture: None,
     };
     let ds = generate(&cfg, &dir, &mut |_, _| {}).unwrap();
     let base = ds.images(0).unwrap();
@@ -304,6 +306,7 @@ fn generator_renders_a_given_motion() {
                 ..p
             },
         ]),
+        capture: None,
     };
     let ds = generate(&cfg, &dir, &mut |_, _| {}).unwrap();
     assert_eq!(ds.frames.len(), 2);
@@ -464,4 +467,104 @@ fn motion_files_load_and_fail_clearly() {
         "{e}"
     );
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// The capture-like scene: its splits, masks only, the whole body in frame, the fits off
+/// by about the asked RMS with the true poses beside them, and skin that bends.
+#[test]
+fn the_capture_scene_has_its_flaws_and_its_true_fits() {
+    let dir = temp_dir("capture");
+    let cfg = SynthConfig {
+        identities: 1,
+        frames: 10,
+        size: 96,
+        seed: 1,
+        motion: None,
+        capture: Some(CaptureConfig::default()),
+    };
+    let made = generate(&cfg, &dir, &mut |_, _| {}).unwrap();
+    let count = |s: Split| made.frames.iter().filter(|f| f.split == s).count();
+    assert_eq!(count(Split::Train), 10);
+    assert_eq!(count(Split::TestSame), 2);
+    assert!(count(Split::TestOod) >= 2);
+    // Masks only: no depth, no labels, no empty folders for them.
+    assert!(made.frames.iter().all(|f| f.depth.is_none() && f.segmentation.is_none()));
+    assert!(!dir.join("depth").exists() && !dir.join("segmentation").exists());
+    let loaded = Dataset::load(&dir).unwrap();
+    assert_eq!(loaded.frames.len(), made.frames.len());
+    // The true fits: the same frames, each pose off by a few degrees, no more.
+    let text = std::fs::read_to_string(dir.join(TRUE_FITS_FILE)).unwrap();
+    let doc: serde_json::Value = serde_json::from_str(&text).unwrap();
+    let truth = doc["frames"].as_array().unwrap();
+    assert_eq!(truth.len(), made.frames.len());
+    let mut sq = 0.0;
+    let mut n = 0.0;
+    for (frame, t) in made.frames.iter().zip(truth) {
+        let true_params = FrameParams::from_json(&t["params"], "params").unwrap();
+        for j in 0..21 {
+            let r = talkin_human::body::rotation_from_axis_angle(frame.params.body_pose[j]).transpose()
+                * talkin_human::body::rotation_from_axis_angle(true_params.body_pose[j]);
+            let e = talkin_human::body::axis_angle_from_rotation(r).length().to_degrees();
+            sq += e * e;
+            n += 1.0;
+        }
+    }
+    let rms = (sq / n).sqrt();
+    assert!((1.0..6.0).contains(&rms), "RMS offset {rms} degrees");
+    // The whole body in frame: both feet inside every image.
+    let skeleton = &made.subjects[0].skeleton;
+    for (frame, t) in made.frames.iter().zip(truth) {
+        let posed = skeleton.pose(&FrameParams::from_json(&t["params"], "params").unwrap());
+        for j in [joint::LEFT_FOOT, joint::RIGHT_FOOT, joint::HEAD] {
+            let px = frame.camera.project(posed.joint(j)).expect("in front of the camera");
+            assert!(
+                px.x > 0.0 && px.y > 0.0 && px.x < frame.camera.width as f64 && px.y < frame.camera.height as f64,
+                "joint {j} at {px:?}"
+            );
+        }
+    }
+}
+
+/// Skin that bends changes the image near the joints only: the same pose rendered rigid
+/// and with 4 cm of bend differs on a few percent of the person's pixels.
+#[test]
+fn smooth_skin_bends_the_joints_and_nothing_else() {
+    use talkin_synth::render::Scene;
+    let cfg = SynthConfig {
+        identities: 1,
+        frames: 10,
+        size: 160,
+        seed: 2,
+        motion: None,
+        capture: Some(CaptureConfig::clean()),
+    };
+    let dir = temp_dir("smooth");
+    let made = generate(&cfg, &dir, &mut |_, _| {}).unwrap();
+    let frame = &made.frames[3];
+    let skeleton = &made.subjects[0].skeleton;
+    let fig = talkin_synth::body::figure(
+        skeleton,
+        &talkin_synth::proportions(cfg.appearance(0)),
+        &talkin_synth::look(cfg.appearance(0)),
+        &frame.params,
+    );
+    let posed = skeleton.pose(&frame.params);
+    let rigid = Scene::new(&fig, &posed, Vec3::ONE).render(&frame.camera);
+    let bent = Scene::new(&fig, &posed, Vec3::ONE)
+        .with_smooth_skin(0.04)
+        .render(&frame.camera);
+    let person = rigid.label.iter().filter(|&&l| l > 0).count();
+    let changed = rigid
+        .label
+        .iter()
+        .zip(&bent.label)
+        .filter(|(a, b)| (**a > 0) != (**b > 0))
+        .count();
+    assert!(person > 500, "{person}");
+    let share = changed as f64 / person as f64;
+    assert!(share > 0.0 && share < 0.08, "{changed} of {person} pixels changed");
+    let unbent = Scene::new(&fig, &posed, Vec3::ONE)
+        .with_smooth_skin(0.0)
+        .render(&frame.camera);
+    assert_eq!(unbent.rgb, rigid.rgb, "a width of 0 is the rigid scene");
 }
