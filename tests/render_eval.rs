@@ -271,6 +271,19 @@ fn eval_over_black_composites_the_truth_and_the_render() {
         let psnr = report["psnr"].as_f64().unwrap();
         assert!(psnr > 8.0 && psnr < PSNR_CAP_DB, "{report}");
     }
+    // A capture is also scored by the anchors' protocol: the whole frame's PSNR, SSIM at
+    // scikit-image 0.19's float range (above the engine's range-1 SSIM on the same
+    // frames), LPIPS-VGG where its weights are installed; off on request.
+    let anchors = &default["anchors"];
+    assert_eq!(anchors["psnr"], default["psnr"]);
+    assert_eq!(anchors["ssim_data_range"], 2.0);
+    let ssim = anchors["ssim"].as_f64().unwrap();
+    assert!(ssim > default["ssim"].as_f64().unwrap() - 0.05 && ssim <= 1.0, "{anchors}");
+    if lpips_dir().join("vgg.safetensors").exists() {
+        assert!(anchors["lpips_vgg"].as_f64().unwrap() > 0.0, "{anchors}");
+    }
+    let off = report("anchors_off", &["--anchors", "off"]);
+    assert!(off["anchors"].is_null() && off["frames"][0]["anchors"].is_null());
     let png = image::open(black["frames"][0]["render"].as_str().unwrap())
         .unwrap()
         .to_rgb8();
