@@ -257,3 +257,26 @@ fn jittery_fits_learn_at_the_jitter_rate_and_smooth_ones_at_the_base_rate() {
         "smooth body moved {moved}"
     );
 }
+
+#[test]
+fn frames_seconds_apart_are_not_neighbours() {
+    // Jitter-like differences between frames 2 s apart: a body's motion, not a fitter's
+    // noise. Nothing pulls them together, however often they are visited.
+    let mut data = dataset(5, &canonical_params());
+    for (i, f) in data.frames.iter_mut().enumerate() {
+        f.time = 2.0 * i as f64;
+        if i % 2 == 1 {
+            f.params.body_pose[3].x += 0.2;
+        }
+    }
+    let smoothing = RefineOptions {
+        pose_smooth: 0.5,
+        pose_prior: 0.0,
+        ..opts()
+    };
+    let mut r = PoseRefiner::new(&data, &[0, 1, 2, 3, 4], smoothing);
+    for _ in 0..10 {
+        r.update(1, None);
+    }
+    assert!(r.delta_of(1).unwrap().iter().all(|&v| v == 0.0));
+}
