@@ -278,7 +278,10 @@ fn eval_over_black_composites_the_truth_and_the_render() {
     assert_eq!(anchors["psnr"], default["psnr"]);
     assert_eq!(anchors["ssim_data_range"], 2.0);
     let ssim = anchors["ssim"].as_f64().unwrap();
-    assert!(ssim > default["ssim"].as_f64().unwrap() - 0.05 && ssim <= 1.0, "{anchors}");
+    assert!(
+        ssim > default["ssim"].as_f64().unwrap() - 0.05 && ssim <= 1.0,
+        "{anchors}"
+    );
     if lpips_dir().join("vgg.safetensors").exists() {
         assert!(anchors["lpips_vgg"].as_f64().unwrap() > 0.0, "{anchors}");
     }

@@ -27,6 +27,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         size: env("SIZE", 128) as u32,
         seed: 0,
         motion: None,
+        capture: None,
     };
     // Scene generation is set-up, outside every timed part.
     generate(&cfg, &dir, &mut |_, _| {})?;

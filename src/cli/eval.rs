@@ -99,9 +99,7 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
         renders_dir: Some(staging.path().to_path_buf()),
         lpips_dir: Some(args.lpips_dir.clone()),
         smooth: args.smooth,
-        anchors: args
-            .anchors
-            .unwrap_or(dataset.matting == Matting::ByMask),
+        anchors: args.anchors.unwrap_or(dataset.matting == Matting::ByMask),
     };
     let progress = Progress::new("evaluating", frames.len(), "frames");
     let mut report = evaluate_with_progress(&avatar, &dataset, &frames, &opts, &mut |done, _| {

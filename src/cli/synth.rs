@@ -42,7 +42,12 @@ pub struct SynthArgs {
     pub smooth_skin: f32,
     /// With --capture: the fits' smooth offset, the RMS degrees of every joint's rotation
     /// and the RMS metres of the translation (`0,0`: exact fits).
-    #[arg(long, value_name = "DEG,M", requires = "capture", default_value = "3,0.01")]
+    #[arg(
+        long,
+        value_name = "DEG,M",
+        requires = "capture",
+        default_value = "3,0.01"
+    )]
     pub fit_bias: String,
     /// With --capture: write masks only, no depth and no segmentation labels (`on`), as a
     /// matting tool gives, or all four (`off`).
@@ -64,7 +69,14 @@ fn capture_config(args: &SynthArgs) -> anyhow::Result<Option<synth::CaptureConfi
     let parts: Vec<&str> = args.fit_bias.split(',').map(str::trim).collect();
     let numbers: Option<Vec<f64>> = parts.iter().map(|p| p.parse().ok()).collect();
     let (deg, m) = match numbers.as_deref() {
-        Some(&[d, m]) if d.is_finite() && m.is_finite() && (0.0..=30.0).contains(&d) && (0.0..=0.2).contains(&m) => (d, m),
+        Some(&[d, m])
+            if d.is_finite()
+                && m.is_finite()
+                && (0.0..=30.0).contains(&d)
+                && (0.0..=0.2).contains(&m) =>
+        {
+            (d, m)
+        }
         _ => bail!(
             "--fit-bias: expected DEG,M (degrees in [0, 30], metres in [0, 0.2]), got `{}`",
             args.fit_bias

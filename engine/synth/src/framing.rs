@@ -23,7 +23,12 @@ fn keypoints(head_scale: f64, posed: &PosedSkeleton, full_body: bool) -> Vec<DVe
         pts.push(head.transform_point3(off * head_scale));
     }
     let feet: &[usize] = if full_body {
-        &[joint::LEFT_ANKLE, joint::RIGHT_ANKLE, joint::LEFT_FOOT, joint::RIGHT_FOOT]
+        &[
+            joint::LEFT_ANKLE,
+            joint::RIGHT_ANKLE,
+            joint::LEFT_FOOT,
+            joint::RIGHT_FOOT,
+        ]
     } else {
         &[]
     };

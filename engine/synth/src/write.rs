@@ -98,7 +98,8 @@ pub(crate) fn write_true_fits(
         frame.params = fit;
     }
     let file = dataset.root.join(crate::TRUE_FITS_FILE);
-    let text = serde_json::to_string_pretty(&truth.to_json()).expect("numbers and strings serialise");
+    let text =
+        serde_json::to_string_pretty(&truth.to_json()).expect("numbers and strings serialise");
     talkin_data::atomic::write_atomic(&file, text.as_bytes())
         .map_err(|source| SynthError::Io { file, source })
 }

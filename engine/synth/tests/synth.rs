@@ -488,7 +488,11 @@ fn the_capture_scene_has_its_flaws_and_its_true_fits() {
     assert_eq!(count(Split::TestSame), 2);
     assert!(count(Split::TestOod) >= 2);
     // Masks only: no depth, no labels, no empty folders for them.
-    assert!(made.frames.iter().all(|f| f.depth.is_none() && f.segmentation.is_none()));
+    assert!(
+        made.frames
+            .iter()
+            .all(|f| f.depth.is_none() && f.segmentation.is_none())
+    );
     assert!(!dir.join("depth").exists() && !dir.join("segmentation").exists());
     let loaded = Dataset::load(&dir).unwrap();
     assert_eq!(loaded.frames.len(), made.frames.len());
@@ -502,9 +506,12 @@ fn the_capture_scene_has_its_flaws_and_its_true_fits() {
     for (frame, t) in made.frames.iter().zip(truth) {
         let true_params = FrameParams::from_json(&t["params"], "params").unwrap();
         for j in 0..21 {
-            let r = talkin_human::body::rotation_from_axis_angle(frame.params.body_pose[j]).transpose()
+            let r = talkin_human::body::rotation_from_axis_angle(frame.params.body_pose[j])
+                .transpose()
                 * talkin_human::body::rotation_from_axis_angle(true_params.body_pose[j]);
-            let e = talkin_human::body::axis_angle_from_rotation(r).length().to_degrees();
+            let e = talkin_human::body::axis_angle_from_rotation(r)
+                .length()
+                .to_degrees();
             sq += e * e;
             n += 1.0;
         }
@@ -516,9 +523,15 @@ fn the_capture_scene_has_its_flaws_and_its_true_fits() {
     for (frame, t) in made.frames.iter().zip(truth) {
         let posed = skeleton.pose(&FrameParams::from_json(&t["params"], "params").unwrap());
         for j in [joint::LEFT_FOOT, joint::RIGHT_FOOT, joint::HEAD] {
-            let px = frame.camera.project(posed.joint(j)).expect("in front of the camera");
+            let px = frame
+                .camera
+                .project(posed.joint(j))
+                .expect("in front of the camera");
             assert!(
-                px.x > 0.0 && px.y > 0.0 && px.x < frame.camera.width as f64 && px.y < frame.camera.height as f64,
+                px.x > 0.0
+                    && px.y > 0.0
+                    && px.x < frame.camera.width as f64
+                    && px.y < frame.camera.height as f64,
                 "joint {j} at {px:?}"
             );
         }
@@ -562,7 +575,10 @@ fn smooth_skin_bends_the_joints_and_nothing_else() {
         .count();
     assert!(person > 500, "{person}");
     let share = changed as f64 / person as f64;
-    assert!(share > 0.0 && share < 0.08, "{changed} of {person} pixels changed");
+    assert!(
+        share > 0.0 && share < 0.08,
+        "{changed} of {person} pixels changed"
+    );
     let unbent = Scene::new(&fig, &posed, Vec3::ONE)
         .with_smooth_skin(0.0)
         .render(&frame.camera);

@@ -67,9 +67,8 @@ pub fn ssim_skimage(a: &RgbImage, b: &RgbImage, data_range: f64) -> Option<f64> 
     let (wo, ho) = (w + 1 - WINDOW, h + 1 - WINDOW);
     let mut total = 0.0;
     for c in 0..3 {
-        let plane = |img: &RgbImage| -> Vec<f64> {
-            img.pixels().map(|p| p.0[c] as f64 / 255.0).collect()
-        };
+        let plane =
+            |img: &RgbImage| -> Vec<f64> { img.pixels().map(|p| p.0[c] as f64 / 255.0).collect() };
         let (x, y) = (plane(a), plane(b));
         let box_mean = |f: &dyn Fn(usize) -> f64| -> Vec<f64> {
             // Rows, then columns: sums of 7, divided by 49.
@@ -82,8 +81,7 @@ pub fn ssim_skimage(a: &RgbImage, b: &RgbImage, data_range: f64) -> Option<f64> 
             let mut out = vec![0.0; ho * wo];
             for r in 0..ho {
                 for k in 0..wo {
-                    out[r * wo + k] =
-                        (0..WINDOW).map(|d| rows[(r + d) * wo + k]).sum::<f64>() / np;
+                    out[r * wo + k] = (0..WINDOW).map(|d| rows[(r + d) * wo + k]).sum::<f64>() / np;
                 }
             }
             out
