@@ -36,11 +36,6 @@ impl RayIntervals {
     pub fn of_ray(&self, i: usize) -> &[Interval] {
         &self.intervals[self.range(i)]
     }
-
-    /// Whether ray `i` meets any capsule.
-    pub fn is_hit(&self, i: usize) -> bool {
-        !self.range(i).is_empty()
-    }
 }
 
 /// Sorts `hits` by entry and appends their union to `out` as disjoint intervals;

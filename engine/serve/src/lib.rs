@@ -162,22 +162,6 @@ impl Loaded {
 }
 
 impl Server {
-    /// Loads the newest checkpoint of `run` (and the SMPL-X `body_model` file, if given,
-    /// for posted motion files) and starts serving it on `addr`. The listener is up (and
-    /// `/health` answers 503, loading) from before the checkpoint loads: use
-    /// [`Server::bind`] and [`Server::load`] to see the address in between.
-    pub fn load_and_start(
-        run: &Path,
-        body_model: Option<&Path>,
-        addr: &str,
-        config: ServeConfig,
-        device: ComputeDevice,
-    ) -> Result<Server, ServeError> {
-        let server = Server::bind(addr, config)?;
-        server.load(run, body_model, device)?;
-        Ok(server)
-    }
-
     /// Serves `avatar` on `addr` (`127.0.0.1:0` picks a free port; see [`Server::addr`]).
     /// Returns once the socket is bound.
     pub fn start(

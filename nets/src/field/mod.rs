@@ -17,7 +17,7 @@ use crate::render::{
     render_weighted,
 };
 use crate::rows::{add_rows, gather_rows};
-use crate::skinning::{BlendWeightVolume, N_SMPLX_JOINTS, RigidWarp};
+use crate::skinning::{BlendWeightVolume, N_SMPLX_JOINTS};
 use crate::util::{floats, ints, softplus};
 
 mod config;
@@ -321,22 +321,6 @@ impl TalkinField {
         let index = self.settings.n_identities;
         self.settings.n_identities += 1;
         (self, index)
-    }
-
-    /// D_r alone (e.g. for the engine's occupancy test before the full forward).
-    pub fn rigid_warp(
-        &self,
-        points: &[[f32; 3]],
-        bone_masks: &[u64],
-        frame: &FrameConditions,
-    ) -> Result<RigidWarp, NetsError> {
-        self.skinning.inverse_lbs(
-            points,
-            bone_masks,
-            &frame.canonical_from_posed,
-            &frame.bone_capsules,
-            &self.device(),
-        )
     }
 
     /// The field's pose dimension (D_nr's body-pose condition).

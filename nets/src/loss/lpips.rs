@@ -249,15 +249,6 @@ impl Lpips {
         Ok(lpips.no_grad())
     }
 
-    /// Loads `dir/<backbone.file_name()>`.
-    pub fn load_from_dir(
-        dir: &Path,
-        backbone: Backbone,
-        device: &Device,
-    ) -> Result<Lpips, LossError> {
-        Self::load(&dir.join(backbone.file_name()), backbone, device)
-    }
-
     /// The backbone these weights belong to.
     pub fn backbone(&self) -> Backbone {
         self.backbone

@@ -94,14 +94,6 @@ impl Value {
         }
     }
 
-    /// The elements of a list or tuple.
-    pub fn as_seq(&self) -> Option<&[Value]> {
-        match self {
-            Value::List(v) | Value::Tuple(v) => Some(v),
-            _ => None,
-        }
-    }
-
     pub fn as_array(&self) -> Option<&NdArray> {
         match self {
             Value::Array(a) => Some(a),
@@ -123,14 +115,6 @@ impl Value {
             Value::Int(i) => Some(*i as f64),
             Value::Bool(b) => Some(f64::from(u8::from(*b))),
             Value::Array(a) => a.scalar_f64(),
-            _ => None,
-        }
-    }
-
-    pub fn as_i64(&self) -> Option<i64> {
-        match self {
-            Value::Int(i) => Some(*i),
-            Value::Bool(b) => Some(i64::from(*b)),
             _ => None,
         }
     }

@@ -5,7 +5,7 @@ use std::ops::Range;
 use std::time::Instant;
 
 use burn::prelude::*;
-use image::{GrayImage, RgbImage};
+use image::RgbImage;
 use rayon::prelude::*;
 use talkin_avatar::field_inputs::{frame_conditions, packed_layout};
 use talkin_avatar::scene::{FrameSampler, FrameScene};
@@ -80,16 +80,6 @@ impl RenderedFrame {
             .map(|v| (v.clamp(0.0, 1.0) * 255.0).round() as u8)
             .collect();
         RgbImage::from_raw(self.width, self.height, bytes).expect("w * h * 3 values")
-    }
-
-    /// The opacity as an 8-bit mask.
-    pub fn mask_image(&self) -> GrayImage {
-        let bytes = self
-            .opacity
-            .iter()
-            .map(|v| (v.clamp(0.0, 1.0) * 255.0).round() as u8)
-            .collect();
-        GrayImage::from_raw(self.width, self.height, bytes).expect("w * h values")
     }
 }
 
