@@ -180,11 +180,11 @@ mod tests {
     use glam::vec3;
 
     use super::*;
-    use crate::rng::SplitMix;
+    use crate::rng::SplitMix64;
 
     /// A reproducible point stream in a box.
     fn points(n: usize, lo: Vec3, hi: Vec3) -> Vec<Vec3> {
-        let mut rng = SplitMix::new(5, 0);
+        let mut rng = SplitMix64::for_stream(5, 0);
         (0..n)
             .map(|_| lo + (hi - lo) * vec3(rng.next_f32(), rng.next_f32(), rng.next_f32()))
             .collect()

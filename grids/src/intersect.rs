@@ -380,7 +380,7 @@ pub(crate) mod tests {
     /// aimed at the ends, at the middle and along the axis.
     #[test]
     fn intervals_match_the_sampled_distance() {
-        let mut rng = crate::rng::SplitMix::new(41, 0);
+        let mut rng = crate::rng::SplitMix64::for_stream(41, 0);
         let mut p = || vec3(rng.next_f32(), rng.next_f32(), rng.next_f32()) - 0.5;
         let (mut inside, mut hits) = (0, 0);
         for k in 0..200 {
@@ -464,7 +464,7 @@ pub(crate) mod tests {
     /// picks one piece over the other).
     #[test]
     fn cylinder_first_matches_the_union_of_pieces() {
-        let mut rng = crate::rng::SplitMix::new(43, 0);
+        let mut rng = crate::rng::SplitMix64::for_stream(43, 0);
         let mut p = || vec3(rng.next_f32(), rng.next_f32(), rng.next_f32()) - 0.5;
         let mut compared = 0;
         for _ in 0..300 {

@@ -18,7 +18,8 @@
 //! - Packed output: flat per-item arrays plus `ray_offsets` (`rays + 1` entries), as in
 //!   nerfacc; no padding ([`PackedSamples`], [`RayIntervals`]).
 //! - Randomness is a pure function of a `u64` seed and the ray or cell index: results do
-//!   not depend on thread count.
+//!   not depend on thread count. [`SplitMix64`] is the workspace's one generator; the
+//!   crates above draw from it too.
 //!
 //! # One frame
 //! 1. Once per subject: [`fit_part_margins`] on the training masks' foreground rays gives
@@ -94,6 +95,7 @@ pub use margins::{
 };
 pub use occupancy::{OccUpdateOpts, OccUpdateReport, OccupancyGrid};
 pub use ray::Ray;
+pub use rng::SplitMix64;
 pub use sampler::SamplerKind;
 pub use sampler_accelerated::AcceleratedSampler;
 pub use sampler_dense::{DenseOpts, sample_dense};

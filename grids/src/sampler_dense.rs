@@ -6,7 +6,7 @@ use serde::{Deserialize, Serialize};
 use rayon::prelude::*;
 
 use crate::ray::{clip_to_box, validate_rays};
-use crate::rng::SplitMix;
+use crate::rng::SplitMix64;
 use crate::samples::{ALL_BONES, ALL_PARTS, PackedSamples, stratified_bins};
 use crate::{GridError, Ray};
 
@@ -75,7 +75,7 @@ pub fn sample_dense(
         .zip(t_end.par_chunks_mut(n))
         .zip(hit.par_iter())
         .for_each(|((starts, ends), &(i, (t0, t1)))| {
-            let mut rng = SplitMix::new(opts.seed, i as u64);
+            let mut rng = SplitMix64::for_stream(opts.seed, i as u64);
             let rng = opts.jitter.then_some(&mut rng);
             let mut k = 0;
             stratified_bins(t0, t1, opts.samples_per_ray, rng, |a, b| {

@@ -9,7 +9,7 @@ use serde::{Deserialize, Serialize};
 use crate::intervals::{candidates_at, merge_hits};
 use crate::packing::par_pack_samples;
 use crate::ray::validate_rays;
-use crate::rng::SplitMix;
+use crate::rng::SplitMix64;
 use crate::samples::{PackedSamples, Sample, stratified_bins};
 use crate::{CapsuleBvh, GridError, OccupancyGrid, Ray};
 
@@ -89,7 +89,7 @@ pub fn sample_in_capsules_before(
             intervals.clear();
             bvh.for_each_hit(&rays[i], |h| hits.push(h));
             merge_hits(hits, capsules, intervals);
-            let mut rng = SplitMix::new(opts.seed, i as u64);
+            let mut rng = SplitMix64::for_stream(opts.seed, i as u64);
             let stop = t_stop.map_or(f32::INFINITY, |s| s[i]);
             for v in intervals.iter() {
                 if !(v.t_in < stop) {

@@ -5,7 +5,7 @@ use std::ops::Range;
 use glam::Vec3;
 use rayon::prelude::*;
 
-use crate::rng::SplitMix;
+use crate::rng::SplitMix64;
 use crate::{GridError, Ray};
 
 /// Candidate-part mask with every part set: nothing is known about the sample.
@@ -224,7 +224,7 @@ pub(crate) fn stratified_bins(
     t0: f32,
     t1: f32,
     n: u32,
-    mut rng: Option<&mut SplitMix>,
+    mut rng: Option<&mut SplitMix64>,
     mut emit: impl FnMut(f32, f32),
 ) {
     let width = (t1 - t0) / n as f32;

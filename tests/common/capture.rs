@@ -11,6 +11,7 @@
 use std::io::Cursor;
 
 use image::{GrayImage, RgbImage};
+use talkin_grids::SplitMix64;
 
 use super::layouts::{Clip, FramePixels};
 pub use talkin_data::dataset::dilate;
@@ -139,7 +140,7 @@ impl Capture {
         // One stream for the sensor and one for the matting tool: turning one flaw off
         // leaves the others where they were.
         let frame_seed = self.seed ^ (0x9e37_79b9 * (i as u64 + 1));
-        let (mut rng, mut mask_rng) = (Rng::new(frame_seed), Rng::new(!frame_seed));
+        let (mut rng, mut mask_rng) = (SplitMix64::new(frame_seed), SplitMix64::new(!frame_seed));
         let rgb = RgbImage::from_fn(w, h, |x, y| {
             let clean = f.rgb.get_pixel(x, y).0.map(|c| f32::from(c) / 255.0);
             // The scene's pixel is a x person + (1 - a) x white, a its coverage: the room
@@ -153,7 +154,7 @@ impl Capture {
                 None => clean,
             };
             image::Rgb(seen.map(|c| {
-                let v = 255.0 * c * self.gain + self.noise * rng.normal();
+                let v = 255.0 * c * self.gain + self.noise * normal(&mut rng);
                 v.round().clamp(0.0, 255.0) as u8
             }))
         });
@@ -215,7 +216,7 @@ fn upscaled(f: &FramePixels, scale: u32) -> FramePixels {
 
 impl MaskFlaws {
     /// Frame `i`'s mask as the matting tool gives it, from the exact `mask`.
-    fn apply(&self, i: usize, mask: &GrayImage, rng: &mut Rng) -> GrayImage {
+    fn apply(&self, i: usize, mask: &GrayImage, rng: &mut SplitMix64) -> GrayImage {
         let (w, h) = mask.dimensions();
         let holed = self.hole_px > 0 && self.holes_every > 0 && i.is_multiple_of(self.holes_every);
         let grow = match self.grow_px.len() {
@@ -250,7 +251,7 @@ impl MaskFlaws {
                 .filter(|&k| !near_edge[k] && inside_frame(k))
                 .collect();
             if !deep.is_empty() {
-                let at = deep[rng.below(deep.len())];
+                let at = deep[rng.below(deep.len() as u64) as usize];
                 let (cx, cy) = ((at % w as usize) as i64, (at / w as usize) as i64);
                 let r = i64::from(self.hole_px);
                 for y in cy - r..=cy + r {
@@ -287,23 +288,23 @@ impl MaskFlaws {
 /// shading into a warm floor, stripes on the wall, a checked floor, blobs of furniture
 /// and a lamp's bright spot, all placed by `seed`.
 pub fn room(w: u32, h: u32, seed: u64) -> Vec<[f32; 3]> {
-    let mut rng = Rng::new(seed);
+    let mut rng = SplitMix64::new(seed);
     let (wf, hf) = (w as f32, h as f32);
     let blobs: Vec<([f32; 2], f32, [f32; 3])> = (0..6)
         .map(|_| {
-            let centre = [rng.unit() * wf, rng.unit() * hf];
-            let radius = (0.05 + 0.1 * rng.unit()) * hf;
+            let centre = [rng.next_f32() * wf, rng.next_f32() * hf];
+            let radius = (0.05 + 0.1 * rng.next_f32()) * hf;
             let colour = [
-                0.1 + 0.5 * rng.unit(),
-                0.1 + 0.5 * rng.unit(),
-                0.1 + 0.5 * rng.unit(),
+                0.1 + 0.5 * rng.next_f32(),
+                0.1 + 0.5 * rng.next_f32(),
+                0.1 + 0.5 * rng.next_f32(),
             ];
             (centre, radius, colour)
         })
         .collect();
     let lamp = [
-        (0.1 + 0.8 * rng.unit()) * wf,
-        (0.05 + 0.2 * rng.unit()) * hf,
+        (0.1 + 0.8 * rng.next_f32()) * wf,
+        (0.05 + 0.2 * rng.next_f32()) * hf,
     ];
     let floor = 0.7 * hf;
     let mut out = Vec::with_capacity((w * h) as usize);
@@ -366,35 +367,9 @@ fn blur(v: &[f32], w: u32, h: u32, s: f32) -> Vec<f32> {
     pass(&pass(v, true), false)
 }
 
-/// SplitMix64: small, seeded, the same numbers on every platform.
-struct Rng(u64);
-
-impl Rng {
-    fn new(seed: u64) -> Rng {
-        Rng(seed)
-    }
-
-    fn next(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-        z ^ (z >> 31)
-    }
-
-    /// Uniform in [0, 1).
-    fn unit(&mut self) -> f32 {
-        (self.next() >> 40) as f32 / (1u64 << 24) as f32
-    }
-
-    fn below(&mut self, n: usize) -> usize {
-        (self.next() % n as u64) as usize
-    }
-
-    /// Standard normal (Box-Muller).
-    fn normal(&mut self) -> f32 {
-        let u = 1.0 - self.unit();
-        let v = self.unit();
-        (-2.0 * u.ln()).sqrt() * (std::f32::consts::TAU * v).cos()
-    }
+/// Standard normal (Box-Muller).
+fn normal(rng: &mut SplitMix64) -> f32 {
+    let u = 1.0 - rng.next_f32();
+    let v = rng.next_f32();
+    (-2.0 * u.ln()).sqrt() * (std::f32::consts::TAU * v).cos()
 }

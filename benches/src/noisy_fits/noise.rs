@@ -2,10 +2,10 @@
 //! the truth.
 
 use glam::DVec3;
+use talkin_grids::SplitMix64;
 use talkin_human::body::{
     FrameParams, Skeleton, axis_angle_from_rotation, rotation_from_axis_angle,
 };
-use talkin_train::SplitMix64;
 
 /// Translation noise (RMS, metres) at 6 degrees; it scales with the level.
 pub const TRANSL_RMS_AT_6_DEG_M: f64 = 0.02;

@@ -20,7 +20,8 @@
 
 use glam::DVec3;
 
-use crate::talk::{SplitMix, Style, talking_clip};
+use crate::talk::{Style, scene_rng, talking_clip};
+use talkin_grids::SplitMix64;
 use talkin_human::body::skeleton::joint::*;
 use talkin_human::body::{FrameParams, axis_angle_from_rotation, rotation_from_axis_angle};
 
@@ -83,12 +84,12 @@ struct Drift {
 }
 
 impl Drift {
-    fn new(rng: &mut SplitMix) -> Drift {
+    fn new(rng: &mut SplitMix64) -> Drift {
         let parts = [2.5, 6.0, 15.0].map(|period| {
             (
-                rng.range(-1.0, 1.0),
+                rng.uniform(-1.0, 1.0),
                 std::f64::consts::TAU / period,
-                rng.range(0.0, std::f64::consts::TAU),
+                rng.uniform(0.0, std::f64::consts::TAU),
             )
         });
         // The RMS over time of a sum of sinusoids: sqrt(sum a^2 / 2).
@@ -132,36 +133,33 @@ pub fn capture_clip(seed: u64, n: usize, wide: bool) -> Vec<FrameParams> {
             wide: true,
         },
     );
-    let mut rng = SplitMix::new(seed ^ 0xC0A7_0000_0000_0001);
+    let mut rng = scene_rng(seed ^ 0xC0A7_0000_0000_0001);
     let mut kicks = Vec::new();
-    let mut t = rng.range(0.5, 1.5);
+    let mut t = rng.uniform(0.5, 1.5);
     while t < duration {
         let big = if wide { 1.4 } else { 1.0 };
         kicks.push(Kick {
             start: t,
-            duration: rng.range(1.0, 1.8),
-            side: (rng.unit() < 0.5) as usize,
-            lift: rng.range(0.8, 1.3) * big,
-            sideways: rng.range(0.0, 0.5),
-            knee: rng.range(0.1, 0.9),
+            duration: rng.uniform(1.0, 1.8),
+            side: (rng.next_f64() < 0.5) as usize,
+            lift: rng.uniform(0.8, 1.3) * big,
+            sideways: rng.uniform(0.0, 0.5),
+            knee: rng.uniform(0.1, 0.9),
         });
-        t += rng.range(2.0, 3.5);
+        t += rng.uniform(2.0, 3.5);
     }
     let sway = Drift::new(&mut rng);
-    let turn_start = rng.range(0.0, std::f64::consts::TAU);
+    let turn_start = rng.uniform(0.0, std::f64::consts::TAU);
     upper
         .into_iter()
         .enumerate()
         .map(|(i, mut p)| {
             let t = i as f64 / CAPTURE_FPS;
             // One full turn over the clip, at an uneven pace.
-            let yaw = turn_start
-                + std::f64::consts::TAU * t / duration
-                + 0.25 * sway.at(t);
+            let yaw = turn_start + std::f64::consts::TAU * t / duration + 0.25 * sway.at(t);
             let talk_orient = rotation_from_axis_angle(p.global_orient);
-            p.global_orient = axis_angle_from_rotation(
-                glam::DMat3::from_rotation_y(yaw) * talk_orient,
-            );
+            p.global_orient =
+                axis_angle_from_rotation(glam::DMat3::from_rotation_y(yaw) * talk_orient);
             // Knees a little soft; a kick raises one leg and bends its knee.
             for side in 0..2 {
                 p.body_pose[LEFT_KNEE + side - 1] = DVec3::new(0.12, 0.0, 0.0);
@@ -199,7 +197,7 @@ pub fn biased_fits(
     metres: f64,
     seed: u64,
 ) -> Vec<FrameParams> {
-    let mut rng = SplitMix::new(seed ^ 0xB1A5_0000_0000_0001);
+    let mut rng = scene_rng(seed ^ 0xB1A5_0000_0000_0001);
     // Per joint (orientation and 21 body joints) and axis, then translation per axis.
     let drifts: Vec<Drift> = (0..22 * 3 + 3).map(|_| Drift::new(&mut rng)).collect();
     // An RMS angle `deg` over three axes: each axis carries deg / sqrt(3).
@@ -223,11 +221,8 @@ pub fn biased_fits(
             for (j, r) in q.body_pose.iter_mut().enumerate() {
                 *r = turn(*r, offset(j + 1));
             }
-            q.transl += DVec3::new(
-                drifts[66].at(t),
-                drifts[67].at(t),
-                drifts[68].at(t),
-            ) * per_axis_m;
+            q.transl +=
+                DVec3::new(drifts[66].at(t), drifts[67].at(t), drifts[68].at(t)) * per_axis_m;
             q
         })
         .collect()

@@ -5,7 +5,8 @@
 //! talking motion, rendered by its own sphere tracer (independent of the engine's
 //! samplers) and written in dataset format v1.
 //!
-//! Must not know about training, rendering or the samplers: it writes what a user's
+//! Must not know about training, rendering or the samplers (of `talkin-grids` it takes
+//! only the workspace's generator, `SplitMix64`): it writes what a user's
 //! importer would, through `talkin-data`, and its ground truth never comes from the
 //! engine's own code paths.
 //!

@@ -46,7 +46,7 @@ impl Job {
 }
 
 fn mix(seed: u64, stream: u64) -> u64 {
-    talk::SplitMix::new(seed ^ stream.wrapping_mul(0xa076_1d64_78bd_642f)).next_u64()
+    talk::scene_rng(seed ^ stream.wrapping_mul(0xa076_1d64_78bd_642f)).next_u64()
 }
 
 /// The motion style of identity `i`'s built-in clip.

@@ -4,34 +4,19 @@
 
 use glam::{DMat3, DVec3};
 
+use talkin_grids::SplitMix64;
+
 use talkin_human::body::skeleton::joint::*;
 use talkin_human::body::{FrameParams, N_EXPRESSION, N_HAND_JOINTS, axis_angle_from_rotation};
 
 /// Frames per second of every generated clip.
 pub const FPS: f64 = 25.0;
 
-/// A tiny deterministic generator (SplitMix64): no global state, same numbers everywhere.
-#[derive(Clone, Debug)]
-pub struct SplitMix(u64);
-
-impl SplitMix {
-    pub fn new(seed: u64) -> Self {
-        Self(seed ^ 0x9e37_79b9_7f4a_7c15)
-    }
-    pub fn next_u64(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-        z ^ (z >> 31)
-    }
-    /// Uniform in [0, 1).
-    pub fn unit(&mut self) -> f64 {
-        (self.next_u64() >> 11) as f64 / (1u64 << 53) as f64
-    }
-    pub fn range(&mut self, lo: f64, hi: f64) -> f64 {
-        lo + (hi - lo) * self.unit()
-    }
+/// The scene's generator for `seed`: the workspace's SplitMix64, its state the seed with
+/// the golden-ratio increment XORed in (how every scene was seeded, so that they stay
+/// byte-identical).
+pub(crate) fn scene_rng(seed: u64) -> SplitMix64 {
+    SplitMix64::new(seed ^ 0x9e37_79b9_7f4a_7c15)
 }
 
 /// How wide the motion ranges are.
@@ -49,14 +34,14 @@ struct Wave {
 }
 
 impl Wave {
-    fn new(rng: &mut SplitMix, amplitude: f64, f_lo: f64, f_hi: f64) -> Self {
+    fn new(rng: &mut SplitMix64, amplitude: f64, f_lo: f64, f_hi: f64) -> Self {
         let parts = (0..3)
             .map(|k| {
                 let a = amplitude / (1.0 + k as f64);
                 (
                     a,
-                    rng.range(f_lo, f_hi),
-                    rng.range(0.0, std::f64::consts::TAU),
+                    rng.uniform(f_lo, f_hi),
+                    rng.uniform(0.0, std::f64::consts::TAU),
                 )
             })
             .collect();
@@ -82,15 +67,15 @@ struct Keys<const N: usize> {
 
 impl<const N: usize> Keys<N> {
     fn new(
-        rng: &mut SplitMix,
+        rng: &mut SplitMix64,
         duration: f64,
         tempo: f64,
-        mut sample: impl FnMut(&mut SplitMix) -> [f64; N],
+        mut sample: impl FnMut(&mut SplitMix64) -> [f64; N],
     ) -> Self {
         let mut times = vec![-0.5];
         let mut values = vec![sample(rng)];
         while *times.last().unwrap() < duration + 1.0 {
-            let dt = rng.range(0.55, 1.3) / tempo;
+            let dt = rng.uniform(0.55, 1.3) / tempo;
             times.push(times.last().unwrap() + dt);
             values.push(sample(rng));
         }
@@ -122,45 +107,48 @@ fn aa(m: DMat3) -> DVec3 {
 }
 
 /// Arm key: [down, forward, elbow flex, forearm roll, wrist flex, wrist deviation] (rad).
-fn arm_key(rng: &mut SplitMix, wide: bool) -> [f64; 6] {
+fn arm_key(rng: &mut SplitMix64, wide: bool) -> [f64; 6] {
     let d = f64::to_radians;
-    let roll = rng.range(d(-40.0), d(30.0));
-    let wrist = [rng.range(d(-30.0), d(30.0)), rng.range(d(-15.0), d(15.0))];
+    let roll = rng.uniform(d(-40.0), d(30.0));
+    let wrist = [
+        rng.uniform(d(-30.0), d(30.0)),
+        rng.uniform(d(-15.0), d(15.0)),
+    ];
     if wide {
         // Raised forward and up, towards or above the head.
         return [
-            rng.range(d(-35.0), d(35.0)),
-            rng.range(d(45.0), d(85.0)),
-            rng.range(d(30.0), d(125.0)),
+            rng.uniform(d(-35.0), d(35.0)),
+            rng.uniform(d(45.0), d(85.0)),
+            rng.uniform(d(30.0), d(125.0)),
             roll,
             wrist[0],
             wrist[1],
         ];
     }
-    match rng.unit() {
+    match rng.next_f64() {
         // Hand in front of the chest.
         u if u < 0.4 => [
-            rng.range(d(42.0), d(60.0)),
-            rng.range(d(35.0), d(60.0)),
-            rng.range(d(100.0), d(130.0)),
+            rng.uniform(d(42.0), d(60.0)),
+            rng.uniform(d(35.0), d(60.0)),
+            rng.uniform(d(100.0), d(130.0)),
             roll,
             wrist[0],
             wrist[1],
         ],
         // Resting near the side.
         u if u < 0.55 => [
-            rng.range(d(70.0), d(78.0)),
-            rng.range(d(5.0), d(20.0)),
-            rng.range(d(10.0), d(35.0)),
+            rng.uniform(d(70.0), d(78.0)),
+            rng.uniform(d(5.0), d(20.0)),
+            rng.uniform(d(10.0), d(35.0)),
             roll,
             wrist[0],
             wrist[1],
         ],
         // A gesture out to the side and forward.
         _ => [
-            rng.range(d(45.0), d(70.0)),
-            rng.range(d(15.0), d(50.0)),
-            rng.range(d(40.0), d(100.0)),
+            rng.uniform(d(45.0), d(70.0)),
+            rng.uniform(d(15.0), d(50.0)),
+            rng.uniform(d(40.0), d(100.0)),
             roll,
             wrist[0],
             wrist[1],
@@ -169,25 +157,25 @@ fn arm_key(rng: &mut SplitMix, wide: bool) -> [f64; 6] {
 }
 
 /// Hand key: per finger [curl] for index, middle, pinky, ring, thumb, then spread.
-fn hand_key(rng: &mut SplitMix, wide: bool) -> [f64; 6] {
+fn hand_key(rng: &mut SplitMix64, wide: bool) -> [f64; 6] {
     let hi = if wide { 1.5 } else { 1.1 };
-    let shape = rng.unit();
+    let shape = rng.next_f64();
     let mut c = [0.0; 6];
     for (k, x) in c.iter_mut().enumerate().take(5) {
         *x = match shape {
-            s if s < 0.3 => rng.range(0.0, 0.25), // open
+            s if s < 0.3 => rng.uniform(0.0, 0.25), // open
             s if s < 0.5 => {
                 if k == 0 {
-                    rng.range(0.0, 0.15)
+                    rng.uniform(0.0, 0.15)
                 } else {
-                    rng.range(0.7, hi)
+                    rng.uniform(0.7, hi)
                 }
             } // point
-            s if s < 0.7 => rng.range(0.6, hi),   // loose fist
-            _ => rng.range(0.15, 0.7),            // relaxed
+            s if s < 0.7 => rng.uniform(0.6, hi),   // loose fist
+            _ => rng.uniform(0.15, 0.7),            // relaxed
         };
     }
-    c[5] = rng.range(-0.1, if wide { 0.45 } else { 0.3 });
+    c[5] = rng.uniform(-0.1, if wide { 0.45 } else { 0.3 });
     c
 }
 
@@ -203,19 +191,19 @@ struct Speech {
 }
 
 impl Speech {
-    fn new(rng: &mut SplitMix, duration: f64, wide: bool) -> Self {
-        let syllable_hz = rng.range(4.0, 5.0);
-        let syllable_phase = rng.range(0.0, 1.0);
+    fn new(rng: &mut SplitMix64, duration: f64, wide: bool) -> Self {
+        let syllable_hz = rng.uniform(4.0, 5.0);
+        let syllable_phase = rng.uniform(0.0, 1.0);
         let jaw_max = if wide { 0.5 } else { 0.3 };
         let mut phrases = Vec::new();
-        let mut t = rng.range(-0.5, 0.2);
+        let mut t = rng.uniform(-0.5, 0.2);
         while t < duration + 1.0 {
-            let len = rng.range(1.2, 3.0);
+            let len = rng.uniform(1.2, 3.0);
             phrases.push((t, t + len));
-            t += len + rng.range(0.35, 0.8);
+            t += len + rng.uniform(0.35, 0.8);
         }
         let syllable_gain: Vec<f64> = (0..((duration + 2.0) * 6.0) as usize + 8)
-            .map(|_| rng.range(0.35, 1.0))
+            .map(|_| rng.uniform(0.35, 1.0))
             .collect();
         Self {
             syllable_hz,
@@ -262,7 +250,7 @@ struct Performance {
 }
 
 impl Performance {
-    fn new(rng: &mut SplitMix, duration: f64, style: Style) -> Self {
+    fn new(rng: &mut SplitMix64, duration: f64, style: Style) -> Self {
         let wide = style.wide;
         let arms = [0, 1].map(|_| Keys::new(rng, duration, style.tempo, |r| arm_key(r, wide)));
         let hands =
@@ -271,14 +259,14 @@ impl Performance {
         let expressions: Vec<Wave> = (0..N_EXPRESSION)
             .map(|k| Wave::new(rng, if k == 0 { 0.9 } else { 0.7 } * expr_gain, 0.08, 0.5))
             .collect();
-        let smile_bias = rng.range(0.0, 0.5);
+        let smile_bias = rng.uniform(0.0, 0.5);
         let turn_amp = if wide { 0.6 } else { 0.18 };
         let head_turn = Wave::new(rng, turn_amp, 0.05, 0.3);
         let head_nod = Wave::new(rng, if wide { 0.3 } else { 0.09 }, 0.4, 1.6);
         let head_tilt = Wave::new(rng, 0.06, 0.1, 0.5);
         let sway = [0, 1, 2].map(|_| Wave::new(rng, 0.045, 0.08, 0.4));
         let eyes = Keys::new(rng, duration, 2.0, |r| {
-            [r.range(-0.25, 0.25), r.range(-0.12, 0.12)]
+            [r.uniform(-0.25, 0.25), r.uniform(-0.12, 0.12)]
         });
         let speech = Speech::new(rng, duration, wide);
         Self {
@@ -385,7 +373,7 @@ fn hand_pose(pose: &mut [DVec3; N_HAND_JOINTS], sign: f64, curls: [f64; 6]) {
 
 /// A talking clip of `n` frames at [`FPS`].
 pub fn talking_clip(seed: u64, n: usize, style: Style) -> Vec<FrameParams> {
-    let mut rng = SplitMix::new(seed);
+    let mut rng = scene_rng(seed);
     let duration = n as f64 / FPS;
     let performance = Performance::new(&mut rng, duration, style);
     (0..n).map(|i| performance.frame(i as f64 / FPS)).collect()

@@ -24,7 +24,6 @@ pub mod rays;
 pub mod recipe;
 pub mod record;
 pub mod refine;
-pub mod rng;
 pub mod run_lock;
 pub mod schedule;
 pub mod setup;
@@ -36,7 +35,6 @@ pub use preset::Preset;
 pub use recipe::{
     Ablation, Budget, DEFAULT_LPIPS_DIR, DEVICE_ARG, FingerSkinning, Identities, TrainOptions,
 };
-pub use rng::SplitMix64;
 pub use run_lock::{LOCK_FILE, RunLock, RunLockError};
 pub use setup::{RECIPE_FILE, existing_run};
 pub use talkin_grids::SamplerKind;

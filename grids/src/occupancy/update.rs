@@ -7,7 +7,7 @@ use serde::{Deserialize, Serialize};
 
 use super::OccupancyGrid;
 use crate::GridError;
-use crate::rng::SplitMix;
+use crate::rng::SplitMix64;
 
 /// Options of [`OccupancyGrid::update_every_n_steps`], nerfacc's defaults.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -90,9 +90,9 @@ impl OccupancyGrid {
                 .collect()
         } else {
             let mut chosen = self.bitfield.clone();
-            let mut rng = SplitMix::new(opts.seed, u64::from(step) << 32);
+            let mut rng = SplitMix64::for_stream(opts.seed, u64::from(step) << 32);
             for _ in 0..cells / 4 {
-                let i = rng.below(cells as u64) as usize;
+                let i = rng.below_by_shift(cells as u64) as usize;
                 chosen[i / 64] |= 1 << (i % 64);
             }
             ones(&chosen, cells)
@@ -112,7 +112,7 @@ impl OccupancyGrid {
                 let points: Vec<Vec3> = batch
                     .iter()
                     .map(|&i| {
-                        let mut rng = SplitMix::new(jitter_seed, i as u64);
+                        let mut rng = SplitMix64::for_stream(jitter_seed, i as u64);
                         let frac = Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32());
                         self.cell_point(i, frac)
                     })

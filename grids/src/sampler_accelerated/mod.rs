@@ -19,7 +19,7 @@ use crate::cull::{CanonicalCull, check_cull};
 use crate::intersect::{DirectionF64, ray_capsule, validate_capsules};
 use crate::packing::{CHUNK, SampleColumns, par_pack_samples};
 use crate::ray::validate_rays;
-use crate::rng::SplitMix;
+use crate::rng::SplitMix64;
 use crate::samples::{Sample, stratified_bins};
 use crate::{AcceleratedOpts, Capsule, GridError, PackedSamples, Ray};
 
@@ -197,7 +197,7 @@ impl AcceleratedSampler {
         if hits.is_empty() {
             return;
         }
-        let mut rng = SplitMix::new(opts.seed, index as u64);
+        let mut rng = SplitMix64::for_stream(opts.seed, index as u64);
         let mut first = 0;
         while first < hits.len() {
             // One merged interval: hits[first..last] overlap or touch.

@@ -4,7 +4,7 @@ use glam::{Affine3A, Quat, vec3};
 
 use super::*;
 use crate::intersect::signed_distance;
-use crate::rng::SplitMix;
+use crate::rng::SplitMix64;
 use crate::{CapsuleBvh, DilatedOccupancy, OccupancyGrid, Part, sample_in_front_of_cores};
 
 /// Three limbs of different bones (one a sphere), their cores, and per bone a rigid
@@ -48,7 +48,7 @@ fn scene() -> (Vec<Capsule>, Vec<Capsule>, Vec<Affine3A>) {
 }
 
 fn points(n: usize, lo: Vec3, hi: Vec3, seed: u64) -> Vec<Vec3> {
-    let mut rng = SplitMix::new(seed, 0);
+    let mut rng = SplitMix64::for_stream(seed, 0);
     (0..n)
         .map(|_| lo + (hi - lo) * vec3(rng.next_f32(), rng.next_f32(), rng.next_f32()))
         .collect()
@@ -137,7 +137,7 @@ fn matches_the_exact_pipeline() {
     rays.extend(camera_rays(vec3(0.1, 0.4, -2.5), 700, 1));
     // A camera inside the scene's box looking every way (cones wider than 90
     // degrees), one inside the body capsule, and a chunk of mixed origins.
-    let mut rng = SplitMix::new(2, 0);
+    let mut rng = SplitMix64::for_stream(2, 0);
     for origin in [vec3(0.1, 0.3, 0.3), vec3(0.05, 0.2, 0.0)] {
         for _ in 0..256 {
             let d = vec3(rng.next_f32(), rng.next_f32(), rng.next_f32()) - 0.5;

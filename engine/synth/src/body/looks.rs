@@ -4,7 +4,7 @@
 
 use glam::Vec3;
 
-use crate::talk::SplitMix;
+use crate::talk::scene_rng;
 
 /// A clothing pattern, evaluated at rest-space points (metres).
 #[derive(Clone, Copy, Debug)]
@@ -193,12 +193,12 @@ const LOOKS: [Look; 3] = [
 pub fn look(identity: usize) -> Look {
     let mut l = LOOKS[identity % 3];
     if identity >= 3 {
-        let mut rng = SplitMix::new(0x100c_0000 + identity as u64);
+        let mut rng = scene_rng(0x100c_0000 + identity as u64);
         let mut tint = |c: Vec3| {
             (c * Vec3::new(
-                rng.range(0.6, 1.3) as f32,
-                rng.range(0.6, 1.3) as f32,
-                rng.range(0.6, 1.3) as f32,
+                rng.uniform(0.6, 1.3) as f32,
+                rng.uniform(0.6, 1.3) as f32,
+                rng.uniform(0.6, 1.3) as f32,
             ))
             .min(Vec3::ONE)
         };

@@ -4,7 +4,7 @@
 use glam::DVec3;
 
 use super::head_frame::HeadFrame;
-use crate::talk::SplitMix;
+use crate::talk::scene_rng;
 use talkin_human::body::skeleton::joint::*;
 use talkin_human::body::{N_JOINTS, Skeleton};
 
@@ -53,8 +53,8 @@ pub fn proportions(identity: usize) -> Proportions {
     if identity < 3 {
         return p;
     }
-    let mut rng = SplitMix::new(0x5eed_1d00 + identity as u64);
-    let mut f = |x: f64, spread: f64| x * (1.0 + rng.range(-spread, spread));
+    let mut rng = scene_rng(0x5eed_1d00 + identity as u64);
+    let mut f = |x: f64, spread: f64| x * (1.0 + rng.uniform(-spread, spread));
     Proportions {
         height: f(p.height, 0.06),
         shoulder: f(p.shoulder, 0.08),

@@ -11,12 +11,12 @@ mod pool;
 
 pub(crate) use pool::PixelPool;
 
-use crate::rng::SplitMix64;
 use crate::schedule::PartFractions;
 use talkin_avatar::field_inputs::frame_conditions;
 use talkin_avatar::scene::{FrameSampler, FrameScene};
 use talkin_avatar::subject::SubjectModel;
 use talkin_data::dataset::{Dataset, DatasetError, FrameImages, N_LABELS, on_mask_cut};
+use talkin_grids::SplitMix64;
 use talkin_human::body::FrameParams;
 
 /// Side of an LPIPS patch (pixels).

@@ -5,7 +5,7 @@ use image::GrayImage;
 use talkin_data::dataset::mask_edge_band;
 
 use super::BatchSpec;
-use crate::rng::SplitMix64;
+use talkin_grids::SplitMix64;
 
 /// Segmentation labels of arms and hands.
 const LABEL_ARMS: u8 = 2;

@@ -20,7 +20,7 @@ use crate::preset::Preset;
 use crate::rays::FrameCaches;
 use crate::recipe::TrainOptions;
 use crate::refine::{PoseRefiner, RefineMode};
-use crate::rng::SplitMix64;
+use talkin_grids::SplitMix64;
 use talkin_nets::kernels::adam::FusedAdam;
 
 use crate::setup::{

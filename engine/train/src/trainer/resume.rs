@@ -12,7 +12,7 @@ use crate::log::{LOG_FILE, TrainLog};
 use crate::recipe::TrainOptions;
 use crate::record;
 use crate::refine::PoseRefiner;
-use crate::rng::SplitMix64;
+use talkin_grids::SplitMix64;
 
 use super::construct::{open_device, optimizer};
 use super::{TrainState, Trainer};
