@@ -5,6 +5,7 @@ pub use talkin_data as data;
 pub use talkin_export as export;
 pub use talkin_grids as grids;
 pub use talkin_human as human;
+pub use talkin_import as import;
 pub use talkin_nets as nets;
 pub use talkin_render as render;
 pub use talkin_serve as serve;

@@ -37,6 +37,9 @@ fn main() -> std::process::ExitCode {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("error: {}", report(&e));
+            if let Some(hint) = cli::import::convert_hint(&e) {
+                eprintln!("hint: {hint}");
+            }
             match e.downcast_ref::<cli::train::Interrupted>() {
                 Some(interrupted) => std::process::ExitCode::from(interrupted.exit_code()),
                 None => std::process::ExitCode::FAILURE,

@@ -1,12 +1,14 @@
 //! The importers' own files made hostile: SMPLer-X's per-person JSON and `.npz`, and
 //! HumanNeRF's `metadata.json`, each with bytes flipped, spliced or cut, or one value
-//! swapped for an odd one. Reading the source never panics, and what it accepts is finite
+//! swapped for an odd one; PeopleSnapshot's split yaml likewise. Reading the source never panics, and what it accepts is finite
 //! and within the parameter limits `dataset.json` holds it to (an import that wrote a
 //! dataset its own loader refuses would fail only at training).
 //!
 //! 64 cases per property from a fixed seed; `PROPTEST_CASES=N` runs more (see
 //! docs/results.md).
 
+#[path = "../engine/data/tests/support/damaged_bytes.rs"]
+mod damaged_bytes;
 #[path = "../engine/data/tests/support/json_mutation.rs"]
 mod json_mutation;
 #[path = "../engine/data/tests/support/proptest_config.rs"]
@@ -18,13 +20,15 @@ use std::path::{Path, PathBuf};
 use std::sync::{Mutex, MutexGuard, OnceLock};
 
 use common::layouts::{Clip, SmplerxFixture, write_humannerf_wild, write_smplerx};
+use damaged_bytes::damage;
 use json_mutation::{mutate_leaf, odd_value};
 use proptest::prelude::*;
 use proptest_config::config;
 use serde_json::Value;
 use talkin::data::dataset::Dataset;
-use talkin::data::import::{Format, ImportOptions, Source, read_source};
 use talkin::data::params_json::PARAM_LIMIT;
+use talkin::import::peoplesnapshot::parse_splits_yaml;
+use talkin::import::{Format, ImportOptions, Source, read_source};
 
 fn scene() -> &'static Dataset {
     static SCENE: OnceLock<Dataset> = OnceLock::new();
@@ -272,4 +276,76 @@ fn regression_an_absurd_beta_is_refused() {
     let _swap = Swapped::new(&file, doc.to_string().as_bytes());
     let e = read_humannerf().unwrap_err();
     assert!(e.contains("params") && e.contains("within"), "{e}");
+}
+
+// ---------------------------------------------------------------------------------------
+// PeopleSnapshot's split yaml
+
+const SPLITS_YAML: &str = "\
+dataset:
+  opt:
+    train:
+      start: 0
+      end: 40
+      skip: 4
+    val:
+      start: 41
+      end: 41
+    test:
+      start: 42
+      end: 60
+      skip: 2  # every other frame
+";
+
+fn assert_ranges_sound(text: &str) {
+    if let Ok(ranges) = parse_splits_yaml(text, Path::new("subject.yaml")) {
+        for r in ranges {
+            assert!(r.start <= r.end && r.skip >= 1, "{r:?}");
+        }
+    }
+}
+
+proptest! {
+    #![proptest_config(config(0x4f57_11e5))]
+
+    #[test]
+    fn split_yaml_of_arbitrary_text_never_panics(text in "(?s).{0,256}") {
+        assert_ranges_sound(&text);
+    }
+
+    #[test]
+    fn damaged_split_yaml_never_panics(damage in damage()) {
+        let bytes = damage.apply(SPLITS_YAML.as_bytes().to_vec());
+        assert_ranges_sound(&String::from_utf8_lossy(&bytes));
+    }
+
+    #[test]
+    fn split_yaml_with_any_number_never_panics(
+        at in 0usize..7,
+        value in prop_oneof![
+            Just("18446744073709551615".to_string()),
+            Just("18446744073709551616".to_string()),
+            Just("-1".to_string()),
+            Just("${x}".to_string()),
+            any::<u64>().prop_map(|v| v.to_string()),
+        ],
+    ) {
+        let mut k = 0;
+        let text: String = SPLITS_YAML
+            .lines()
+            .map(|l| match l.split_once(": ") {
+                Some((key, _)) if { k += 1; k - 1 == at } => format!("{key}: {value}\n"),
+                _ => format!("{l}\n"),
+            })
+            .collect();
+        assert_ranges_sound(&text);
+    }
+}
+
+#[test]
+fn the_split_yaml_fixture_parses() {
+    let [train, val, test] = parse_splits_yaml(SPLITS_YAML, Path::new("s.yaml")).unwrap();
+    assert_eq!((train.start, train.end, train.skip), (0, 40, 4));
+    assert_eq!((val.start, val.end, val.skip), (41, 41, 1));
+    assert_eq!((test.start, test.end, test.skip), (42, 60, 2));
 }

@@ -22,8 +22,8 @@ use glam::{DVec2, DVec3};
 use talkin::data::array::NdArray;
 use talkin::data::dataset::{Dataset, Frame};
 use talkin::data::npz::NpzWriter;
-use talkin::data::pickle::{Value, write_protocol4};
 use talkin::human::body::N_JOINTS;
+use talkin::import::pickle::{Value, write_protocol4};
 
 /// The scene every fixture is written from: 1 identity, 64 px high.
 fn scene() -> &'static Dataset {
@@ -256,7 +256,7 @@ fn patch_npz(file: &Path, key: &str, value: Option<NdArray>) {
 /// Rewrites pickle `file` through `edit`.
 fn patch_pickle(file: &Path, edit: impl FnOnce(&mut Vec<(Value, Value)>)) {
     let bytes = std::fs::read(file).unwrap();
-    let Value::Dict(mut items) = talkin::data::pickle::parse_pickle(&bytes, file).unwrap() else {
+    let Value::Dict(mut items) = talkin::import::pickle::parse_pickle(&bytes, file).unwrap() else {
         panic!("not a dict")
     };
     edit(&mut items);

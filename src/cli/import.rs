@@ -1,7 +1,7 @@
 use std::path::PathBuf;
 
 use anyhow::Context;
-use talkin_data::import::{self, Format, ImportOptions};
+use talkin_import::{self as import, Format, ImportOptions};
 
 use crate::progress::Progress;
 
@@ -100,4 +100,50 @@ pub fn run(args: ImportArgs) -> anyhow::Result<()> {
         args.out.display()
     );
     Ok(())
+}
+
+/// What to do when a command was pointed at a fitter's output instead of a dataset: the
+/// `talkin import` command that converts it, if `e` is a missing `dataset.json` in a folder
+/// whose files give a format away.
+pub fn convert_hint(e: &anyhow::Error) -> Option<String> {
+    use talkin_data::dataset::{DatasetError, INDEX_FILE};
+    e.chain()
+        .find_map(|cause| match cause.downcast_ref::<DatasetError>()? {
+            DatasetError::Io { file, source }
+                if source.kind() == std::io::ErrorKind::NotFound
+                    && file.file_name() == Some(INDEX_FILE.as_ref()) =>
+            {
+                let root = file.parent()?;
+                let (format, what) = import::detect_layout(root)?;
+                Some(format!(
+                    "{} holds {what}, not a dataset: convert it with `talkin import {} {} --out \
+                 DATASET` (see docs/bring-your-own-video.md)",
+                    root.display(),
+                    format.name(),
+                    root.display()
+                ))
+            }
+            _ => None,
+        })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_fitters_folder_gets_the_import_command() {
+        let dir = tempfile::tempdir().unwrap();
+        let e = |dir: &std::path::Path| {
+            anyhow::Error::new(talkin_data::dataset::Dataset::load(dir).unwrap_err())
+                .context("cannot load the dataset")
+        };
+        assert_eq!(convert_hint(&e(dir.path())), None, "an empty folder");
+        for file in ["cameras.pkl", "mesh_infos.pkl"] {
+            std::fs::write(dir.path().join(file), b"").unwrap();
+        }
+        let hint = convert_hint(&e(dir.path())).expect("a hint");
+        assert!(hint.contains("talkin import humannerf"), "{hint}");
+        assert!(hint.contains("HumanNeRF's prepared layout"), "{hint}");
+    }
 }

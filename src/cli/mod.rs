@@ -6,7 +6,7 @@ mod demo;
 mod eval;
 mod export;
 mod export_poses;
-mod import;
+pub mod import;
 mod inspect;
 mod lpips;
 mod render;

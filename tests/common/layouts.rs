@@ -11,13 +11,13 @@ use glam::{DMat3, DVec2, DVec3};
 use image::{GrayImage, RgbImage};
 use talkin::data::array::{ArrayData, NdArray};
 use talkin::data::dataset::{Dataset, Frame};
-use talkin::data::import::undistort;
 use talkin::data::npz::NpzWriter;
-use talkin::data::pickle::{Value, write_protocol4};
 use talkin::human::body::{
     FrameParams, N_JOINTS, PARENTS, axis_angle_from_rotation, rotation_from_axis_angle,
 };
 use talkin::human::camera::Camera;
+use talkin::import::pickle::{Value, write_protocol4};
+use talkin::import::undistort;
 
 /// One frame's pixels as a camera and a matting tool hand them over.
 #[derive(Clone, Debug)]
@@ -419,8 +419,7 @@ pub fn write_smplerx(clip: &Clip, name: &str) -> SmplerxFixture {
         let mut at_zero = cam.clone();
         at_zero.transl = DVec3::ZERO;
         let pts = skeleton.pose(&at_zero).joints();
-        let (tv, _) =
-            talkin::data::import::smplerx::solve_translation(&kv, &pts, &truth, cam.transl);
+        let (tv, _) = talkin::import::smplerx::solve_translation(&kv, &pts, &truth, cam.transl);
         let people: &[(usize, f64)] = if i == 0 {
             &[(0, 1.0), (1, 0.5)]
         } else {

@@ -2,7 +2,7 @@
 //! `|u1`, `<U5`: byte order, kind and size) and its data bytes (little-endian, C order;
 //! text as fixed-width UTF-32LE, `<U{width}` with the width of the longest string in
 //! characters). The `.npy` writer ([`crate::npz::npy_bytes`]) and the pickle writer
-//! ([`crate::pickle::write_protocol4`]) both take the layout from here.
+//! (`talkin_import::pickle::write_protocol4`) both take the layout from here.
 
 use crate::array::{ArrayData, DType, NdArray};
 

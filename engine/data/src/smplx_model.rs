@@ -264,20 +264,24 @@ fn floats(a: &NdArray) -> Vec<f64> {
     a.to_f64().unwrap_or_default()
 }
 
-#[cfg(test)]
-pub(crate) mod tests {
+/// A small model file of the real layout (keys, dtypes, an object member to skip), for
+/// tests here and in the crates that read the model through this one (the `fixtures`
+/// feature): the SMPL-X model is the user's and is never shipped.
+#[cfg(any(test, feature = "fixtures"))]
+pub mod fixture {
     use super::*;
     use crate::array::ArrayData;
     use crate::npz::{NpzWriter, object_npy_bytes};
 
-    const V: usize = 64;
-    const S: usize = 20;
+    /// Vertices and shape components of the fixture.
+    pub const V: usize = 64;
+    pub const S: usize = 20;
 
-    /// A small model file of the real layout: keys, dtypes, an object member to skip.
-    pub(crate) struct Fixture {
-        v_template: Vec<f64>,
-        shapedirs: Vec<f64>,
-        j_regressor: Vec<f64>,
+    /// What the fixture file holds, to check a reader against.
+    pub struct Fixture {
+        pub v_template: Vec<f64>,
+        pub shapedirs: Vec<f64>,
+        pub j_regressor: Vec<f64>,
     }
 
     fn lcg(seed: &mut u64) -> f64 {
@@ -287,7 +291,8 @@ pub(crate) mod tests {
         ((*seed >> 11) as f64 / (1u64 << 53) as f64) - 0.5
     }
 
-    pub(crate) fn write_fixture(file: &Path, parents: &[i32; N_JOINTS]) -> Fixture {
+    /// Writes the fixture model to `file` with the kinematic tree `parents`.
+    pub fn write_fixture(file: &Path, parents: &[i32; N_JOINTS]) -> Fixture {
         let mut seed = 7;
         let v_template: Vec<f64> = (0..V * 3).map(|_| lcg(&mut seed)).collect();
         let shapedirs: Vec<f64> = (0..V * 3 * S).map(|_| 0.01 * lcg(&mut seed)).collect();
@@ -347,6 +352,13 @@ pub(crate) mod tests {
             j_regressor,
         }
     }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::fixture::*;
+    use super::*;
+    use crate::npz::{NpzWriter, object_npy_bytes};
 
     fn temp(name: &str) -> PathBuf {
         let dir = std::env::temp_dir().join(format!("talkin_smplx_{}", std::process::id()));

@@ -2,7 +2,7 @@
 //! `motion_properties` (AMASS and JSON motions) and the pickle reader's own properties do
 //! not already cover: `.npy` and `.npz` (arbitrary bytes, damaged archives, headers and
 //! members claiming absurd sizes), the SMPL-X model file, BEAT2 motions, the frames' PNG
-//! images, masks and labels, and PeopleSnapshot's split yaml. No reader panics, none
+//! images, masks and labels. No reader panics, none
 //! allocates what a header claims before checking it (this binary's allocator refuses any
 //! single allocation over [`ALLOCATION_LIMIT`], which aborts the run), and whatever is
 //! accepted is finite and within the documented limits.
@@ -11,6 +11,8 @@
 //! docs/results.md for the 20 000-case run) and `PROPTEST_RNG_SEED=S` picks another seed.
 #![allow(unsafe_code)] // the capped allocator below
 
+#[path = "support/damaged_bytes.rs"]
+mod damaged_bytes;
 #[path = "support/proptest_config.rs"]
 mod proptest_config;
 
@@ -18,12 +20,12 @@ use std::alloc::{GlobalAlloc, Layout, System};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicUsize, Ordering};
 
+use damaged_bytes::damage;
 use image::{GrayImage, RgbImage};
 use proptest::prelude::*;
 use proptest_config::config;
 use talkin_data::array::{ArrayData, NdArray};
 use talkin_data::dataset::{Dataset, Frame, Matting, Split, Subject};
-use talkin_data::import::peoplesnapshot::parse_splits_yaml;
 use talkin_data::motion::{MotionLayout, read_motion};
 use talkin_data::npz::{MAX_ELEMENTS, Npz, NpzWriter, parse_npy, raw_npy_bytes};
 use talkin_data::smplx_model::SmplxModel;
@@ -98,43 +100,6 @@ fn npz_bytes(arrays: &[(&str, NdArray)]) -> Vec<u8> {
     let bytes = std::fs::read(&file).unwrap();
     let _ = std::fs::remove_file(&file);
     bytes
-}
-
-/// Damage to a valid file: bytes flipped, bytes spliced in, and a cut.
-#[derive(Clone, Debug)]
-struct Damage {
-    flips: Vec<(prop::sample::Index, u8)>,
-    splice: Option<(prop::sample::Index, Vec<u8>)>,
-    cut: Option<prop::sample::Index>,
-}
-
-fn damage() -> impl Strategy<Value = Damage> {
-    (
-        prop::collection::vec((any::<prop::sample::Index>(), any::<u8>()), 0..8),
-        prop::option::of((
-            any::<prop::sample::Index>(),
-            prop::collection::vec(any::<u8>(), 1..16),
-        )),
-        prop::option::weighted(0.3, any::<prop::sample::Index>()),
-    )
-        .prop_map(|(flips, splice, cut)| Damage { flips, splice, cut })
-}
-
-impl Damage {
-    fn apply(&self, mut bytes: Vec<u8>) -> Vec<u8> {
-        for (at, byte) in &self.flips {
-            let i = at.index(bytes.len());
-            bytes[i] ^= byte;
-        }
-        if let Some((at, spliced)) = &self.splice {
-            let i = at.index(bytes.len() + 1);
-            bytes.splice(i..i, spliced.iter().copied());
-        }
-        if let Some(cut) = &self.cut {
-            bytes.truncate(cut.index(bytes.len() + 1));
-        }
-        bytes
-    }
 }
 
 // ---------------------------------------------------------------------------------------
@@ -559,76 +524,4 @@ fn the_frame_fixture_decodes() {
         let expected = format!("is {side}x{side} but the frame's camera is 8x6");
         assert!(e.contains(&expected), "{e}");
     }
-}
-
-// ---------------------------------------------------------------------------------------
-// PeopleSnapshot's split yaml
-
-const SPLITS_YAML: &str = "\
-dataset:
-  opt:
-    train:
-      start: 0
-      end: 40
-      skip: 4
-    val:
-      start: 41
-      end: 41
-    test:
-      start: 42
-      end: 60
-      skip: 2  # every other frame
-";
-
-fn assert_ranges_sound(text: &str) {
-    if let Ok(ranges) = parse_splits_yaml(text, Path::new("subject.yaml")) {
-        for r in ranges {
-            assert!(r.start <= r.end && r.skip >= 1, "{r:?}");
-        }
-    }
-}
-
-proptest! {
-    #![proptest_config(config(0x4f57_11e5))]
-
-    #[test]
-    fn split_yaml_of_arbitrary_text_never_panics(text in "(?s).{0,256}") {
-        assert_ranges_sound(&text);
-    }
-
-    #[test]
-    fn damaged_split_yaml_never_panics(damage in damage()) {
-        let bytes = damage.apply(SPLITS_YAML.as_bytes().to_vec());
-        assert_ranges_sound(&String::from_utf8_lossy(&bytes));
-    }
-
-    #[test]
-    fn split_yaml_with_any_number_never_panics(
-        at in 0usize..7,
-        value in prop_oneof![
-            Just("18446744073709551615".to_string()),
-            Just("18446744073709551616".to_string()),
-            Just("-1".to_string()),
-            Just("${x}".to_string()),
-            any::<u64>().prop_map(|v| v.to_string()),
-        ],
-    ) {
-        let mut k = 0;
-        let text: String = SPLITS_YAML
-            .lines()
-            .map(|l| match l.split_once(": ") {
-                Some((key, _)) if { k += 1; k - 1 == at } => format!("{key}: {value}\n"),
-                _ => format!("{l}\n"),
-            })
-            .collect();
-        assert_ranges_sound(&text);
-    }
-}
-
-#[test]
-fn the_split_yaml_fixture_parses() {
-    let [train, val, test] = parse_splits_yaml(SPLITS_YAML, Path::new("s.yaml")).unwrap();
-    assert_eq!((train.start, train.end, train.skip), (0, 40, 4));
-    assert_eq!((val.start, val.end, val.skip), (41, 41, 1));
-    assert_eq!((test.start, test.end, test.skip), (42, 60, 2));
 }

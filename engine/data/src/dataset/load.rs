@@ -21,24 +21,8 @@ impl Dataset {
     pub fn load(dir: impl AsRef<Path>) -> Result<Dataset, DatasetError> {
         let root = dir.as_ref().to_path_buf();
         let file = root.join(INDEX_FILE);
-        let text = std::fs::read_to_string(&file).map_err(|source| DatasetError::Io {
-            file: file.clone(),
-            source: match crate::import::detect_layout(&root) {
-                // A fitter's output rather than a dataset: say how to convert it.
-                Some((format, what)) if source.kind() == std::io::ErrorKind::NotFound => {
-                    std::io::Error::new(
-                        source.kind(),
-                        format!(
-                            "no dataset.json here, but the folder holds {what}: convert it with \
-                             `talkin import {} {} --out DATASET` (see docs/bring-your-own-video.md)",
-                            format.name(),
-                            root.display()
-                        ),
-                    )
-                }
-                _ => source,
-            },
-        })?;
+        let text =
+            std::fs::read_to_string(&file).map_err(|source| DatasetError::Io { file, source })?;
         let dataset = Dataset::from_json_str(&text, &root)?;
         dataset.check_image_headers()?;
         Ok(dataset)

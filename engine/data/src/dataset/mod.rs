@@ -34,6 +34,10 @@ pub const FORMAT: &str = "talkin-dataset";
 pub const VERSION: u64 = 1;
 /// The file name inside a dataset directory.
 pub const INDEX_FILE: &str = "dataset.json";
+
+/// The report an importer (`talkin import`) writes beside [`INDEX_FILE`]: a dataset that
+/// has one came from a fitter, so its fits are an estimator's.
+pub const IMPORT_REPORT: &str = "import.json";
 /// Metres per unit of the optional 16-bit depth PNGs (0.1 mm: 6.5 m range).
 pub const DEPTH_UNIT_M: f64 = 1e-4;
 

@@ -270,7 +270,7 @@ fn prepare_adds_mean_hands_anchors_and_resamples() {
 
     // With a model: its mean hand is added and its rest pelvis places the motion.
     let model_file = temp("SMPLX_NEUTRAL.npz");
-    crate::smplx_model::tests::write_fixture(&model_file, &PARENTS);
+    crate::smplx_model::fixture::write_fixture(&model_file, &PARENTS);
     let model = SmplxModel::load(&model_file).unwrap();
     let with = m
         .prepare(&Prepare {

@@ -270,6 +270,6 @@ pub fn train(
 pub fn is_imported(dataset: &Dataset) -> bool {
     dataset
         .root
-        .join(talkin_data::import::IMPORT_REPORT)
+        .join(talkin_data::dataset::IMPORT_REPORT)
         .is_file()
 }

@@ -6,8 +6,8 @@
 use std::collections::HashMap;
 
 use super::Value;
-use crate::array::{DType, NdArray};
-use crate::numpy_dtype::{NumpyDtype, le_bytes};
+use talkin_data::array::{DType, NdArray};
+use talkin_data::numpy_dtype::{NumpyDtype, le_bytes};
 
 const FRAME_SIZE_TARGET: usize = 64 * 1024;
 const FRAME_SIZE_MIN: usize = 4;

@@ -1,4 +1,9 @@
-//! `talkin import`: what human fitters write, converted into a dataset v1 directory.
+//! import: what human fitters write, converted into a dataset v1 directory (`talkin
+//! import`), with the numpy pickle reader their layouts need ([`pickle`]).
+//!
+//! Must not know about training, rendering or the samplers; the dataset format it writes
+//! and the arrays it reads are `talkin-data`'s, which in turn knows nothing of these
+//! layouts.
 //!
 //! Each format module reads its tool's exact layout into a [`Source`]: the subject's rest
 //! joints, and per frame an image, a mask, an OpenCV camera (pixel centres at integer
@@ -20,6 +25,7 @@ mod body;
 mod error;
 pub mod humannerf;
 pub mod peoplesnapshot;
+pub mod pickle;
 pub mod smplerx;
 pub mod undistort;
 mod write;
@@ -28,15 +34,14 @@ use std::path::{Path, PathBuf};
 
 use glam::DVec3;
 
-use crate::dataset::Split;
+use talkin_data::dataset::Split;
 use talkin_human::body::{FrameParams, N_JOINTS};
 
 pub use body::{complete_from_body, fit_body_joints};
 pub use error::ImportError;
 pub use write::ImportReport;
 
-/// The import report written beside `dataset.json`.
-pub const IMPORT_REPORT: &str = "import.json";
+pub use talkin_data::dataset::IMPORT_REPORT;
 
 /// Frames per second assumed when `--fps` is not given (phone videos, and what the
 /// fitters' frame extraction defaults to).
@@ -220,7 +225,7 @@ pub fn import(
 }
 
 /// Reads what `opts.src` holds in `opts.format`, every frame's parameters finite and
-/// within [`PARAM_LIMIT`](crate::params_json::PARAM_LIMIT): a fitter's frame beyond them
+/// within [`PARAM_LIMIT`](talkin_data::params_json::PARAM_LIMIT): a fitter's frame beyond them
 /// (a diverged fit, a damaged file) is refused here, naming it, rather than written into a
 /// dataset whose own loader refuses it.
 pub fn read_source(opts: &ImportOptions) -> Result<Source, ImportError> {
@@ -231,7 +236,7 @@ pub fn read_source(opts: &ImportOptions) -> Result<Source, ImportError> {
     };
     for f in &source.frames {
         let path = format!("{}.params", f.name);
-        crate::params_json::check_param_limits(&f.params, &path).map_err(|e| {
+        talkin_data::params_json::check_param_limits(&f.params, &path).map_err(|e| {
             ImportError::field(
                 &opts.src,
                 e.field,
@@ -287,10 +292,10 @@ pub fn params_from_smpl(poses: &[f64], transl: DVec3) -> FrameParams {
 /// Reads an SMPL-X model file if one was given.
 pub(crate) fn load_model(
     opts: &ImportOptions,
-) -> Result<Option<crate::smplx_model::SmplxModel>, ImportError> {
+) -> Result<Option<talkin_data::smplx_model::SmplxModel>, ImportError> {
     opts.body_model
         .as_ref()
-        .map(crate::smplx_model::SmplxModel::load)
+        .map(talkin_data::smplx_model::SmplxModel::load)
         .transpose()
         .map_err(ImportError::from)
 }

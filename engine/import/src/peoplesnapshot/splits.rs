@@ -4,7 +4,7 @@
 use std::path::Path;
 
 use super::ImportError;
-use crate::dataset::Split;
+use talkin_data::dataset::Split;
 
 /// A split's frames: `sorted(images)[start..=end]` every `skip`th.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

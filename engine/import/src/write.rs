@@ -7,8 +7,8 @@ use std::path::{Path, PathBuf};
 use image::{GrayImage, RgbImage, imageops::FilterType};
 
 use super::{ImportError, ImportOptions, MaskFile, Skipped, Source, SourceFrame, undistort};
-use crate::array::Dim;
-use crate::dataset::{Dataset, Frame, Split, Subject};
+use talkin_data::array::Dim;
+use talkin_data::dataset::{Dataset, Frame, Split, Subject};
 use talkin_human::body::Skeleton;
 use talkin_human::camera::Camera;
 
@@ -109,8 +109,8 @@ pub(crate) fn write(
     let dataset = Dataset {
         root: tmp.path().to_path_buf(),
         background: [1.0, 1.0, 1.0],
-        matting: crate::dataset::Matting::ByMask,
-        masks: crate::dataset::Masks::Matte,
+        matting: talkin_data::dataset::Matting::ByMask,
+        masks: talkin_data::dataset::Masks::Matte,
         subjects: vec![Subject {
             name: subject.clone(),
             skeleton: Skeleton {
@@ -143,7 +143,7 @@ pub(crate) fn write(
     let report_file = tmp.path().join(super::IMPORT_REPORT);
     let text = serde_json::to_string_pretty(&report)
         .map_err(|e| ImportError::Usage(format!("cannot serialise import.json: {e}")))?;
-    crate::atomic::write_atomic(&report_file, text.as_bytes())
+    talkin_data::atomic::write_atomic(&report_file, text.as_bytes())
         .map_err(ImportError::io(&report_file))?;
 
     let kept_dir = tmp.keep();
@@ -277,7 +277,7 @@ pub(crate) fn read_mask(mask: &MaskFile) -> Result<GrayImage, ImportError> {
     let mut grey = match mask {
         MaskFile::Image(path) => open_image(path)?.to_luma8(),
         MaskFile::Npy(path) => {
-            let a = crate::npz::read_npy(path)?;
+            let a = talkin_data::npz::read_npy(path)?;
             let v = super::error::checked_f64(&a, path, "mask", &[Dim::Any("H"), Dim::Any("W")])?;
             let (h, w) = (a.shape()[0], a.shape()[1]);
             let pixels = v

@@ -21,8 +21,8 @@ use super::{
     ImportError, ImportOptions, MaskFile, Source, SourceFrame, body, load_model, mask_for, mat3,
     mat4, params_from_smpl,
 };
-use crate::array::Dim;
 use crate::pickle::{Value, read_pickle};
+use talkin_data::array::Dim;
 use talkin_human::body::{
     FrameParams, N_BODY_JOINTS, N_JOINTS, axis_angle_from_rotation, rotation_from_axis_angle,
 };

@@ -6,13 +6,13 @@
 use std::path::Path;
 use std::sync::Arc;
 
-#[path = "../../tests/support/proptest_config.rs"]
+#[path = "../../../data/tests/support/proptest_config.rs"]
 mod proptest_config;
 
 use proptest::prelude::*;
 
 use super::*;
-use crate::array::{ArrayData, NdArray};
+use talkin_data::array::{ArrayData, NdArray};
 
 /// `pickle.dumps(obj, protocol=2)`: bytes as `_codecs.encode(str, 'latin1')`.
 const P2: &[&str] = &[

@@ -3,11 +3,11 @@
 
 use std::path::{Path, PathBuf};
 
-use crate::array::{Dim, NdArray, shape_text};
-use crate::dataset::DatasetError;
-use crate::npz::NpzError;
 use crate::pickle::{PickleError, Value};
-use crate::smplx_model::ModelError;
+use talkin_data::array::{Dim, NdArray, shape_text};
+use talkin_data::dataset::DatasetError;
+use talkin_data::npz::NpzError;
+use talkin_data::smplx_model::ModelError;
 
 /// Why an import failed. Nothing is left under `--out` when it does.
 #[derive(Debug, thiserror::Error)]
@@ -69,7 +69,7 @@ pub(crate) fn checked_f64(
     field: &str,
     dims: &[Dim],
 ) -> Result<Vec<f64>, ImportError> {
-    crate::npz::check_array(a, file, field, dims).map_err(|e| match e {
+    talkin_data::npz::check_array(a, file, field, dims).map_err(|e| match e {
         NpzError::Shape { found, .. } => ImportError::field(
             file,
             field,
@@ -162,7 +162,7 @@ pub(crate) fn json_numbers(
 
 /// Array `key` of an open archive: present, of shape `dims`, finite.
 pub(crate) fn npz_f64(
-    npz: &mut crate::npz::Npz,
+    npz: &mut talkin_data::npz::Npz,
     key: &str,
     dims: &[Dim],
 ) -> Result<(Vec<f64>, Vec<usize>), ImportError> {

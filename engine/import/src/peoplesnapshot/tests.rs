@@ -2,9 +2,9 @@
 
 use super::splits::*;
 use super::*;
-use crate::array::{ArrayData, NdArray};
-use crate::import::Format;
-use crate::npz::NpzWriter;
+use crate::Format;
+use talkin_data::array::{ArrayData, NdArray};
+use talkin_data::npz::NpzWriter;
 use talkin_human::body::{FrameParams, PARENTS};
 
 /// Images of the fixture capture.
@@ -141,7 +141,7 @@ fn capture(
         write_full(&src.join("poses.npz"), rows);
     }
     let model = tmp.path().join("SMPLX_NEUTRAL.npz");
-    crate::smplx_model::tests::write_fixture(&model, &PARENTS);
+    talkin_data::smplx_model::fixture::write_fixture(&model, &PARENTS);
     ImportOptions {
         body_model: Some(model),
         ..ImportOptions::new(Format::PeopleSnapshot, src, tmp.path().join("out"))

@@ -31,9 +31,9 @@ use super::{
     ImportError, ImportOptions, MaskFile, Skipped, Source, SourceFrame, load_model, mask_for, mat3,
     mat4, params_from_smpl,
 };
-use crate::array::Dim;
-use crate::dataset::Split;
-use crate::npz::Npz;
+use talkin_data::array::Dim;
+use talkin_data::dataset::Split;
+use talkin_data::npz::Npz;
 
 mod splits;
 #[cfg(test)]

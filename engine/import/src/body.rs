@@ -6,7 +6,7 @@
 
 use glam::DVec3;
 
-use crate::smplx_model::{ModelError, SmplxModel};
+use talkin_data::smplx_model::{ModelError, SmplxModel};
 use talkin_human::body::{N_BODY_JOINTS, N_JOINTS, PARENTS, joint, skeleton::body_ancestor};
 
 /// Offsets of joints 22..54 from their parents in an adult T-pose (arms along +-x, y up,

@@ -17,7 +17,7 @@
 //!
 //! ```
 //! use talkin_data::array::NdArray;
-//! use talkin_data::pickle::{Value, parse_pickle, write_protocol4};
+//! use talkin_import::pickle::{Value, parse_pickle, write_protocol4};
 //!
 //! let k = NdArray::f32(&[3, 3], vec![500., 0., 64., 0., 500., 64., 0., 0., 1.]).unwrap();
 //! let cameras = Value::dict([("frame_000000", Value::dict([("intrinsics", Value::array(k))]))]);
@@ -35,7 +35,7 @@ mod write;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use crate::array::NdArray;
+use talkin_data::array::NdArray;
 
 pub use read::parse_pickle;
 pub use write::write_protocol4;

@@ -5,7 +5,7 @@
 use super::super::Value;
 use super::super::numpy::{Callable, decode, parse_dtype};
 use super::{Machine, Obj, Step};
-use crate::array::ArrayData;
+use talkin_data::array::ArrayData;
 
 impl Machine<'_> {
     /// The object a REDUCE of `g` on `args` makes, interpreted, never called.

@@ -1,7 +1,7 @@
 //! What the reader knows of numpy: the allow-listed globals, dtype strings, and how an
 //! array's raw bytes decode (byte order, Fortran order, text kinds).
 
-use crate::array::{ArrayData, DType, NdArray, element_count};
+use talkin_data::array::{ArrayData, DType, NdArray, element_count};
 
 /// A callable the reader knows how to interpret (never calls).
 #[derive(Clone, Copy, Debug, PartialEq)]

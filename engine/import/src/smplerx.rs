@@ -21,9 +21,9 @@ use glam::{DVec2, DVec3};
 use super::{
     ImportError, ImportOptions, Skipped, Source, SourceFrame, body::solve, load_model, mask_for,
 };
-use crate::array::Dim;
-use crate::npz::Npz;
-use crate::smplx_model::SmplxModel;
+use talkin_data::array::Dim;
+use talkin_data::npz::Npz;
+use talkin_data::smplx_model::SmplxModel;
 use talkin_human::body::{FrameParams, N_HAND_JOINTS, N_JOINTS, Skeleton};
 
 /// The default focal length as a fraction of the longer image side: a phone's main camera
