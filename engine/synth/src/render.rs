@@ -95,7 +95,7 @@ impl<'a> Scene<'a> {
     }
 
     /// The scene with skin that bends over `width` metres at every joint (the capture-like
-    /// scene's flaw; see [`Scene::rest_point`]); `width <= 0` keeps it rigid.
+    /// scene's flaw; see `Scene::rest_point`); `width <= 0` keeps it rigid.
     pub fn with_smooth_skin(mut self, width: f32) -> Self {
         self.smooth = (width > 0.0).then_some(width);
         self
