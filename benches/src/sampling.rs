@@ -78,6 +78,45 @@ pub struct SamplingReport {
     pub accelerated_step_m: f32,
 }
 
+/// Why a run's grids cannot stand in for a dataset's in [`bench_sampling`].
+#[derive(Debug, thiserror::Error)]
+pub enum TrainedGridsError {
+    #[error(transparent)]
+    Checkpoint(#[from] talkin_avatar::checkpoint::CheckpointError),
+    #[error("{}: no trained model for subject `{subject}` of {}", checkpoint.display(), dataset.display())]
+    NoModel {
+        checkpoint: std::path::PathBuf,
+        subject: String,
+        dataset: std::path::PathBuf,
+    },
+}
+
+/// The canonical grid the run in `run` trained for each of `dataset`'s subjects, matched
+/// by name (`talkin bench sampling --run`).
+pub fn trained_grids(
+    run: &std::path::Path,
+    dataset: &Dataset,
+) -> Result<Vec<OccupancyGrid>, TrainedGridsError> {
+    let checkpoint = talkin_avatar::checkpoint::Checkpoint::load(run)?;
+    dataset
+        .subjects
+        .iter()
+        .map(|subject| {
+            checkpoint
+                .subjects
+                .iter()
+                .find(|slot| slot.name == subject.name)
+                .and_then(|slot| slot.model.as_ref())
+                .map(|model| model.grid.clone())
+                .ok_or_else(|| TrainedGridsError::NoModel {
+                    checkpoint: checkpoint.dir.clone(),
+                    subject: subject.name.clone(),
+                    dataset: dataset.root.clone(),
+                })
+        })
+        .collect()
+}
+
 /// Runs both samplers over every frame, after fitting margins and building each
 /// subject's initial canonical grid from its training frames. With `trained` (one grid
 /// per dataset subject, e.g. a run's after its occupancy updates), the accelerated

@@ -5,8 +5,6 @@ use anyhow::Context;
 use clap::builder::TypedValueParser;
 use talkin_benches::sampling;
 use talkin_data::dataset::Dataset;
-use talkin_data::params_json::ParamsJson;
-use talkin_human::body::FrameParams;
 use talkin_serve::{Server, bench};
 use talkin_train::TrainOptions;
 
@@ -354,49 +352,17 @@ fn serve_bench(args: ServeBenchArgs) -> anyhow::Result<()> {
         }
         (None, None) => anyhow::bail!("give --run or --target"),
     };
-    let answer = talkin_serve::client::request(addr, "GET", "/subjects", None, timeout)
-        .with_context(|| format!("GET /subjects from {what}"))?;
-    anyhow::ensure!(
-        answer.status == 200,
-        "GET /subjects from {what} answered {}: {}",
-        answer.status,
-        String::from_utf8_lossy(&answer.body)
-    );
-    let first = &answer.json()["subjects"][0];
-    let subject = first["name"]
-        .as_str()
-        .with_context(|| format!("{what} serves no subject"))?
-        .to_string();
-    let (width, height) = match &image {
-        Some(text) => parse_size(text)?,
-        None => (
-            first["width"].as_u64().unwrap_or(0) as u32,
-            first["height"].as_u64().unwrap_or(0) as u32,
-        ),
-    };
-    let mut params = FrameParams::default();
-    params.jaw_pose.x = 0.2;
-    let body = serde_json::to_vec(&serde_json::json!({
-        "subject": subject,
-        "params": params.to_json(),
-        "width": width,
-        "height": height,
-    }))?;
-    println!(
-        "bench serve: {what}, subject `{subject}`, {width}x{height} PNG frames, {} requests \
-         per client count",
-        args.requests
-    );
-    // One untimed request: first-touch allocations and page faults.
-    bench::load_test(addr, "/render", &body, 1, 1, timeout);
-    let reports: Vec<bench::LoadReport> = args
-        .clients
-        .iter()
-        .map(|&c| bench::load_test(addr, "/render", &body, c, args.requests, timeout))
-        .collect();
+    let size = image.as_deref().map(parse_size).transpose()?;
+    let measured = bench::bench_render(addr, &what, size, &args.clients, args.requests, timeout);
     if let Some(server) = server {
         server.shutdown()?;
     }
+    let measured = measured?;
+    println!(
+        "bench serve: {what}, subject `{}`, {}x{} PNG frames, {} requests per client count",
+        measured.subject, measured.width, measured.height, args.requests
+    );
+    let reports = measured.reports;
     print!("{}", bench::format_report(&reports));
     if let Some(path) = &args.json {
         std::fs::write(path, serde_json::to_string_pretty(&reports)?)
@@ -410,7 +376,7 @@ fn sampling_bench(args: SamplingArgs) -> anyhow::Result<()> {
     let dataset = Dataset::load(&args.data)?;
     let trained = match &args.run {
         None => None,
-        Some(run) => Some(trained_grids(run, &dataset)?),
+        Some(run) => Some(sampling::trained_grids(run, &dataset)?),
     };
     let mut progress: Option<Progress> = None;
     let report = sampling::bench_sampling(&dataset, trained.as_deref(), &mut |done, total| {
@@ -425,34 +391,6 @@ fn sampling_bench(args: SamplingArgs) -> anyhow::Result<()> {
         println!("report: {}", path.display());
     }
     Ok(())
-}
-
-/// The run's canonical grid of every dataset subject, matched by name.
-fn trained_grids(
-    run: &std::path::Path,
-    dataset: &Dataset,
-) -> anyhow::Result<Vec<talkin_grids::OccupancyGrid>> {
-    let checkpoint = talkin_avatar::checkpoint::Checkpoint::load(run)?;
-    dataset
-        .subjects
-        .iter()
-        .map(|subject| {
-            checkpoint
-                .subjects
-                .iter()
-                .find(|slot| slot.name == subject.name)
-                .and_then(|slot| slot.model.as_ref())
-                .map(|model| model.grid.clone())
-                .with_context(|| {
-                    format!(
-                        "{}: no trained model for subject `{}` of {}",
-                        checkpoint.dir.display(),
-                        subject.name,
-                        dataset.root.display()
-                    )
-                })
-        })
-        .collect()
 }
 
 fn speed_vs_error_bench(args: SpeedVsErrorArgs) -> anyhow::Result<()> {

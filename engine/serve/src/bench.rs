@@ -12,6 +12,8 @@ use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::time::{Duration, Instant};
 
 use serde::Serialize;
+use talkin_data::params_json::ParamsJson;
+use talkin_human::body::FrameParams;
 
 use super::client::{self, HttpResponse};
 use super::routes::REQUEST_ID_HEADER;
@@ -215,4 +217,92 @@ mod tests {
         assert_eq!(percentile(&[7.0], 0.99), 7.0);
         assert!(percentile(&[], 0.5).is_nan());
     }
+}
+
+/// What [`bench_render`] measured: the subject and frame size it asked for, and a report
+/// per client count.
+#[derive(Clone, Debug, Serialize)]
+pub struct RenderBench {
+    pub subject: String,
+    pub width: u32,
+    pub height: u32,
+    pub reports: Vec<LoadReport>,
+}
+
+/// Why [`bench_render`] could not start: the server did not name a subject to render.
+#[derive(Debug, thiserror::Error)]
+pub enum BenchError {
+    #[error("GET /subjects from {what}: {source}")]
+    Subjects {
+        what: String,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("GET /subjects from {what} answered {status}: {body}")]
+    Status {
+        what: String,
+        status: u16,
+        body: String,
+    },
+    #[error("{what} serves no subject")]
+    NoSubject { what: String },
+}
+
+/// The render server's load bench (`talkin bench serve`): asks the server at `addr` (named
+/// `what` in errors) for its first subject, then posts one frame of it (the rest pose,
+/// the jaw a little open) as a PNG of `size` (default: the subject's own): once untimed
+/// (first-touch allocations and page faults), then `requests` times at each client count
+/// in `clients`, each client waiting up to `timeout` for an answer.
+pub fn bench_render(
+    addr: SocketAddr,
+    what: &str,
+    size: Option<(u32, u32)>,
+    clients: &[usize],
+    requests: usize,
+    timeout: Duration,
+) -> Result<RenderBench, BenchError> {
+    let answer = client::request(addr, "GET", "/subjects", None, timeout).map_err(|source| {
+        BenchError::Subjects {
+            what: what.to_string(),
+            source,
+        }
+    })?;
+    if answer.status != 200 {
+        return Err(BenchError::Status {
+            what: what.to_string(),
+            status: answer.status,
+            body: String::from_utf8_lossy(&answer.body).into_owned(),
+        });
+    }
+    let first = &answer.json()["subjects"][0];
+    let subject = first["name"]
+        .as_str()
+        .ok_or_else(|| BenchError::NoSubject {
+            what: what.to_string(),
+        })?
+        .to_string();
+    let (width, height) = size.unwrap_or((
+        first["width"].as_u64().unwrap_or(0) as u32,
+        first["height"].as_u64().unwrap_or(0) as u32,
+    ));
+    let mut params = FrameParams::default();
+    params.jaw_pose.x = 0.2;
+    let body = serde_json::to_vec(&serde_json::json!({
+        "subject": subject,
+        "params": params.to_json(),
+        "width": width,
+        "height": height,
+    }))
+    .expect("a JSON value serialises");
+    load_test(addr, "/render", &body, 1, 1, timeout);
+    let reports = clients
+        .iter()
+        .map(|&c| load_test(addr, "/render", &body, c, requests, timeout))
+        .collect();
+    Ok(RenderBench {
+        subject,
+        width,
+        height,
+        reports,
+    })
 }
