@@ -70,19 +70,7 @@ pub fn read(opts: &ImportOptions) -> Result<Source, ImportError> {
     let detections = detections(&smplx_dir, &meta_dir)?;
     let images = numbered_images(images_dir, &detections)?;
     let fps = opts.fps();
-    let mut skipped = Vec::new();
-    let mut raws = Vec::new();
-    for (n, stem, image) in images {
-        let Some(d) = detections.get(&n) else {
-            skipped.push(Skipped {
-                frame: stem,
-                reason: "SMPLer-X detected no person (no smplx/ file)".into(),
-            });
-            continue;
-        };
-        let raw = read_detection(&model, d)?;
-        raws.push((n, stem, image, raw));
-    }
+    let (raws, skipped) = detected_frames(&model, images, &detections)?;
     if raws.is_empty() {
         return Err(ImportError::file(&smplx_dir, "no frame has a detection"));
     }
@@ -114,20 +102,8 @@ pub fn read(opts: &ImportOptions) -> Result<Source, ImportError> {
                 ),
             ));
         }
-        // Where SMPLer-X's own camera puts the joints (its body, its betas).
-        let own = Skeleton {
-            rest_joints: raw.rest_joints,
-        }
-        .pose(&raw.params)
-        .joints();
-        let targets: Vec<DVec2> = own.iter().map(|p| project(&raw.k, *p)).collect();
-        let mut params = raw.params.clone();
-        params.transl = DVec3::ZERO;
-        let at_zero = skeleton.pose(&params).joints();
-        let (t, rms) =
-            solve_translation(&k, &at_zero, &targets, raw.params.transl * f / raw.k[0][0]);
+        let (params, rms) = in_one_camera(&skeleton, &k, &raw);
         worst = worst.max(rms);
-        params.transl = t;
         let mask = mask_for(opts, &stem, None)?;
         frames.push(SourceFrame {
             name: stem,
@@ -163,6 +139,50 @@ pub fn read(opts: &ImportOptions) -> Result<Source, ImportError> {
         skipped,
         notes,
     })
+}
+
+/// A numbered frame with its detection: number, stem, image file, what SMPLer-X fitted.
+type DetectedFrame = (u64, String, PathBuf, Raw);
+
+/// Each numbered frame's detection read, in order; the frames without one are skipped.
+fn detected_frames(
+    model: &SmplxModel,
+    images: Vec<(u64, String, PathBuf)>,
+    detections: &BTreeMap<u64, Detection>,
+) -> Result<(Vec<DetectedFrame>, Vec<Skipped>), ImportError> {
+    let mut skipped = Vec::new();
+    let mut raws = Vec::new();
+    for (n, stem, image) in images {
+        let Some(d) = detections.get(&n) else {
+            skipped.push(Skipped {
+                frame: stem,
+                reason: "SMPLer-X detected no person (no smplx/ file)".into(),
+            });
+            continue;
+        };
+        let raw = read_detection(model, d)?;
+        raws.push((n, stem, image, raw));
+    }
+    Ok((raws, skipped))
+}
+
+/// A detection's parameters in the video's one camera `k` with the shared `skeleton`:
+/// the translation re-solved so that the joints land where SMPLer-X's own camera put
+/// them (its body, its betas); returns them and the RMS reprojection change in pixels.
+fn in_one_camera(skeleton: &Skeleton, k: &[[f64; 3]; 3], raw: &Raw) -> (FrameParams, f64) {
+    let own = Skeleton {
+        rest_joints: raw.rest_joints,
+    }
+    .pose(&raw.params)
+    .joints();
+    let targets: Vec<DVec2> = own.iter().map(|p| project(&raw.k, *p)).collect();
+    let mut params = raw.params.clone();
+    params.transl = DVec3::ZERO;
+    let at_zero = skeleton.pose(&params).joints();
+    let f = k[0][0];
+    let (t, rms) = solve_translation(k, &at_zero, &targets, raw.params.transl * f / raw.k[0][0]);
+    params.transl = t;
+    (params, rms)
 }
 
 /// The numbered frames in `images_dir` (`%06d.jpg`), sorted; every detection must have

@@ -52,46 +52,14 @@ pub(crate) fn write(
     progress: &mut dyn FnMut(usize, usize),
 ) -> Result<ImportReport, ImportError> {
     let frames_in_source = source.frames.len();
-    let kept: Vec<SourceFrame> = source
-        .frames
-        .into_iter()
-        .enumerate()
-        .filter(|(i, _)| i.is_multiple_of(opts.every))
-        .map(|(_, f)| f)
-        .collect();
-    if kept.is_empty() {
-        return Err(ImportError::file(&opts.src, "no frames to import"));
-    }
-    let has_splits = kept.iter().all(|f| f.split.is_some());
-    let test_every = match opts.test_every {
-        Some(n) => Some(n),
-        None if has_splits => None,
-        None => Some(super::DEFAULT_TEST_EVERY),
-    };
+    let kept = kept_frames(opts, source.frames)?;
+    let test_every = test_every(opts, &kept);
     let split_of = |k: usize, f: &SourceFrame| match test_every {
         Some(n) if n > 0 && (k + 1).is_multiple_of(n) => Split::TestSame,
         Some(_) => Split::Train,
         None => f.split.unwrap_or(Split::Train),
     };
-
-    let parent = match opts.out.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
-        _ => PathBuf::from("."),
-    };
-    std::fs::create_dir_all(&parent).map_err(ImportError::io(&parent))?;
-    let name = opts
-        .out
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_else(|| "dataset".into());
-    let tmp = tempfile::Builder::new()
-        .prefix(&format!(".{name}.import-"))
-        .tempdir_in(&parent)
-        .map_err(ImportError::io(&parent))?;
-    for dir in ["images", "masks"] {
-        let d = tmp.path().join(dir);
-        std::fs::create_dir_all(&d).map_err(ImportError::io(&d))?;
-    }
+    let tmp = staging_dir(&opts.out)?;
 
     let subject = super::subject_name(opts);
     let total = kept.len();
@@ -119,11 +87,7 @@ pub(crate) fn write(
         }],
         frames,
     };
-    // The same rules every command applies when it opens the dataset.
-    let text = serde_json::to_string_pretty(&dataset.to_json())
-        .map_err(|e| ImportError::Usage(format!("cannot serialise dataset.json: {e}")))?;
-    Dataset::from_json_str(&text, tmp.path())?;
-    dataset.save_index()?;
+    save_checked(&dataset)?;
 
     let count = |s: Split| dataset.frames.iter().filter(|f| f.split == s).count();
     let report = ImportReport {
@@ -145,20 +109,86 @@ pub(crate) fn write(
         .map_err(|e| ImportError::Usage(format!("cannot serialise import.json: {e}")))?;
     talkin_data::atomic::write_atomic(&report_file, text.as_bytes())
         .map_err(ImportError::io(&report_file))?;
+    move_into_place(tmp, &opts.out)?;
+    Ok(report)
+}
 
-    let kept_dir = tmp.keep();
-    if opts.out.exists() {
-        // Checked empty above; rename cannot replace a directory on every platform.
-        std::fs::remove_dir(&opts.out).map_err(ImportError::io(&opts.out))?;
+/// Every `--every`th frame of the source; an error if none is left.
+fn kept_frames(
+    opts: &ImportOptions,
+    frames: Vec<SourceFrame>,
+) -> Result<Vec<SourceFrame>, ImportError> {
+    let kept: Vec<SourceFrame> = frames
+        .into_iter()
+        .enumerate()
+        .filter(|(i, _)| i.is_multiple_of(opts.every))
+        .map(|(_, f)| f)
+        .collect();
+    if kept.is_empty() {
+        return Err(ImportError::file(&opts.src, "no frames to import"));
     }
-    if let Err(source) = std::fs::rename(&kept_dir, &opts.out) {
+    Ok(kept)
+}
+
+/// Which kept frames are held out: every `--test-every`th, else the format's own splits
+/// where every frame has one (`None`), else every [`super::DEFAULT_TEST_EVERY`]th.
+fn test_every(opts: &ImportOptions, kept: &[SourceFrame]) -> Option<usize> {
+    let has_splits = kept.iter().all(|f| f.split.is_some());
+    match opts.test_every {
+        Some(n) => Some(n),
+        None if has_splits => None,
+        None => Some(super::DEFAULT_TEST_EVERY),
+    }
+}
+
+/// A hidden directory beside `out` (the same file system, so the final rename is
+/// atomic) with `images/` and `masks/`; removed when dropped unless kept.
+fn staging_dir(out: &Path) -> Result<tempfile::TempDir, ImportError> {
+    let parent = match out.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+        _ => PathBuf::from("."),
+    };
+    std::fs::create_dir_all(&parent).map_err(ImportError::io(&parent))?;
+    let name = out
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "dataset".into());
+    let tmp = tempfile::Builder::new()
+        .prefix(&format!(".{name}.import-"))
+        .tempdir_in(&parent)
+        .map_err(ImportError::io(&parent))?;
+    for dir in ["images", "masks"] {
+        let d = tmp.path().join(dir);
+        std::fs::create_dir_all(&d).map_err(ImportError::io(&d))?;
+    }
+    Ok(tmp)
+}
+
+/// Checks `dataset.json` by the rules every command applies when it opens a dataset,
+/// then writes it.
+fn save_checked(dataset: &Dataset) -> Result<(), ImportError> {
+    let text = serde_json::to_string_pretty(&dataset.to_json())
+        .map_err(|e| ImportError::Usage(format!("cannot serialise dataset.json: {e}")))?;
+    Dataset::from_json_str(&text, &dataset.root)?;
+    dataset.save_index()?;
+    Ok(())
+}
+
+/// Renames the finished staging directory to `out` (absent, or checked empty before).
+fn move_into_place(tmp: tempfile::TempDir, out: &Path) -> Result<(), ImportError> {
+    let kept_dir = tmp.keep();
+    if out.exists() {
+        // Checked empty above; rename cannot replace a directory on every platform.
+        std::fs::remove_dir(out).map_err(ImportError::io(out))?;
+    }
+    if let Err(source) = std::fs::rename(&kept_dir, out) {
         let _ = std::fs::remove_dir_all(&kept_dir);
         return Err(ImportError::Io {
-            file: opts.out.clone(),
+            file: out.to_path_buf(),
             source,
         });
     }
-    Ok(report)
+    Ok(())
 }
 
 /// Reads, undistorts, scales and writes frame `k`; returns it and the scale applied.

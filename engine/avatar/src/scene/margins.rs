@@ -128,12 +128,43 @@ pub fn fit_subject_margins(
         .par_iter()
         .map(|&i| fit_frame(dataset, &canonical, i, opts))
         .collect::<Result<_, _>>()?;
+    let pooled = pool_fits(&fits);
+    let from_depth = !fits.is_empty() && fits.iter().all(|f| f.has_depth);
+    let bare = super::frame::shell_capsules(skeleton, &canonical);
+    let margin = capsule_margins(&bare, &pooled, from_depth);
+    let cores = capsule_cores(&bare, &pooled.closest, &margin, from_depth);
+    let shells = CapsuleShells {
+        margin,
+        core: cores.iter().map(|c| c.0).collect(),
+        core_shrink: cores.iter().map(|c| c.1).collect(),
+        from_depth,
+    };
+    let mut coverage = pooled.coverage;
+    let uncovered_any = coverage_after(dataset, &canonical, &frames, &shells, &mut coverage)?;
+    Ok(SubjectMargins {
+        part_margins: pooled.part_margins,
+        shells,
+        coverage,
+        uncovered_any,
+    })
+}
+
+/// The frames' fits pooled: each part's widest margin, each capsule's largest need and
+/// closest surface per core candidate, and each part's rays and rays covered before.
+struct PooledFits {
+    part_margins: PartMargins,
+    need: Vec<f32>,
+    closest: Vec<[f32; 3]>,
+    coverage: [(usize, usize, usize); 4],
+}
+
+fn pool_fits(fits: &[FrameFit]) -> PooledFits {
     let n_caps = fits.first().map_or(0, |f| f.need.len());
     let mut part_margins = PartMargins::ZERO;
     let mut need = vec![f32::NEG_INFINITY; n_caps];
     let mut closest = vec![[f32::INFINITY; 3]; n_caps];
     let mut coverage = [(0, 0, 0); 4];
-    for f in &fits {
+    for f in fits {
         for (k, part) in Part::ALL.into_iter().enumerate() {
             part_margins.set(
                 part,
@@ -149,23 +180,41 @@ pub fn fit_subject_margins(
             }
         }
     }
-    let from_depth = !fits.is_empty() && fits.iter().all(|f| f.has_depth);
-    let bare = super::frame::shell_capsules(skeleton, &canonical);
-    let margin: Vec<f32> = (0..n_caps)
+    PooledFits {
+        part_margins,
+        need,
+        closest,
+        coverage,
+    }
+}
+
+/// Each capsule's margin: from depth, the largest need over the frames plus a safety;
+/// from masks, its part's margin.
+fn capsule_margins(bare: &[Capsule], pooled: &PooledFits, from_depth: bool) -> Vec<f32> {
+    (0..pooled.need.len())
         .map(|c| {
             if from_depth {
                 let safety = match bare[c].part {
                     Part::Hands => HAND_MARGIN_SAFETY_M,
                     _ => MARGIN_SAFETY_M,
                 };
-                need[c].max(0.0) + safety
+                pooled.need[c].max(0.0) + safety
             } else {
-                part_margins.get(bare[c].part)
+                pooled.part_margins.get(bare[c].part)
             }
         })
-        .collect();
-    // Per capsule: (core radius, shrink) of the largest-volume candidate.
-    let cores: Vec<(f32, f32)> = (0..n_caps)
+        .collect()
+}
+
+/// Per capsule: (core radius, shrink) of the largest-volume candidate; without depth the
+/// generic prior.
+fn capsule_cores(
+    bare: &[Capsule],
+    closest: &[[f32; 3]],
+    margin: &[f32],
+    from_depth: bool,
+) -> Vec<(f32, f32)> {
+    (0..closest.len())
         .map(|c| {
             if !from_depth {
                 return (CORE_PRIOR * bare[c].radius, 0.0, 0.0);
@@ -188,15 +237,18 @@ pub fn fit_subject_margins(
                 })
         })
         .map(|(r, f, _)| (r, f))
-        .collect();
-    let shells = CapsuleShells {
-        margin,
-        core: cores.iter().map(|c| c.0).collect(),
-        core_shrink: cores.iter().map(|c| c.1).collect(),
-        from_depth,
-    };
+        .collect()
+}
 
-    // Coverage after: every training frame re-checked with the grown capsules.
+/// Coverage after: every training frame re-checked with the grown capsules; adds each
+/// part's covered rays to `coverage` and returns the rays no capsule covers.
+fn coverage_after(
+    dataset: &Dataset,
+    canonical: &PosedSkeleton,
+    frames: &[usize],
+    shells: &CapsuleShells,
+    coverage: &mut [(usize, usize, usize); 4],
+) -> Result<usize, DatasetError> {
     let check_opts = MarginFitOpts {
         coverage_target: 1.0,
         max_margin: 0.0,
@@ -204,7 +256,7 @@ pub fn fit_subject_margins(
     let checks: Vec<MarginReport> = frames
         .par_iter()
         .map(|&i| {
-            let (scene, rays, _) = frame_scene_and_rays(dataset, &canonical, i)?;
+            let (scene, rays, _) = frame_scene_and_rays(dataset, canonical, i)?;
             fit_part_margins(&shells.inflate(&scene.capsules), &rays, &check_opts)
                 .map_err(|e| grid_error(dataset, i, e))
         })
@@ -216,12 +268,7 @@ pub fn fit_subject_margins(
         }
         uncovered_any += check.rays - check.any_part_before;
     }
-    Ok(SubjectMargins {
-        part_margins,
-        shells,
-        coverage,
-        uncovered_any,
-    })
+    Ok(uncovered_any)
 }
 
 fn fit_frame(

@@ -67,8 +67,17 @@ pub(super) const KNOWN_SUBJECTS: [&str; 8] = [
 /// InstantAvatar's `opt.get("skip", 1)`). Only block mappings of plain integers are read;
 /// other keys, such as `num_workers` or `${...}` references, are ignored.
 pub fn parse_splits_yaml(text: &str, file: &Path) -> Result<[Range; 3], ImportError> {
-    // Per block `a.b.train`: (start, end, skip).
-    type Fields = [Option<usize>; 3];
+    let blocks = range_blocks(text, file)?;
+    let range = |split: &str| split_range(&blocks, split, file);
+    Ok([range("train")?, range("val")?, range("test")?])
+}
+
+/// A block's `start`, `end` and `skip`, each where given.
+type Fields = [Option<usize>; 3];
+
+/// Every block under a split's key that gives a frame field, by its dotted path
+/// (`dataset.opt.train`), in the order met.
+fn range_blocks(text: &str, file: &Path) -> Result<Vec<(String, Fields)>, ImportError> {
     let mut blocks: Vec<(String, Fields)> = Vec::new();
     // The open mapping keys: (indent, key).
     let mut open: Vec<(usize, String)> = Vec::new();
@@ -115,60 +124,67 @@ pub fn parse_splits_yaml(text: &str, file: &Path) -> Result<[Range; 3], ImportEr
             }
         }
     }
-    let range = |split: &str| -> Result<Range, ImportError> {
-        let mut found = blocks
-            .iter()
-            .filter(|(p, _)| p.rsplit('.').next() == Some(split));
-        let (path, fields) = found.next().ok_or_else(|| {
-            ImportError::file(
+    Ok(blocks)
+}
+
+/// The range of `split`: its one block, with `start` and `end`, `skip` at least 1 and
+/// `end` at least `start`.
+fn split_range(
+    blocks: &[(String, Fields)],
+    split: &str,
+    file: &Path,
+) -> Result<Range, ImportError> {
+    let mut found = blocks
+        .iter()
+        .filter(|(p, _)| p.rsplit('.').next() == Some(split));
+    let (path, fields) = found.next().ok_or_else(|| {
+        ImportError::file(
+            file,
+            format!(
+                "no `{split}:` block with `start` and `end` (expected InstantAvatar's \
+                 confs/dataset/peoplesnapshot/<subject>.yaml: opt: {split}: start: N, \
+                 end: N, skip: N, one key a line)"
+            ),
+        )
+    })?;
+    if let Some((other, _)) = found.next() {
+        return Err(ImportError::file(
+            file,
+            format!("two `{split}:` blocks with frame ranges ({path} and {other})"),
+        ));
+    }
+    let get = |k: usize, name: &str| {
+        fields[k].ok_or_else(|| {
+            ImportError::field(
                 file,
-                format!(
-                    "no `{split}:` block with `start` and `end` (expected InstantAvatar's \
-                     confs/dataset/peoplesnapshot/<subject>.yaml: opt: {split}: start: N, \
-                     end: N, skip: N, one key a line)"
-                ),
+                format!("{path}.{name}"),
+                "missing (expected a frame index)",
             )
-        })?;
-        if let Some((other, _)) = found.next() {
-            return Err(ImportError::file(
-                file,
-                format!("two `{split}:` blocks with frame ranges ({path} and {other})"),
-            ));
-        }
-        let get = |k: usize, name: &str| {
-            fields[k].ok_or_else(|| {
-                ImportError::field(
-                    file,
-                    format!("{path}.{name}"),
-                    "missing (expected a frame index)",
-                )
-            })
-        };
-        let r = Range {
-            start: get(0, "start")?,
-            end: get(1, "end")?,
-            skip: fields[2].unwrap_or(1),
-        };
-        if r.skip == 0 {
-            return Err(ImportError::field(
-                file,
-                format!("{path}.skip"),
-                "expected at least 1, found 0",
-            ));
-        }
-        if r.end < r.start {
-            return Err(ImportError::field(
-                file,
-                format!("{path}.end"),
-                format!(
-                    "expected at least start ({}), found {}: the range is empty",
-                    r.start, r.end
-                ),
-            ));
-        }
-        Ok(r)
+        })
     };
-    Ok([range("train")?, range("val")?, range("test")?])
+    let r = Range {
+        start: get(0, "start")?,
+        end: get(1, "end")?,
+        skip: fields[2].unwrap_or(1),
+    };
+    if r.skip == 0 {
+        return Err(ImportError::field(
+            file,
+            format!("{path}.skip"),
+            "expected at least 1, found 0",
+        ));
+    }
+    if r.end < r.start {
+        return Err(ImportError::field(
+            file,
+            format!("{path}.end"),
+            format!(
+                "expected at least start ({}), found {}: the range is empty",
+                r.start, r.end
+            ),
+        ));
+    }
+    Ok(r)
 }
 
 /// `line` without a YAML comment (`#` at the start or after a space).

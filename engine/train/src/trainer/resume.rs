@@ -40,40 +40,8 @@ impl<'a> Trainer<'a> {
                 file: state_file.clone(),
                 problem: format!("not a training state: {e}"),
             })?;
-        let given_sha256 = dataset_sha256(dataset)?;
-        match &state.dataset_sha256 {
-            Some(trained) if *trained != given_sha256 => {
-                return Err(TrainError::OtherDataset {
-                    run: run.to_path_buf(),
-                    trained_on: state.data.clone(),
-                    trained_sha256: trained.clone(),
-                    given: dataset.root.join(talkin_data::dataset::INDEX_FILE),
-                    given_sha256,
-                });
-            }
-            Some(_) => {}
-            None => {
-                let note = format!(
-                    "{}: no dataset fingerprint (a run from an older build): cannot \
-                     check that {} is the dataset it was trained on",
-                    state_file.display(),
-                    dataset.root.display()
-                );
-                tracing::warn!("{note}");
-                notes.push(note);
-            }
-        }
-        if let Some(&bad) = state.frames.iter().find(|&&i| i >= dataset.frames.len()) {
-            return Err(TrainError::Resume {
-                file: state_file,
-                problem: format!(
-                    "frame {bad} is not in {} ({} frames): resume with the dataset the run \
-                     was trained on ({})",
-                    dataset.root.display(),
-                    dataset.frames.len(),
-                    state.data.display()
-                ),
-            });
+        if let Some(note) = check_same_dataset(dataset, run, &state, &state_file)? {
+            notes.push(note);
         }
         let options =
             record::from_json(state.options.clone()).map_err(|problem| TrainError::Resume {
@@ -133,4 +101,51 @@ impl<'a> Trainer<'a> {
         t.notes = notes;
         Ok(t)
     }
+}
+
+/// Refuses a resume on another dataset than the run's (by its fingerprint) or on one
+/// that lacks the run's training frames; a run from a build without fingerprints gives
+/// a note instead.
+fn check_same_dataset(
+    dataset: &Dataset,
+    run: &Path,
+    state: &TrainState,
+    state_file: &Path,
+) -> Result<Option<String>, TrainError> {
+    let given_sha256 = dataset_sha256(dataset)?;
+    let note = match &state.dataset_sha256 {
+        Some(trained) if *trained != given_sha256 => {
+            return Err(TrainError::OtherDataset {
+                run: run.to_path_buf(),
+                trained_on: state.data.clone(),
+                trained_sha256: trained.clone(),
+                given: dataset.root.join(talkin_data::dataset::INDEX_FILE),
+                given_sha256,
+            });
+        }
+        Some(_) => None,
+        None => {
+            let note = format!(
+                "{}: no dataset fingerprint (a run from an older build): cannot \
+                 check that {} is the dataset it was trained on",
+                state_file.display(),
+                dataset.root.display()
+            );
+            tracing::warn!("{note}");
+            Some(note)
+        }
+    };
+    if let Some(&bad) = state.frames.iter().find(|&&i| i >= dataset.frames.len()) {
+        return Err(TrainError::Resume {
+            file: state_file.to_path_buf(),
+            problem: format!(
+                "frame {bad} is not in {} ({} frames): resume with the dataset the run \
+                 was trained on ({})",
+                dataset.root.display(),
+                dataset.frames.len(),
+                state.data.display()
+            ),
+        });
+    }
+    Ok(note)
 }
