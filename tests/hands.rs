@@ -22,7 +22,7 @@ use talkin::human::body::{FrameParams, canonical_params};
 use talkin::human::camera::Camera;
 use talkin::nets::field::POSED_TAU_M;
 use talkin::nets::skinning::{FIRST_FINGER_JOINT, SkinningConfig, skinned_joint};
-use talkin::synth::render::Scene;
+use talkin::synth::tracer::Scene;
 use talkin::synth::{body::figure, look, proportions};
 
 /// Image side of the close-ups (pixels) and their focal length: about 30 cm across at

@@ -12,8 +12,8 @@ use burn::optim::{AdamConfig, GradientsParams};
 use burn::prelude::*;
 use talkin_nets::field::{FieldConfig, FieldInput, FrameConditions, PART_BIT_HANDS, PART_BIT_HEAD};
 use talkin_nets::init::WeightRng;
-use talkin_nets::render::OwnedRaySamples;
 use talkin_nets::skinning::ladder_prior;
+use talkin_nets::volume::OwnedRaySamples;
 
 #[global_allocator]
 static ALLOC: mimalloc::MiMalloc = mimalloc::MiMalloc;

@@ -13,7 +13,7 @@
 //!
 //! ```
 //! use burn::prelude::*;
-//! use talkin_nets::render::{OwnedRaySamples, render_packed};
+//! use talkin_nets::volume::{OwnedRaySamples, render_packed};
 //!
 //! let device = Device::flex();
 //! // Two rays: one with two samples, one empty (packed: flat arrays + offsets).
@@ -37,10 +37,10 @@ pub mod init;
 pub mod kernels;
 pub mod loss;
 pub mod mlp;
-pub mod render;
 mod rows;
 pub mod skinning;
 mod util;
+pub mod volume;
 
 pub use burn::prelude::Device;
 pub use device::{
@@ -51,4 +51,4 @@ pub use field::{
     FieldConfig, FieldInput, FieldOutput, FrameCodes, FrameConditions, PoseGrads, PoseLeaves,
     TalkinField, UnitMap,
 };
-pub use render::{RaySamples, RenderedRays, render_packed};
+pub use volume::{RaySamples, RenderedRays, render_packed};

@@ -3,8 +3,8 @@
 use talkin_grids::{Capsule, PackedSamples, Part};
 use talkin_nets::FrameConditions;
 use talkin_nets::field::{EXPRESSION_DIM, JAW_DIM};
-use talkin_nets::render::OwnedRaySamples;
 use talkin_nets::skinning::BoneCapsule;
+use talkin_nets::volume::OwnedRaySamples;
 
 use crate::scene::{CapsuleShells, FrameScene};
 use talkin_human::body::FrameParams;

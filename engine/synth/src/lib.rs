@@ -33,9 +33,9 @@ pub mod body;
 pub mod capture;
 mod framing;
 mod plan;
-pub mod render;
 pub mod sdf;
 pub mod talk;
+pub mod tracer;
 mod write;
 
 use std::path::{Path, PathBuf};
@@ -191,7 +191,7 @@ pub fn generate(
             &job.params,
         );
         let posed = skeleton.pose(&job.params);
-        let img = render::Scene::new(&fig, &posed, background)
+        let img = tracer::Scene::new(&fig, &posed, background)
             .with_smooth_skin(smooth_skin)
             .render(&camera);
         let paths = write::write_frame(out, index, &img, (width, height), masks_only)?;

@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 use talkin_data::dataset::DEPTH_UNIT_M;
 
 use crate::SynthError;
-use crate::render::Rendered;
+use crate::tracer::Rendered;
 
 /// The folders of the four files of a frame, under the dataset's root.
 pub(crate) const DIRS: [&str; 4] = ["images", "masks", "segmentation", "depth"];

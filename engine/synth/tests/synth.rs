@@ -542,7 +542,7 @@ fn the_capture_scene_has_its_flaws_and_its_true_fits() {
 /// and with 4 cm of bend differs on a few percent of the person's pixels.
 #[test]
 fn smooth_skin_bends_the_joints_and_nothing_else() {
-    use talkin_synth::render::Scene;
+    use talkin_synth::tracer::Scene;
     let cfg = SynthConfig {
         identities: 1,
         frames: 10,

@@ -12,13 +12,13 @@ use burn::tensor::activation::sigmoid;
 use crate::encoding::{Encoding, FrequencyEncoding};
 use crate::error::{NetsError, check_len};
 use crate::mlp::Mlp;
-use crate::render::{
-    OwnedRaySamples, RaySamples, RenderWeights, RenderedRays, distortion, render_in_front,
-    render_weighted,
-};
 use crate::rows::{add_rows, gather_rows};
 use crate::skinning::{BlendWeightVolume, N_SMPLX_JOINTS};
 use crate::util::{floats, ints, softplus};
+use crate::volume::{
+    OwnedRaySamples, RaySamples, RenderWeights, RenderedRays, distortion, render_in_front,
+    render_weighted,
+};
 
 mod config;
 mod fork;
@@ -193,7 +193,7 @@ impl FieldOutput {
     }
 
     /// [`FieldOutput::render`], and with `with_distortion` the distortion of every ray's
-    /// body pass ([`crate::render::distortion`]: how far each ray's weight is spread
+    /// body pass ([`crate::volume::distortion`]: how far each ray's weight is spread
     /// along it, `[r]`) from the same compositing weights.
     pub fn render_with_distortion(
         &self,

@@ -71,7 +71,7 @@ pub struct PixelLoss {
 /// - `target`: `[r, 3]`, `labels`: `[r]`, a silhouette's `sure`: `[r]`
 #[derive(Clone, Copy)]
 pub struct PixelInputs<'a> {
-    pub rendered: &'a crate::render::RenderedRays,
+    pub rendered: &'a crate::volume::RenderedRays,
     pub background: [f32; 3],
     pub target: &'a Tensor<2>,
     pub labels: &'a Tensor<1, Int>,
@@ -231,8 +231,8 @@ mod tests {
     #[ignore = "needs a Vulkan adapter (lavapipe will do): \
                 cargo test --release --features wgpu -p talkin-nets -p talkin --lib --test device -- --ignored"]
     fn device_op_pixel_loss_matches_the_composed_ops() {
-        use crate::render::RenderedRays;
         use crate::util::{floats, host};
+        use crate::volume::RenderedRays;
         let device = crate::device::test_wgpu().autodiff();
         let r = 23;
         let wave = |i: usize, k: f32| (i as f32 * k).sin() * 0.5 + 0.5;

@@ -11,7 +11,7 @@ use glam::Vec3;
 use rayon::prelude::*;
 use talkin_grids::Part;
 
-use super::margins::{CapsuleShells, frame_scene_and_rays};
+use super::shells::{CapsuleShells, frame_scene_and_rays};
 use talkin_data::dataset::{Dataset, DatasetError};
 use talkin_human::body::canonical_params;
 use talkin_human::body::skeleton::body_ancestor;

@@ -14,7 +14,7 @@ use talkin_grids::{
 };
 
 use super::frame::{FrameScene, capsule_bounds, median_dense_step};
-use super::margins::CapsuleShells;
+use super::shells::CapsuleShells;
 use talkin_human::body::PosedSkeleton;
 use talkin_nets::skinning::skinned_joint;
 

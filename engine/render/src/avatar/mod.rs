@@ -4,7 +4,7 @@
 //! evaluations, `talkin_benches::shared::avatar_of`).
 
 mod forwards;
-mod render;
+mod frame;
 
 use std::path::{Path, PathBuf};
 
@@ -15,7 +15,7 @@ use talkin_avatar::subject::{SubjectModel, SubjectSlot};
 use talkin_grids::SamplerKind;
 use talkin_nets::{FieldConfig, TalkinField};
 
-pub use render::{
+pub use frame::{
     DEVICE_FORWARD_SAMPLES_MAX, MAX_RENDER_PIXELS, RENDER_CHUNK_RAYS, RENDER_CHUNK_SAMPLES,
     RenderedFrame, forward_samples_on,
 };

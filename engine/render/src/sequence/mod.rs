@@ -4,19 +4,19 @@
 //! render | error contact sheet where ground truth exists.
 
 mod camera;
+mod frames;
 mod poses_file;
-mod render;
 mod sheet;
 
 use std::path::PathBuf;
 
 pub use camera::{DEFAULT_CAMERA_DISTANCE, default_camera};
+pub use frames::{
+    SHEET_FILE, SHEET_MAX_FRAMES, SequenceRenders, encode_png, render_sequence, write_png,
+};
 pub use poses_file::{
     PoseSource, PoseSourceError, PosedCamera, motion_poses, parse_poses, read_pose_source,
     read_poses_file,
-};
-pub use render::{
-    SHEET_FILE, SHEET_MAX_FRAMES, SequenceRenders, encode_png, render_sequence, write_png,
 };
 pub use sheet::{HEAT_FULL_SCALE, SheetRow, comparison_sheet, error_heat, outline};
 

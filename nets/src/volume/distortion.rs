@@ -81,7 +81,7 @@ mod tests {
         // Ray 0: a cloud, its weight a quarter in each of four samples over 0.4 m; ray 1:
         // empty; ray 2: one dense sample (a surface); ray 3: a huge density behind a thin
         // one.
-        let owned = crate::render::OwnedRaySamples {
+        let owned = crate::volume::OwnedRaySamples {
             offsets: vec![0, 4, 4, 7, 9],
             t_start: vec![0.0, 0.1, 0.2, 0.3, 0.0, 0.1, 0.2, 1.0, 1.1],
             t_end: vec![0.1, 0.2, 0.3, 0.4, 0.1, 0.2, 0.3, 1.1, 1.2],

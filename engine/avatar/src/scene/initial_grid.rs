@@ -5,7 +5,7 @@ use talkin_grids::{Capsule, GridError, OccupancyGrid, Part};
 
 use super::frame::capsule_bounds;
 use super::frame::shell_capsules;
-use super::margins::CapsuleShells;
+use super::shells::CapsuleShells;
 use talkin_human::body::skeleton::body_ancestor;
 use talkin_human::body::{FrameParams, Skeleton, canonical_params, joint};
 
