@@ -2,11 +2,12 @@
 //! runs: a frame's [`rays`] (its scene, conditions and samplers come from `talkin-avatar`),
 //! the [`loss`] (whose two halves' gradients nets' fused `grad_sum` adds), Adam (nets'
 //! fused kernel), the [`grid_update`]; the [`trainer`]'s step strings them together and
-//! it runs steps until the budget is spent, writing the [`log`] (through `journal`: on a
-//! GPU a few steps' losses at a time, read in one transfer by `pending`) and the avatar's
-//! checkpoints. A run is told
-//! its [`recipe`] (on a camera capture, the capture recipe wherever the command line
-//! named nothing; runs record it as [`record`] declares, versioned), whose [`preset`] names the architecture and optimiser settings; with
+//! it runs steps until the budget is spent, writing the [`step_log`] (through its
+//! `journal`: on a GPU a few steps' losses at a time, read in one transfer by `pending`)
+//! and the avatar's checkpoints. A run is told its [`recipe`] (on a camera capture, the
+//! capture recipe wherever the command line named nothing; runs record it as
+//! [`recipe::record`] declares, versioned, in `recipe.json`), whose [`preset`] names the
+//! architecture and optimiser settings; with
 //! [`refine`] it also learns per-frame corrections of the training fits.
 //!
 //! Must not know about rendering whole frames, evaluation, the server or the
@@ -15,27 +16,25 @@
 
 pub mod error;
 pub mod grid_update;
-mod journal;
-pub mod log;
 pub mod loss;
-mod pending;
 pub mod preset;
 pub mod rays;
 pub mod recipe;
-pub mod record;
 pub mod refine;
 pub mod run_lock;
 pub mod schedule;
 pub mod setup;
+pub mod step_log;
 pub mod trainer;
 
 pub use error::TrainError;
-pub use log::{LOG_FILE, StepLog};
 pub use preset::Preset;
+pub use recipe::RECIPE_FILE;
 pub use recipe::{
     Ablation, Budget, DEFAULT_LPIPS_DIR, DEVICE_ARG, FingerSkinning, Identities, TrainOptions,
 };
 pub use run_lock::{LOCK_FILE, RunLock, RunLockError};
-pub use setup::{RECIPE_FILE, existing_run};
+pub use setup::existing_run;
+pub use step_log::{LOG_FILE, StepLog};
 pub use talkin_grids::SamplerKind;
 pub use trainer::{ScheduleAnchor, TrainReport, Trainer, train};

@@ -16,7 +16,7 @@ use talkin_avatar::field_inputs::packed_layout;
 use talkin_grids::{PackedSamples, Ray};
 use talkin_nets::field::leaves::zero_grads;
 use talkin_nets::loss::{PerceptualLoss, PixelInputs, PixelLoss, PixelWeights, pixel_loss};
-use talkin_nets::render::RenderedRays;
+use talkin_nets::volume::RenderedRays;
 use talkin_nets::{
     FieldInput, FrameConditions, NetsError, PoseGrads, PoseLeaves, TalkinField, is_cpu,
 };

@@ -1,6 +1,12 @@
 //! What a run is told: one struct that is the command line's options (`talkin train`,
 //! `adapt` and the training benches flatten it). Field docs are the `--help` text. What a
-//! run records of them is [`crate::record`]'s own type.
+//! run records of them is [`record`]'s own type.
+
+mod file;
+pub mod record;
+
+pub use file::RECIPE_FILE;
+pub(crate) use file::write_recipe;
 
 use std::path::PathBuf;
 use std::str::FromStr;

@@ -9,8 +9,8 @@
 use burn::prelude::*;
 
 use crate::error::TrainError;
-use crate::log::{StepLog, TrainLog};
-use crate::pending::{PendingLosses, READ_EVERY};
+use crate::step_log::pending::{PendingLosses, READ_EVERY};
+use crate::step_log::{StepLog, TrainLog};
 
 /// Completed log entries and the seconds a read of the device waited for them.
 pub(crate) struct Completed {
@@ -95,7 +95,7 @@ impl Journal {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::log::LOG_FILE;
+    use crate::step_log::LOG_FILE;
 
     fn entry(step: usize) -> StepLog {
         StepLog {

@@ -1,5 +1,8 @@
 //! `RUN/train_log.csv`: one row per step, readable while the run goes on.
 
+pub(crate) mod journal;
+pub(crate) mod pending;
+
 use std::path::{Path, PathBuf};
 
 use crate::error::TrainError;

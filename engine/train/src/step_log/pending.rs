@@ -9,7 +9,7 @@ use std::time::Instant;
 use burn::prelude::*;
 
 use crate::error::TrainError;
-use crate::log::StepLog;
+use crate::step_log::StepLog;
 
 /// Steps between two reads of the queued losses on a GPU.
 pub(crate) const READ_EVERY: usize = 16;

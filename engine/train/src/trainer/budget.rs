@@ -6,8 +6,8 @@ use serde::{Deserialize, Serialize};
 
 use super::Trainer;
 use crate::error::TrainError;
+use crate::recipe::write_recipe;
 use crate::recipe::{Budget, TrainOptions};
-use crate::setup::write_recipe;
 
 /// The point a resumed run's budget changed at: from here the schedule's remaining
 /// virtual iterations are spread over the rest of the new budget, so the virtual step
@@ -82,7 +82,7 @@ impl Trainer<'_> {
         self.anchor = Some(anchor);
         self.opts.budget = budget;
         let extended = serde_json::to_value(anchor).map_err(|e| TrainError::Recipe {
-            file: self.out.join(crate::setup::RECIPE_FILE),
+            file: self.out.join(crate::recipe::RECIPE_FILE),
             problem: e.to_string(),
         })?;
         write_recipe(&self.out, &self.opts, &self.config, Some(extended))

@@ -14,17 +14,18 @@ use talkin_nets::{ComputeDevice, FieldConfig, FrameCodes, TalkinField};
 
 use crate::error::TrainError;
 use crate::grid_update::GridUpdates;
-use crate::journal::Journal;
-use crate::log::{LOG_FILE, TrainLog};
 use crate::preset::Preset;
 use crate::rays::FrameCaches;
 use crate::recipe::TrainOptions;
 use crate::refine::{PoseRefiner, RefineMode};
+use crate::step_log::journal::Journal;
+use crate::step_log::{LOG_FILE, TrainLog};
 use talkin_grids::SplitMix64;
 use talkin_nets::kernels::adam::FusedAdam;
 
+use crate::recipe::write_recipe;
 use crate::setup::{
-    clear_run, clip_of, fit_field_box, fit_subjects, training_frames, unknown_subject, write_recipe,
+    clear_run, clip_of, fit_field_box, fit_subjects, training_frames, unknown_subject,
 };
 
 use super::save::Checkpoints;

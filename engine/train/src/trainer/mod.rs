@@ -24,12 +24,12 @@ use talkin_nets::{FieldConfig, TalkinField};
 
 use crate::error::TrainError;
 use crate::grid_update::GridUpdates;
-use crate::journal::Journal;
-use crate::log::{LOG_FILE, StepLog};
 use crate::rays::FrameCaches;
 use crate::recipe::TrainOptions;
 use crate::refine::PoseRefiner;
 use crate::schedule;
+use crate::step_log::journal::Journal;
+use crate::step_log::{LOG_FILE, StepLog};
 use talkin_grids::SplitMix64;
 mod budget;
 mod construct;
@@ -67,7 +67,7 @@ struct TrainState {
     field_step: usize,
     elapsed_seconds: f64,
     rng_state: u64,
-    /// The options as [`crate::record`] writes them.
+    /// The options as [`crate::recipe::record`] writes them.
     options: serde_json::Value,
     /// The dataset directory, as given (for messages).
     #[serde(with = "path_json::serde_path")]

@@ -8,10 +8,10 @@ use talkin_data::dataset::Dataset;
 use talkin_nets::ComputeDevice;
 
 use crate::error::TrainError;
-use crate::log::{LOG_FILE, TrainLog};
 use crate::recipe::TrainOptions;
-use crate::record;
+use crate::recipe::record;
 use crate::refine::PoseRefiner;
+use crate::step_log::{LOG_FILE, TrainLog};
 use talkin_grids::SplitMix64;
 
 use super::construct::{open_device, optimizer};

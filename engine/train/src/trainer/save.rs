@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 use talkin_avatar::checkpoint::{CheckpointContents, CheckpointError};
 
 use crate::error::TrainError;
-use crate::record;
+use crate::recipe::record;
 
 use super::{TrainState, Trainer};
 

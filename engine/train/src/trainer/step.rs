@@ -10,12 +10,12 @@ use talkin_grids::{GridError, PackedSamples, SamplerKind};
 
 use super::Trainer;
 use crate::error::TrainError;
-use crate::log::StepLog;
 use crate::loss::{LossValues, StepBatch, StepLoss, loss_and_grads};
-use crate::pending::psnr;
 use crate::rays::{Batch, BatchSpec, CacheError, FrameCache, PATCH, draw_batch};
 use crate::refine::chain::correction_gradient;
 use crate::schedule;
+use crate::step_log::StepLog;
+use crate::step_log::pending::psnr;
 use talkin_avatar::subject::{SubjectModel, SubjectSlot};
 use talkin_data::dataset::Dataset;
 use talkin_nets::PoseGrads;

@@ -9,7 +9,7 @@ use crate::DEFAULT_LPIPS_DIR;
 /// `talkin train --steps 3 --batch 128 --patches 0 --grid-resolution 32 --seed 5
 /// --frame-codes 8 --frame-code-deform on --mask-edge 1 --random-background on
 /// --refine-poses on --pose-warmup 2 --hand-deform off --lr 0.02`.
-const UNVERSIONED: &str = include_str!("../../tests/fixtures/options-unversioned.json");
+const UNVERSIONED: &str = include_str!("../../../tests/fixtures/options-unversioned.json");
 
 fn read(json: Value) -> Result<TrainOptions, String> {
     from_json(json)
