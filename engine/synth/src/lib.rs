@@ -195,7 +195,14 @@ pub fn generate(
             .with_smooth_skin(smooth_skin)
             .render(&camera);
         let paths = write::write_frame(out, index, &img, (width, height), masks_only)?;
-        true_fits.push(job.params);
+        // A biased fit is recorded; the pose rendered goes to the true fits.
+        let params = match job.fit {
+            Some(fit) => {
+                true_fits.push(job.params);
+                fit
+            }
+            None => job.params,
+        };
         frames.push(Frame {
             subject: job.subject,
             split: job.split,
@@ -205,7 +212,7 @@ pub fn generate(
             segmentation: paths.segmentation,
             depth: paths.depth,
             camera,
-            params: job.fit,
+            params,
         });
         progress(index + 1, total);
     }
@@ -220,7 +227,7 @@ pub fn generate(
         frames,
     };
     dataset.save_index()?;
-    if cfg.capture.is_some_and(|c| c.biased()) {
+    if !true_fits.is_empty() {
         write::write_true_fits(&dataset, true_fits)?;
     }
     Ok(dataset)

@@ -29,8 +29,9 @@ pub(crate) struct Job {
     pub time: f64,
     /// The pose rendered.
     pub params: FrameParams,
-    /// The pose the dataset records: `params`, or the capture-like scene's biased fit.
-    pub fit: FrameParams,
+    /// The capture-like scene's biased fit, which the dataset records instead of
+    /// `params` (`None`: the fit is exact).
+    pub fit: Option<FrameParams>,
 }
 
 impl Job {
@@ -39,8 +40,8 @@ impl Job {
             subject,
             split,
             time,
-            fit: params.clone(),
             params,
+            fit: None,
         }
     }
 }
@@ -156,7 +157,7 @@ fn capture_jobs(cfg: &SynthConfig, i: usize) -> Vec<Job> {
                 split,
                 time: times[s],
                 params: clip[s].clone(),
-                fit: fits[s].clone(),
+                fit: capture.biased().then(|| fits[s].clone()),
             });
         }
     }

@@ -66,6 +66,7 @@ impl<'a> Scene<'a> {
             let a = posed.world_from_rest[j];
             Affine3A::from_mat3_translation(a.matrix3.as_mat3(), a.translation.as_vec3())
         });
+        let joint_rest_from_world = world_from_rest.map(|w| w.inverse());
         let placed = fig
             .prims
             .iter()
@@ -73,7 +74,7 @@ impl<'a> Scene<'a> {
                 let (c, r) = p.shape.bounding_sphere();
                 let w = world_from_rest[p.joint];
                 Placed {
-                    rest_from_world: w.inverse(),
+                    rest_from_world: joint_rest_from_world[p.joint],
                     centre: w.transform_point3(c),
                     radius: r + p.blend,
                 }
@@ -84,12 +85,10 @@ impl<'a> Scene<'a> {
             placed,
             light: Vec3::new(-0.45, 0.65, 0.62).normalize(),
             background,
-            joint_rest_from_world: world_from_rest.map(|w| w.inverse()),
             rest_joints: std::array::from_fn(|j| {
-                world_from_rest[j]
-                    .inverse()
-                    .transform_point3(posed.joint(j).as_vec3())
+                joint_rest_from_world[j].transform_point3(posed.joint(j).as_vec3())
             }),
+            joint_rest_from_world,
             smooth: None,
         }
     }
@@ -149,39 +148,24 @@ impl<'a> Scene<'a> {
     /// Scene SDF at `p` over the candidate primitives; returns (distance, nearest prim).
     #[inline]
     fn sdf(&self, p: Vec3, cands: &[usize]) -> (f32, usize) {
-        if let Some(sigma) = self.smooth {
-            let (r, set) = self.rest_point(p, cands, sigma);
-            let mut d = f32::INFINITY;
-            let mut nearest = (f32::INFINITY, usize::MAX);
-            for &i in cands {
-                let prim = &self.fig.prims[i];
-                let di = if set >> prim.joint & 1 == 1 {
-                    prim.shape.distance(r)
-                } else {
-                    prim.shape
-                        .distance(self.placed[i].rest_from_world.transform_point3(p))
-                };
-                if di < nearest.0 {
-                    nearest = (di, i);
-                }
-                d = if d.is_finite() {
-                    super::sdf::smin(d, di, prim.blend)
-                } else {
-                    di
-                };
-            }
-            return (d, nearest.1);
-        }
+        // With smooth skin, the shared rest point and the joints it blends.
+        let smooth = self.smooth.map(|sigma| self.rest_point(p, cands, sigma));
         let mut d = f32::INFINITY;
         let mut nearest = (f32::INFINITY, usize::MAX);
         for &i in cands {
             let pl = &self.placed[i];
             let prim = &self.fig.prims[i];
-            let bound = (p - pl.centre).length() - pl.radius;
-            if bound >= d + prim.blend && bound >= nearest.0 {
-                continue;
-            }
-            let di = prim.shape.distance(pl.rest_from_world.transform_point3(p));
+            let di = match smooth {
+                Some((r, set)) if set >> prim.joint & 1 == 1 => prim.shape.distance(r),
+                Some(_) => prim.shape.distance(pl.rest_from_world.transform_point3(p)),
+                None => {
+                    let bound = (p - pl.centre).length() - pl.radius;
+                    if bound >= d + prim.blend && bound >= nearest.0 {
+                        continue;
+                    }
+                    prim.shape.distance(pl.rest_from_world.transform_point3(p))
+                }
+            };
             if di < nearest.0 {
                 nearest = (di, i);
             }
@@ -246,10 +230,9 @@ impl<'a> Scene<'a> {
         });
         let n = n.try_normalize().unwrap_or(-dir);
         let prim = &self.fig.prims[hit.prim];
-        let p_rest = match self.smooth {
-            Some(sigma) if self.rest_point(p, cands, sigma).1 >> prim.joint & 1 == 1 => {
-                self.rest_point(p, cands, sigma).0
-            }
+        let smooth = self.smooth.map(|sigma| self.rest_point(p, cands, sigma));
+        let p_rest = match smooth {
+            Some((r, set)) if set >> prim.joint & 1 == 1 => r,
             _ => self.placed[hit.prim].rest_from_world.transform_point3(p),
         };
         let base = match prim.material {
