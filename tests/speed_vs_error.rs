@@ -12,8 +12,9 @@ fn reports_time_to_each_target_for_both_samplers() {
     let dataset = common::synthetic_scene("speed_vs_error_scene", 1, 32, 2);
     let out = common::temp_dir("speed_vs_error_report");
     let opts = SpeedVsErrorOptions {
-        // The last is out of reach of seconds of training.
-        targets_db: vec![10.0, 11.0, 60.0],
+        // The first is met by the untrained field (a run still trains to its next mark,
+        // so its steps have a cost); the last is out of reach of seconds of training.
+        targets_db: vec![0.0, 11.0, 60.0],
         accelerated_s: 2.0,
         dense_s: 1.0,
         eval_frames: 1,
@@ -67,6 +68,7 @@ fn reports_time_to_each_target_for_both_samplers() {
         // 60 dB is never reached.
         assert!(json[sampler]["seconds_to_target"][2].is_null(), "{sampler}");
         assert!(json[sampler]["cost"]["median_step_s"].as_f64().unwrap() > 0.0);
+        assert_eq!(json[sampler]["seconds_to_target"][0].as_f64(), Some(0.0));
     }
     assert_eq!(
         json["dense"]["cost"]["bones_per_sample"].as_f64(),

@@ -74,7 +74,9 @@ pub(crate) struct RunSpec<'a> {
     pub budget_s: f64,
     /// Evaluate at these training seconds (ascending; the last ends the run).
     pub marks: &'a [f64],
-    /// Stop after the first evaluation at or above this PSNR.
+    /// Stop after the first evaluation at or above this PSNR that follows a step: an
+    /// untrained field that already scores it is 0 s to the target on the curve, and the
+    /// run still trains to its next mark so that its steps' cost is measured.
     pub stop_at_psnr: Option<f64>,
     /// Write the final checkpoint (for the runs the report is about).
     pub save: bool,
@@ -272,7 +274,7 @@ pub(crate) fn train_and_score(
             samples_per_ray: meter.samples_per_ray(),
             eval_s: took,
         });
-        if spec.stop_at_psnr.is_some_and(|t| report.psnr >= t) {
+        if trainer.steps_taken() > 0 && spec.stop_at_psnr.is_some_and(|t| report.psnr >= t) {
             stop = Stop::ReachedTarget;
             break;
         }
