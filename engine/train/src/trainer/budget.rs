@@ -32,8 +32,8 @@ impl Trainer<'_> {
     /// Steps or training seconds so far, and the budget's total, in the budget's unit.
     fn budget_position(&self) -> (f64, f64) {
         match self.opts.budget {
-            Budget::Steps(n) => (self.step as f64, n as f64),
-            Budget::Seconds(s) => (self.elapsed, s),
+            Budget::Steps(n) => (self.progress.step as f64, n as f64),
+            Budget::Seconds(s) => (self.progress.elapsed, s),
         }
     }
 
@@ -41,7 +41,7 @@ impl Trainer<'_> {
     /// after a budget change, the anchor's position plus the new budget's remainder
     /// spread over the schedule's remainder.
     pub fn schedule_progress(&self) -> f64 {
-        let Some(a) = self.anchor else {
+        let Some(a) = self.progress.anchor else {
             return self.progress();
         };
         let (done, total) = self.budget_position();
@@ -75,11 +75,11 @@ impl Trainer<'_> {
             return Ok(());
         }
         let anchor = ScheduleAnchor {
-            step: self.step,
-            elapsed_seconds: self.elapsed,
+            step: self.progress.step,
+            elapsed_seconds: self.progress.elapsed,
             schedule_progress: self.schedule_progress(),
         };
-        self.anchor = Some(anchor);
+        self.progress.anchor = Some(anchor);
         self.opts.budget = budget;
         let extended = serde_json::to_value(anchor).map_err(|e| TrainError::Recipe {
             file: self.out.join(crate::recipe::RECIPE_FILE),

@@ -1,6 +1,6 @@
 //! Building a trainer: a fresh run, or one adapted from another run to a novel subject.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use burn::optim::ModuleOptimizer;
 use burn::prelude::*;
@@ -20,7 +20,7 @@ use crate::recipe::TrainOptions;
 use crate::refine::{PoseRefiner, RefineMode};
 use crate::step_log::journal::Journal;
 use crate::step_log::{LOG_FILE, TrainLog};
-use talkin_grids::SplitMix64;
+use talkin_avatar::refined::RefinerState;
 use talkin_nets::kernels::adam::FusedAdam;
 
 use crate::recipe::write_recipe;
@@ -28,8 +28,29 @@ use crate::setup::{
     clear_run, clip_of, fit_field_box, fit_subjects, training_frames, unknown_subject,
 };
 
+use super::progress::RunProgress;
 use super::save::Checkpoints;
 use super::{Trainer, is_imported};
+
+/// What a trainer is built from: a fresh run's start (`start`) or a checkpoint's contents
+/// (`resume`).
+pub(super) struct Parts {
+    pub opts: TrainOptions,
+    pub config: FieldConfig,
+    pub field: TalkinField,
+    /// The optimizer's moments (`None`: a fresh one).
+    pub optim: Option<ModuleOptimizer>,
+    pub subjects: Vec<SubjectSlot>,
+    pub progress: RunProgress,
+    /// The training frames' recorded corrections (`None`: fresh ones, where the options
+    /// refine the fits).
+    pub pose_refinement: Option<RefinerState>,
+    pub log: TrainLog,
+    /// The checkpoint resumed from, and its step.
+    pub resumed_from: Option<(usize, PathBuf)>,
+    /// What loading that checkpoint had to say.
+    pub notes: Vec<String>,
+}
 
 impl<'a> Trainer<'a> {
     /// A fresh run of `opts` on `dataset`, writing into `out` (created).
@@ -198,23 +219,43 @@ impl<'a> Trainer<'a> {
         };
         write_recipe(out, &opts, &config, None)?;
         let log = TrainLog::open(&out.join(LOG_FILE), None)?;
+        let progress = RunProgress::start(opts.seed, frames, slot_of);
         Trainer::assemble(
-            dataset, out, opts, config, field, subjects, frames, slot_of, log,
+            dataset,
+            out,
+            Parts {
+                opts,
+                config,
+                field,
+                optim: None,
+                subjects,
+                progress,
+                pose_refinement: None,
+                log,
+                resumed_from: None,
+                notes: Vec::new(),
+            },
         )
     }
 
-    #[allow(clippy::too_many_arguments)]
+    /// The trainer of `parts`, writing into `out`.
     pub(super) fn assemble(
         dataset: &'a Dataset,
         out: &Path,
-        opts: TrainOptions,
-        config: FieldConfig,
-        field: TalkinField,
-        subjects: Vec<SubjectSlot>,
-        frames: Vec<usize>,
-        slot_of: Vec<Option<usize>>,
-        log: TrainLog,
+        parts: Parts,
     ) -> Result<Self, TrainError> {
+        let Parts {
+            opts,
+            config,
+            field,
+            optim,
+            subjects,
+            progress,
+            pose_refinement,
+            log,
+            resumed_from,
+            notes,
+        } = parts;
         let device = field.identity.val().device();
         let perceptual = match opts.perceptual_dir() {
             Some(dir) => Some(
@@ -232,32 +273,36 @@ impl<'a> Trainer<'a> {
             warmup_steps: 0,
             ..OccUpdateOpts::default()
         };
-        let optim = optimizer(opts.preset);
+        let optim = optim.unwrap_or_else(|| optimizer(opts.preset));
         let dataset_sha256 = dataset_sha256(dataset)?;
-        let refiner = (opts.refine.refine_poses == RefineMode::On)
-            .then(|| PoseRefiner::new(dataset, &frames, opts.refine.clone()));
+        let refiner = (opts.refine.refine_poses == RefineMode::On).then(|| {
+            let refine = opts.refine.clone();
+            match pose_refinement {
+                Some(recorded) => PoseRefiner::from_state(dataset, recorded, refine),
+                None => PoseRefiner::new(dataset, &progress.frames, refine),
+            }
+        });
+        let mut checkpoints = Checkpoints::new(opts.checkpoint_every_s);
+        if let Some((step, dir)) = resumed_from {
+            checkpoints.resumed_from(step, dir);
+        }
         Ok(Trainer {
             refiner,
             dataset,
             out: out.to_path_buf(),
-            rng: SplitMix64::new(opts.seed ^ 0x7A1C_11E5_EED5_0001),
-            checkpoints: Checkpoints::new(opts.checkpoint_every_s),
+            checkpoints,
             opts,
             config,
             field: Some(field),
             optim,
             subjects,
-            frames,
+            progress,
             frame_caches: FrameCaches::default(),
             perceptual,
-            step: 0,
-            elapsed: 0.0,
             journal: Journal::new(log),
             grids: GridUpdates::new(occ_opts),
-            slot_of,
             dataset_sha256,
-            anchor: None,
-            notes: Vec::new(),
+            notes,
         })
     }
 }

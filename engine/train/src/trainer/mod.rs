@@ -5,7 +5,8 @@
 //! stop ([`Trainer::run_until`]), checkpointing every few minutes and at the end.
 //!
 //! This file holds the trainer's state, its accessors and the run loop; `construct`
-//! builds one (fresh or adapted), `resume` continues a run from a checkpoint, `step`
+//! builds one (fresh or adapted), `progress` is the state a checkpoint saves as it is,
+//! `resume` continues a run from a checkpoint, `step`
 //! takes one optimizer step, `save` writes checkpoints and `budget` maps a run onto the
 //! schedule.
 
@@ -30,14 +31,15 @@ use crate::refine::PoseRefiner;
 use crate::schedule;
 use crate::step_log::journal::Journal;
 use crate::step_log::{LOG_FILE, StepLog};
-use talkin_grids::SplitMix64;
 mod budget;
 mod construct;
+mod progress;
 mod resume;
 mod save;
 mod step;
 
 pub use budget::ScheduleAnchor;
+use progress::RunProgress;
 
 /// What a run did.
 #[derive(Clone, Debug)]
@@ -59,37 +61,31 @@ pub struct TrainReport {
     pub perceptual_note: Option<String>,
 }
 
-/// What `state.json` holds: enough to continue exactly.
+/// What `state.json` holds: the run's progress as it is, and what it was trained with
+/// (recorded at each save, checked on resume).
 #[derive(Clone, Debug, Serialize, Deserialize)]
 struct TrainState {
-    step: usize,
+    #[serde(flatten)]
+    progress: RunProgress,
     /// The step the field saw last (virtual; see [`schedule`]).
     field_step: usize,
-    elapsed_seconds: f64,
-    rng_state: u64,
     /// The options as [`crate::recipe::record`] writes them.
     options: serde_json::Value,
     /// The dataset directory, as given (for messages).
     #[serde(with = "path_json::serde_path")]
     data: PathBuf,
-    /// SHA-256 of the dataset's `dataset.json`; with `frames`, the dataset's fingerprint
-    /// (absent in runs from before it was recorded).
+    /// SHA-256 of the dataset's `dataset.json`; with the progress's frames, the
+    /// dataset's fingerprint (absent in runs from before it was recorded).
     #[serde(default)]
     dataset_sha256: Option<String>,
-    /// Dataset frames trained on.
-    frames: Vec<usize>,
-    /// Per dataset subject: its identity code and subject slot.
-    slot_of: Vec<Option<usize>>,
-    /// Where the schedule was last re-anchored to a new budget (absent: never).
-    #[serde(default)]
-    schedule_anchor: Option<ScheduleAnchor>,
     /// The training frames' pose corrections and their optimizer (absent: the run
     /// trusts its fits).
     #[serde(default)]
     pose_refinement: Option<RefinerState>,
 }
 
-/// A run in progress. Its parts own their state: the frames' caches (`FrameCaches`), the
+/// A run in progress. Its parts own their state: its progress (`RunProgress`), the
+/// frames' caches (`FrameCaches`), the
 /// log (`Journal`), the checkpoints (`save::Checkpoints`) and the grid updates
 /// (`GridUpdates`); the files of this module build it (`construct`,
 /// `resume`), step it (`step`), save it (`save`) and place it on the schedule (`budget`).
@@ -103,20 +99,13 @@ pub struct Trainer<'a> {
     field: Option<TalkinField>,
     optim: ModuleOptimizer,
     subjects: Vec<SubjectSlot>,
-    /// Per dataset subject: its identity code and subject slot.
-    slot_of: Vec<Option<usize>>,
-    /// The dataset frames trained on (a frame code each, in order).
-    frames: Vec<usize>,
-    /// SHA-256 of the dataset's `dataset.json`, recorded in every checkpoint.
+    /// Where the run is and what it draws from: saved as it is.
+    progress: RunProgress,
+    /// SHA-256 of the dataset's `dataset.json` (of `dataset`), recorded in every
+    /// checkpoint.
     dataset_sha256: String,
-    rng: SplitMix64,
     frame_caches: FrameCaches,
     perceptual: Option<PerceptualLoss>,
-    /// Steps taken.
-    step: usize,
-    /// Training seconds so far.
-    elapsed: f64,
-    anchor: Option<ScheduleAnchor>,
     journal: Journal,
     checkpoints: save::Checkpoints,
     grids: GridUpdates,
@@ -134,17 +123,17 @@ impl Trainer<'_> {
 
     /// The dataset frames this run draws its rays from (for `adapt`, the clip's).
     pub fn training_frames(&self) -> &[usize] {
-        &self.frames
+        &self.progress.frames
     }
 
     /// Steps taken.
     pub fn steps_taken(&self) -> usize {
-        self.step
+        self.progress.step
     }
 
     /// Training seconds so far (evaluation pauses excluded).
     pub fn elapsed_seconds(&self) -> f64 {
-        self.elapsed
+        self.progress.elapsed
     }
 
     pub fn options(&self) -> &TrainOptions {
@@ -185,7 +174,7 @@ impl Trainer<'_> {
 
     /// `secs` more of training: on the run's clock and the checkpoints'.
     fn spend(&mut self, secs: f64) {
-        self.elapsed += secs;
+        self.progress.elapsed += secs;
         self.checkpoints.count(secs);
     }
 
@@ -207,7 +196,7 @@ impl Trainer<'_> {
 
     /// Identity slot of dataset subject `s` (`None`: not trained in this run).
     pub fn slot_of(&self, s: usize) -> Option<usize> {
-        self.slot_of.get(s).copied().flatten()
+        self.progress.slot_of.get(s).copied().flatten()
     }
 
     /// Trains until the budget is spent, checkpointing on the way and at the end.
@@ -223,7 +212,7 @@ impl Trainer<'_> {
         stop: &AtomicBool,
         progress: &mut dyn FnMut(&StepLog),
     ) -> Result<TrainReport, TrainError> {
-        let start = self.elapsed;
+        let start = self.progress.elapsed;
         let mut logs = Vec::new();
         let mut interrupted = false;
         while !self.done() {
@@ -245,11 +234,11 @@ impl Trainer<'_> {
         Ok(TrainReport {
             logs,
             checkpoint,
-            steps: self.step,
+            steps: self.progress.step,
             interrupted,
             notes: self.notes.clone(),
             log_file: self.out.join(LOG_FILE),
-            seconds: self.elapsed - start,
+            seconds: self.progress.elapsed - start,
             perceptual_note: self.perceptual_note(),
         })
     }

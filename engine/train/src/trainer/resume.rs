@@ -10,11 +10,10 @@ use talkin_nets::ComputeDevice;
 use crate::error::TrainError;
 use crate::recipe::TrainOptions;
 use crate::recipe::record;
-use crate::refine::PoseRefiner;
+use crate::refine::RefineMode;
 use crate::step_log::{LOG_FILE, TrainLog};
-use talkin_grids::SplitMix64;
 
-use super::construct::{open_device, optimizer};
+use super::construct::{Parts, open_device, optimizer};
 use super::{TrainState, Trainer};
 
 impl<'a> Trainer<'a> {
@@ -48,45 +47,10 @@ impl<'a> Trainer<'a> {
                 file: state_file.clone(),
                 problem: format!("`options`: {problem}"),
             })?;
-        let device = open_device(on)?;
-        let field = checkpoint.field(&device)?;
-        let optim_bytes = checkpoint
-            .optimizer_bytes()
-            .ok_or_else(|| TrainError::Resume {
-                file: checkpoint.optimizer_file(),
-                problem: "missing: an inference-only checkpoint cannot be resumed".into(),
-            })?
-            .to_vec();
-        let log = TrainLog::open(&run.join(LOG_FILE), Some(state.step))?;
-        let mut t = Trainer::assemble(
-            dataset,
-            run,
-            TrainOptions {
-                device: on,
-                ..options
-            },
-            checkpoint.config.clone(),
-            field,
-            checkpoint.subjects.clone(),
-            state.frames.clone(),
-            state.slot_of.clone(),
-            log,
-        )?;
-        t.optim = optimizer(t.opts.preset)
-            .from_bytes(Bytes::from_bytes_vec(optim_bytes))
-            .map_err(|e| TrainError::Resume {
-                file: checkpoint.optimizer_file(),
-                problem: e.to_string(),
-            })?;
-        t.step = state.step;
-        t.elapsed = state.elapsed_seconds;
-        t.rng = SplitMix64::from_state(state.rng_state);
-        t.anchor = state.schedule_anchor;
-        match (&mut t.refiner, state.pose_refinement) {
-            (Some(r), Some(recorded)) if recorded.frames == t.frames => {
-                *r = PoseRefiner::from_state(dataset, recorded, r.opts.clone());
-            }
-            (None, None) => {}
+        let refine_on = options.refine.refine_poses == RefineMode::On;
+        match &state.pose_refinement {
+            Some(recorded) if refine_on && recorded.frames == state.progress.frames => {}
+            None if !refine_on => {}
             _ => {
                 return Err(TrainError::Resume {
                     file: state_file,
@@ -96,10 +60,41 @@ impl<'a> Trainer<'a> {
                 });
             }
         }
-        t.checkpoints
-            .resumed_from(state.step, checkpoint.dir.clone());
-        t.notes = notes;
-        Ok(t)
+        let device = open_device(on)?;
+        let field = checkpoint.field(&device)?;
+        let optim_bytes = checkpoint
+            .optimizer_bytes()
+            .ok_or_else(|| TrainError::Resume {
+                file: checkpoint.optimizer_file(),
+                problem: "missing: an inference-only checkpoint cannot be resumed".into(),
+            })?
+            .to_vec();
+        let optim = optimizer(options.preset)
+            .from_bytes(Bytes::from_bytes_vec(optim_bytes))
+            .map_err(|e| TrainError::Resume {
+                file: checkpoint.optimizer_file(),
+                problem: e.to_string(),
+            })?;
+        let log = TrainLog::open(&run.join(LOG_FILE), Some(state.progress.step))?;
+        Trainer::assemble(
+            dataset,
+            run,
+            Parts {
+                opts: TrainOptions {
+                    device: on,
+                    ..options
+                },
+                config: checkpoint.config.clone(),
+                field,
+                optim: Some(optim),
+                subjects: checkpoint.subjects.clone(),
+                resumed_from: Some((state.progress.step, checkpoint.dir.clone())),
+                progress: state.progress,
+                pose_refinement: state.pose_refinement,
+                log,
+                notes,
+            },
+        )
     }
 }
 
@@ -135,7 +130,12 @@ fn check_same_dataset(
             Some(note)
         }
     };
-    if let Some(&bad) = state.frames.iter().find(|&&i| i >= dataset.frames.len()) {
+    if let Some(&bad) = state
+        .progress
+        .frames
+        .iter()
+        .find(|&&i| i >= dataset.frames.len())
+    {
         return Err(TrainError::Resume {
             file: state_file.to_path_buf(),
             problem: format!(

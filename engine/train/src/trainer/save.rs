@@ -73,7 +73,7 @@ impl Trainer<'_> {
         // (their entries go to the next `step` or `settle`).
         let waited = self.journal.sync()?;
         self.spend(waited);
-        if let Some(dir) = self.checkpoints.written_at(self.step) {
+        if let Some(dir) = self.checkpoints.written_at(self.progress.step) {
             return Ok(dir.clone());
         }
         let optimizer = self.optim.into_bytes().map_err(|e| TrainError::Resume {
@@ -85,16 +85,11 @@ impl Trainer<'_> {
         let options = record::to_json(&self.opts)
             .map_err(|e| CheckpointError::format(&state_file, "options", e))?;
         let state = TrainState {
-            step: self.step,
+            progress: self.progress.clone(),
             field_step: self.field_step(),
-            elapsed_seconds: self.elapsed,
-            rng_state: self.rng.state(),
             options,
             data: self.dataset.root.clone(),
             dataset_sha256: Some(self.dataset_sha256.clone()),
-            frames: self.frames.clone(),
-            slot_of: self.slot_of.clone(),
-            schedule_anchor: self.anchor,
             pose_refinement: self.refiner.as_ref().map(|r| r.state.clone()),
         };
         let state = serde_json::to_value(&state)
@@ -102,7 +97,7 @@ impl Trainer<'_> {
         let dir = talkin_avatar::checkpoint::save(
             &self.out,
             &CheckpointContents {
-                step: self.step,
+                step: self.progress.step,
                 field: self.field(),
                 config: &self.config,
                 optimizer: Some(optimizer.to_vec()),
@@ -113,7 +108,7 @@ impl Trainer<'_> {
             },
         )?;
         // Checkpoint time counts as training time, not the schedule's.
-        self.checkpoints.written(self.step, dir.clone());
+        self.checkpoints.written(self.progress.step, dir.clone());
         Ok(dir)
     }
 

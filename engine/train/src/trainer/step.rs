@@ -38,7 +38,7 @@ impl Trainer<'_> {
         let refining = self
             .refiner
             .as_ref()
-            .is_some_and(|r| r.learning_at(self.step));
+            .is_some_and(|r| r.learning_at(self.progress.step));
         let mut batch = self.draw_rays(frame, vstep)?;
         let background = self.step_background();
         if background != self.dataset.background {
@@ -63,7 +63,7 @@ impl Trainer<'_> {
             && !loss.is_finite()
         {
             return Err(TrainError::NonFinite {
-                step: self.step + 1,
+                step: self.progress.step + 1,
                 loss,
             });
         }
@@ -71,7 +71,7 @@ impl Trainer<'_> {
         // Optimizer (and the frame's pose correction).
         self.optimize(lr, grads);
         self.refine_pose(frame, pose.as_ref());
-        self.step += 1;
+        self.progress.step += 1;
 
         // Grid update, when due.
         self.update_grids_if_due()?;
@@ -82,7 +82,7 @@ impl Trainer<'_> {
         // compiled new kernels for a minute: design.md, "Devices").
         if let LossValues::Queued(values) = &values {
             values.device().flush().map_err(|e| TrainError::Flush {
-                step: self.step,
+                step: self.progress.step,
                 problem: format!("{e:?}"),
             })?;
         }
@@ -91,8 +91,8 @@ impl Trainer<'_> {
         self.spend(secs);
         // A queued step's loss, MSE and PSNR are filled in when they are read.
         let mut entry = StepLog {
-            step: self.step,
-            seconds: self.elapsed,
+            step: self.progress.step,
+            seconds: self.progress.elapsed,
             loss: f32::NAN,
             mse: f32::NAN,
             psnr: f32::NAN,
@@ -130,15 +130,15 @@ impl Trainer<'_> {
 
     /// A seeded training frame, cached with its decoded images and sampler on first use.
     fn pick_frame(&mut self) -> Result<usize, TrainError> {
-        let k = self.rng.below(self.frames.len() as u64) as usize;
-        let i = self.frames[k];
+        let k = self.progress.rng.below(self.progress.frames.len() as u64) as usize;
+        let i = self.progress.frames[k];
         // A run's frame codes are its training frames', in order.
         let code = (k < self.field().n_frame_codes()).then_some(k);
         // Only a frame's first draw builds its cache (the closure borrows the fields it
         // reads beside the caches it fills).
         let dataset = self.dataset;
         self.frame_caches.get_or_build(i, || {
-            let (slot, model) = trained_subject(dataset, &self.slot_of, &self.subjects, i);
+            let (slot, model) = trained_subject(dataset, &self.progress.slot_of, &self.subjects, i);
             let mask_edge = self.opts.mask_edge_in(dataset, i);
             let fingers = self.config.skinning.skins_fingers();
             FrameCache::new(dataset, i, slot, model, mask_edge, fingers, code).map_err(
@@ -158,7 +158,7 @@ impl Trainer<'_> {
     /// front of it), else the dataset's.
     fn step_background(&mut self) -> [f32; 3] {
         if self.opts.random_background && self.dataset.can_show_over() {
-            std::array::from_fn(|_| self.rng.next_f32())
+            std::array::from_fn(|_| self.progress.rng.next_f32())
         } else {
             self.dataset.background
         }
@@ -182,7 +182,7 @@ impl Trainer<'_> {
             frame,
             self.frame_caches.get(frame),
             &spec,
-            &mut self.rng,
+            &mut self.progress.rng,
         )
         .map_err(|source| grid_error(self.dataset, frame, source))
     }
@@ -193,7 +193,7 @@ impl Trainer<'_> {
             .opts
             .seed
             .wrapping_mul(0x9E37_79B9)
-            .wrapping_add(self.step as u64);
+            .wrapping_add(self.progress.step as u64);
         let model = self.model_of(frame);
         self.frame_caches
             .get(frame)
@@ -225,7 +225,8 @@ impl Trainer<'_> {
         if current {
             return Ok(());
         }
-        let (slot, model) = trained_subject(self.dataset, &self.slot_of, &self.subjects, frame);
+        let (slot, model) =
+            trained_subject(self.dataset, &self.progress.slot_of, &self.subjects, frame);
         let params = refiner.params_of(self.dataset, frame);
         cache
             .repose(
@@ -311,7 +312,7 @@ impl Trainer<'_> {
     /// Every `occ_every` steps (accelerated sampler only), one trained subject's
     /// occupancy grid, in turn, from the field's density.
     fn update_grids_if_due(&mut self) -> Result<(), TrainError> {
-        if self.opts.sampler != SamplerKind::Accelerated || !self.grids.due(self.step) {
+        if self.opts.sampler != SamplerKind::Accelerated || !self.grids.due(self.progress.step) {
             return Ok(());
         }
         let face_dim = talkin_nets::field::EXPRESSION_DIM
@@ -320,12 +321,12 @@ impl Trainer<'_> {
             } else {
                 0
             };
-        let virtual_per_step = self.field_step() as f64 / self.step as f64;
+        let virtual_per_step = self.field_step() as f64 / self.progress.step as f64;
         let field = self.field().valid();
         self.grids.update(
             &field,
             &mut self.subjects,
-            self.step,
+            self.progress.step,
             virtual_per_step,
             face_dim,
         )
@@ -333,7 +334,7 @@ impl Trainer<'_> {
 
     /// The model of the subject dataset frame `frame` shows.
     fn model_of(&self, frame: usize) -> &SubjectModel {
-        trained_subject(self.dataset, &self.slot_of, &self.subjects, frame).1
+        trained_subject(self.dataset, &self.progress.slot_of, &self.subjects, frame).1
     }
 }
 
