@@ -247,15 +247,8 @@ pub fn brute_force_hits(capsules: &[Capsule], ray: &Ray, out: &mut Vec<CapsuleHi
 
 /// Distance from `p` to the capsule's segment `a`-`b` (not its surface).
 pub fn distance_to_segment(p: Vec3, a: Vec3, b: Vec3) -> f32 {
-    let (p, a, b) = (p.as_dvec3(), a.as_dvec3(), b.as_dvec3());
-    let ab = b - a;
-    let l2 = ab.length_squared();
-    let s = if l2 > 0.0 {
-        ((p - a).dot(ab) / l2).clamp(0.0, 1.0)
-    } else {
-        0.0
-    };
-    (p - (a + s * ab)).length() as f32
+    let f64s = |v: Vec3| v.as_dvec3().to_array();
+    talkin_geometry::segment_distance2(f64s(p), f64s(a), f64s(b)).sqrt() as f32
 }
 
 /// Signed distance from `p` to the capsule surface (negative inside).

@@ -2,6 +2,8 @@
 //! bone-distance initialisation) and posed solid cores (the posed-space prior), and the
 //! distances both are made of.
 
+use talkin_geometry::segment_distance2;
+
 use super::{N_BODY_JOINTS, channels, skinned_joint};
 
 /// A segment of bone `bone` in canonical space (a bone may have several, e.g. the pelvis
@@ -69,7 +71,7 @@ pub(super) fn canonical_prior_logits(
                     aabb_min[a] as f64 + t * (aabb_max[a] as f64 - aabb_min[a] as f64)
                 });
                 for s in prior {
-                    let d2 = segment_distance2(p, s.a, s.b);
+                    let d2 = segment_distance2(p, s.a.map(f64::from), s.b.map(f64::from));
                     let j = skinned_joint(s.bone, finger_bones);
                     let slot = &mut logits[((j * r + z) * r + y) * r + x];
                     *slot = slot.max((-d2 * inv) as f32);
@@ -86,18 +88,5 @@ pub(super) fn canonical_prior_logits(
 #[inline(always)]
 pub(super) fn capsule_distance(p: [f32; 3], c: &BoneCapsule) -> f32 {
     let p = p.map(|v| v as f64);
-    (segment_distance2(p, c.a, c.b).sqrt() - c.radius as f64) as f32
-}
-
-#[inline(always)]
-fn segment_distance2(p: [f64; 3], a: [f32; 3], b: [f32; 3]) -> f64 {
-    let ab: [f64; 3] = std::array::from_fn(|i| b[i] as f64 - a[i] as f64);
-    let ap: [f64; 3] = std::array::from_fn(|i| p[i] - a[i] as f64);
-    let len2: f64 = ab.iter().map(|v| v * v).sum();
-    let t = if len2 > 0.0 {
-        (ap.iter().zip(&ab).map(|(u, v)| u * v).sum::<f64>() / len2).clamp(0.0, 1.0)
-    } else {
-        0.0
-    };
-    (0..3).map(|i| (ap[i] - t * ab[i]).powi(2)).sum()
+    (segment_distance2(p, c.a.map(f64::from), c.b.map(f64::from)).sqrt() - c.radius as f64) as f32
 }
