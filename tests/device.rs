@@ -11,6 +11,7 @@ mod common;
 use std::process::Command;
 
 use talkin::nets::ComputeDevice;
+use talkin::render::avatar::RenderFrame;
 
 #[test]
 fn a_device_that_cannot_be_opened_is_a_named_error_and_a_nonzero_exit() {
@@ -44,9 +45,9 @@ fn a_device_that_cannot_be_opened_is_a_named_error_and_a_nonzero_exit() {
 /// each device, the shot the training rows render, and names a run it cannot load.
 #[test]
 fn the_device_bench_renders_a_trained_avatar() {
+    use talkin::avatar::Avatar;
     use talkin::benches::device::{DeviceBenchOptions, render_shot, run, table};
     use talkin::grids::SamplerKind;
-    use talkin::render::avatar::Avatar;
     use talkin::train::{Preset, Trainer};
 
     let dataset = common::synthetic_scene("device_bench_scene", 1, 64, 5);
@@ -114,10 +115,11 @@ fn the_device_bench_renders_a_trained_avatar() {
 mod wgpu {
     use burn::module::{Module, ModuleVisitor, Param};
     use burn::prelude::*;
+    use talkin::avatar::Avatar;
     use talkin::benches::shared::avatar_of;
     use talkin::grids::SamplerKind;
     use talkin::nets::{ComputeDevice, TalkinField};
-    use talkin::render::avatar::Avatar;
+    use talkin::render::avatar::RenderFrame;
     use talkin::render::metrics::{Rect, psnr};
     use talkin::train::{StepLog, Trainer};
 

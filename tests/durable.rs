@@ -13,10 +13,10 @@ use std::time::{Duration, Instant};
 
 use burn::module::{Module, ModuleMapper, Param};
 use burn::prelude::*;
+use talkin::avatar::Avatar;
 use talkin::avatar::checkpoint::{self, Checkpoint, MANIFEST_FILE, MODEL_FILE};
 use talkin::data::dataset::Dataset;
 use talkin::grids::SamplerKind;
-use talkin::render::avatar::Avatar;
 use talkin::train::{Budget, LOG_FILE, TrainOptions, Trainer, schedule, train};
 
 fn talkin(args: &[&OsStr]) -> Output {

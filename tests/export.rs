@@ -12,12 +12,14 @@ use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
 use glam::{DVec3, Vec3};
+use talkin::avatar::Avatar;
 use talkin::data::dataset::{Dataset, Split};
 use talkin::export::rig::pose_vertices;
 use talkin::export::{ExportedAvatar, SurfaceOptions, export_avatar};
 use talkin::grids::SamplerKind;
 use talkin::human::camera::Camera;
-use talkin::render::avatar::{Avatar, RenderedFrame};
+use talkin::render::avatar::RenderFrame;
+use talkin::render::avatar::RenderedFrame;
 use talkin::render::sequence::split_frames;
 use talkin::train::train;
 
@@ -273,7 +275,7 @@ fn glb_holds_the_mesh_rig_and_animation() {
         .read_inverse_bind_matrices()
         .unwrap()
         .collect();
-    let model = &talkin::render::avatar::Avatar::load(run).unwrap();
+    let model = &talkin::avatar::Avatar::load(run).unwrap();
     let canonical = &model.subject(name).unwrap().1.canonical;
     for j in [0, 16, 22, 30] {
         let joint = canonical.joint(j).as_vec3();

@@ -12,8 +12,8 @@ use std::process::Command;
 
 use common::cli::{p, start_trainer, stderr, talkin};
 use common::layouts::{Clip, write_peoplesnapshot};
+use talkin::avatar::Avatar;
 use talkin::avatar::checkpoint::{self, CHECKPOINT_DIR, Checkpoint, LATEST_FILE};
-use talkin::render::avatar::Avatar;
 use talkin::train::LOG_FILE;
 
 /// `talkin train` on a tiny scene: 256 rays, no perceptual term, a 32-cell grid.

@@ -5,9 +5,10 @@
 
 mod common;
 
+use talkin::avatar::Avatar;
 use talkin::grids::SamplerKind;
 use talkin::nets::read_floats;
-use talkin::render::avatar::Avatar;
+use talkin::render::avatar::RenderFrame;
 use talkin::train::{Budget, TrainOptions, Trainer};
 
 #[test]

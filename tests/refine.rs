@@ -9,8 +9,8 @@ mod common;
 
 use std::process::Command;
 
+use talkin::avatar::Avatar;
 use talkin::grids::SamplerKind;
-use talkin::render::avatar::Avatar;
 use talkin::render::sequence::shots_from_frames;
 use talkin::train::refine::{RefineMode, RefineOptions};
 use talkin::train::{Trainer, train};

@@ -8,10 +8,12 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 use std::sync::OnceLock;
 
+use talkin::avatar::Avatar;
 use talkin::data::dataset::{Dataset, Split};
 use talkin::grids::SamplerKind;
 use talkin::human::body::joint;
-use talkin::render::avatar::{Avatar, RENDER_CHUNK_SAMPLES};
+use talkin::render::avatar::RENDER_CHUNK_SAMPLES;
+use talkin::render::avatar::RenderFrame;
 use talkin::render::eval::{
     self, CropKind, EvalOptions, HAND_TILE, HANDS_SHEET, LpipsScorer, PSNR_CAP_DB, Rect, evaluate,
     frame_crops, rescore_png,

@@ -10,9 +10,10 @@ mod common;
 
 use std::path::Path;
 
+use talkin::avatar::Avatar;
 use talkin::avatar::checkpoint::{self, CHECKPOINT_DIR};
 use talkin::grids::SamplerKind;
-use talkin::render::avatar::Avatar;
+use talkin::render::avatar::RenderFrame;
 use talkin::train::{LOG_FILE, TrainOptions, Trainer, train};
 
 fn small_opts(sampler: SamplerKind, steps: usize) -> TrainOptions {

@@ -25,10 +25,11 @@ use std::sync::{Arc, Barrier, OnceLock};
 use std::time::{Duration, Instant};
 
 use serde_json::{Value, json};
+use talkin::avatar::Avatar;
 use talkin::data::dataset::Dataset;
 use talkin::data::params_json::ParamsJson;
 use talkin::grids::SamplerKind;
-use talkin::render::avatar::Avatar;
+use talkin::render::avatar::RenderFrame;
 use talkin::serve::client::{self, HttpResponse};
 use talkin::serve::{ServeConfig, Server};
 use talkin::train::{TrainOptions, train};

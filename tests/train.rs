@@ -7,11 +7,12 @@ mod common;
 use std::path::Path;
 use std::process::Command;
 
+use talkin::avatar::Avatar;
 use talkin::avatar::checkpoint::{self, CHECKPOINT_DIR, LATEST_FILE};
 use talkin::data::atomic::write_atomic;
 use talkin::data::dataset::Dataset;
 use talkin::grids::SamplerKind;
-use talkin::render::avatar::Avatar;
+use talkin::render::avatar::RenderFrame;
 use talkin::train::{LOG_FILE, StepLog, TrainOptions, train};
 
 /// Steps of each smoke run. The dense sampler fills the whole box at the start, so its

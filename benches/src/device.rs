@@ -28,7 +28,8 @@ use talkin_train::{Budget, Preset, TrainOptions, Trainer};
 
 use crate::error::BenchError;
 use crate::shared::avatar_of;
-use talkin_render::avatar::Avatar;
+use talkin_avatar::Avatar;
+use talkin_render::avatar::RenderFrame;
 
 /// The default render size (InstantAvatar's 540x540).
 pub const RENDER_SIDE: u32 = 540;

@@ -10,7 +10,7 @@ pub enum BenchError {
     #[error(transparent)]
     Train(#[from] TrainError),
     #[error("render: {0}")]
-    Render(#[from] talkin_render::avatar::AvatarError),
+    Render(#[from] talkin_avatar::AvatarError),
     #[error("evaluation: {0}")]
     Eval(#[from] talkin_render::eval::EvalError),
     #[error("{}: {source}", file.display())]

@@ -8,8 +8,8 @@ use std::path::Path;
 use serde::Serialize;
 
 use crate::error::BenchError;
+use talkin_avatar::Avatar;
 use talkin_data::dataset::Dataset;
-use talkin_render::avatar::Avatar;
 use talkin_render::eval::EvalReport;
 use talkin_train::{TrainOptions, Trainer};
 

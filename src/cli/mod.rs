@@ -122,10 +122,7 @@ impl DeviceArg {
     }
 
     /// Opens the device and loads the newest checkpoint of `run` onto it.
-    pub fn load_avatar(
-        &self,
-        run: &std::path::Path,
-    ) -> anyhow::Result<talkin_render::avatar::Avatar> {
+    pub fn load_avatar(&self, run: &std::path::Path) -> anyhow::Result<talkin_avatar::Avatar> {
         load_avatar(run, &self.open()?)
     }
 }
@@ -134,9 +131,9 @@ impl DeviceArg {
 pub fn load_avatar(
     run: &std::path::Path,
     device: &talkin_nets::Device,
-) -> anyhow::Result<talkin_render::avatar::Avatar> {
+) -> anyhow::Result<talkin_avatar::Avatar> {
     use anyhow::Context;
-    talkin_render::avatar::Avatar::load_on(run, device)
+    talkin_avatar::Avatar::load_on(run, device)
         .with_context(|| format!("loading run {}", run.display()))
 }
 

@@ -1,13 +1,13 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::Context;
+use talkin_avatar::Avatar;
 use talkin_data::atomic::StagedDir;
 use talkin_data::dataset::{Dataset, Split};
 use talkin_data::motion::{Motion, MotionLayout, Prepare};
 use talkin_data::smplx_model::SmplxModel;
 use talkin_human::camera::Camera;
 use talkin_human::smooth::Smoothing;
-use talkin_render::avatar::Avatar;
 use talkin_render::sequence::{
     PoseSource, PosedCamera, Shot, default_camera, motion_poses, read_pose_source, render_sequence,
     shots_from_frames, shots_from_poses, smooth_shots, split_frames,

@@ -1,5 +1,5 @@
-//! avatar: what a trained avatar is, besides the field's modules (`talkin-nets`): each
-//! trained [`subject`] (rest skeleton, capsule shells, canonical occupancy grid, fitted
+//! avatar: what a trained avatar is: an [`Avatar`] (the field's modules from `talkin-nets`
+//! with its subjects, loaded from a run's checkpoint), each trained [`subject`] (rest skeleton, capsule shells, canonical occupancy grid, fitted
 //! from a dataset), a posed frame's [`scene`] and samplers, the field's per-frame
 //! [`field_inputs`], a run's [`refined`] training fits, and the [`checkpoint`] format that
 //! stores them with the weights. Training builds and writes avatars; rendering,
@@ -14,3 +14,6 @@ pub mod field_inputs;
 pub mod refined;
 pub mod scene;
 pub mod subject;
+mod trained;
+
+pub use trained::{Avatar, AvatarError};

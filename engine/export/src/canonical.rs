@@ -12,6 +12,7 @@
 use burn::prelude::*;
 use glam::Vec3;
 use rayon::prelude::*;
+use talkin_avatar::Avatar;
 use talkin_avatar::field_inputs::frame_conditions;
 use talkin_avatar::scene::FrameScene;
 use talkin_avatar::subject::SubjectModel;
@@ -19,7 +20,6 @@ use talkin_grids::Capsule;
 use talkin_grids::intersect::signed_distance;
 use talkin_human::body::canonical_params;
 use talkin_nets::{FieldInput, FrameConditions, read_floats};
-use talkin_render::avatar::Avatar;
 
 use crate::ExportError;
 

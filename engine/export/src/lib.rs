@@ -7,7 +7,7 @@
 //! a glTF animation on the joints ([`animation`]). [`glb`] writes the document.
 //!
 //! Must not know about training, the server or the command line; it reads a loaded
-//! [`talkin_render::avatar::Avatar`] and never writes a checkpoint.
+//! [`talkin_avatar::Avatar`] and never writes a checkpoint.
 
 pub mod animation;
 pub mod canonical;
@@ -19,7 +19,7 @@ pub mod weights;
 
 use std::time::Instant;
 
-use talkin_render::avatar::{Avatar, AvatarError};
+use talkin_avatar::{Avatar, AvatarError};
 
 pub use canonical::CanonicalSubject;
 pub use surface::{Surface, SurfaceOptions};

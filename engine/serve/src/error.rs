@@ -7,7 +7,7 @@ use axum::http::{HeaderValue, StatusCode, header};
 use axum::response::{IntoResponse, Response};
 
 use super::config::ConfigError;
-use talkin_render::avatar::AvatarError;
+use talkin_avatar::AvatarError;
 
 /// Why the server could not start or stopped abnormally.
 #[derive(Debug, thiserror::Error)]

@@ -54,9 +54,9 @@ pub use routes::REQUEST_ID_HEADER;
 pub use subjects::{ServedSubject, default_camera, served_subjects};
 
 use pool::Pool;
+use talkin_avatar::Avatar;
 use talkin_data::smplx_model::SmplxModel;
 use talkin_nets::ComputeDevice;
-use talkin_render::avatar::Avatar;
 
 /// What every handler shares.
 struct App {

@@ -12,6 +12,7 @@ use axum::middleware::Next;
 use axum::response::{Html, IntoResponse, Response};
 use axum::routing::{get, post};
 use serde_json::{Value, json};
+use talkin_render::avatar::RenderFrame;
 use tokio::sync::oneshot;
 
 use super::encode::{self, Encoded};

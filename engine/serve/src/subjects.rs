@@ -3,8 +3,8 @@
 //! A checkpoint stores no camera, so the default is built from the subject's rest skeleton
 //! ([`default_camera`], in the render crate so that `talkin render` frames alike).
 
+use talkin_avatar::Avatar;
 use talkin_human::camera::{Camera, CameraError};
-use talkin_render::avatar::Avatar;
 
 /// One trained subject as the server offers it.
 #[derive(Clone, Debug)]

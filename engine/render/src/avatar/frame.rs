@@ -14,8 +14,9 @@ use talkin_human::body::FrameParams;
 use talkin_human::camera::Camera;
 use talkin_nets::{FieldConfig, FieldInput, is_cpu, max_tensor_bytes};
 
+use talkin_avatar::{Avatar, AvatarError};
+
 use super::forwards::plan_forwards;
-use super::{Avatar, AvatarError};
 
 /// Rays the host samples at once when rendering (chunks run in parallel).
 pub const RENDER_CHUNK_RAYS: usize = 8192;
@@ -116,10 +117,11 @@ pub(crate) fn pixel_rays(camera: &Camera) -> Result<Vec<Ray>, talkin_grids::Grid
         .collect()
 }
 
-impl Avatar {
+/// Rendering a frame of an [`Avatar`].
+pub trait RenderFrame {
     /// Renders subject `subject` (identity index) in pose `params` through `camera`, with
     /// `sampler` (`None`: the one the avatar was trained with). Deterministic.
-    pub fn render(
+    fn render(
         &self,
         subject: usize,
         params: &FrameParams,
@@ -129,9 +131,24 @@ impl Avatar {
         self.render_chunked(subject, params, camera, sampler, self.forward_samples())
     }
 
-    /// [`Avatar::render`] with at most `max_chunk_samples` field samples evaluated at
-    /// once (at least one ray's). The image does not depend on it.
-    pub fn render_chunked(
+    /// [`RenderFrame::render`] with at most `max_chunk_samples` field samples evaluated
+    /// at once (at least one ray's). The image does not depend on it.
+    fn render_chunked(
+        &self,
+        subject: usize,
+        params: &FrameParams,
+        camera: &Camera,
+        sampler: Option<SamplerKind>,
+        max_chunk_samples: usize,
+    ) -> Result<RenderedFrame, AvatarError>;
+
+    /// The most field samples one forward of a render takes on this avatar's device:
+    /// [`forward_samples_on`].
+    fn forward_samples(&self) -> usize;
+}
+
+impl RenderFrame for Avatar {
+    fn render_chunked(
         &self,
         subject: usize,
         params: &FrameParams,
@@ -196,12 +213,12 @@ impl Avatar {
             }
             let wave_pieces: Vec<Piece> = forwards
                 .into_par_iter()
-                .map(|f| self.render_forward(&conditions, &rays[f.rays], &f.samples))
+                .map(|f| render_forward(self, &conditions, &rays[f.rays], &f.samples))
                 .collect::<Result<_, _>>()?;
             pieces.extend(wave_pieces);
             forward_seconds += forwarding.elapsed().as_secs_f64();
         }
-        let (rgb, opacity, labels) = self.read_back(pieces, rays.len())?;
+        let (rgb, opacity, labels) = read_back(self, pieces, rays.len())?;
         Ok(RenderedFrame {
             width: camera.width,
             height: camera.height,
@@ -216,117 +233,114 @@ impl Avatar {
         })
     }
 
-    /// The most field samples one forward of a render takes on this avatar's device:
-    /// [`forward_samples_on`].
-    pub fn forward_samples(&self) -> usize {
+    fn forward_samples(&self) -> usize {
         forward_samples_on(&self.field.identity.val().device(), &self.config)
     }
+}
 
-    /// One forward: the field at `samples` of `rays`, rendered over the background.
-    fn render_forward(
-        &self,
-        conditions: &talkin_nets::FrameConditions,
-        rays: &[Ray],
-        samples: &PackedSamples,
-    ) -> Result<Piece, AvatarError> {
-        if samples.num_samples() == 0 {
-            return Ok(Piece::Empty(rays.len()));
-        }
-        let points: Vec<[f32; 3]> = samples
-            .midpoints_in_world(rays)
-            .into_iter()
-            .map(|p| p.to_array())
-            .collect();
-        let input = FieldInput {
-            points: &points,
-            bone_masks: &samples.bone_mask,
-            part_masks: &samples.part_mask,
-            frame: conditions,
-            step: self.field_step,
-        };
-        let output = self.field.forward(&input)?;
-        let layout = packed_layout(samples);
-        let rendered = output.render(&layout.view())?;
-        let values = Tensor::cat(
-            vec![
-                rendered.rgb_over(self.background),
-                rendered.opacity.clone().unsqueeze_dim(1),
-                rendered.seg_logits.clone(),
-            ],
-            1,
-        );
-        Ok(Piece::Rendered(Box::new(values)))
+/// One forward: `avatar`'s field at `samples` of `rays`, rendered over the background.
+fn render_forward(
+    avatar: &Avatar,
+    conditions: &talkin_nets::FrameConditions,
+    rays: &[Ray],
+    samples: &PackedSamples,
+) -> Result<Piece, AvatarError> {
+    if samples.num_samples() == 0 {
+        return Ok(Piece::Empty(rays.len()));
     }
+    let points: Vec<[f32; 3]> = samples
+        .midpoints_in_world(rays)
+        .into_iter()
+        .map(|p| p.to_array())
+        .collect();
+    let input = FieldInput {
+        points: &points,
+        bone_masks: &samples.bone_mask,
+        part_masks: &samples.part_mask,
+        frame: conditions,
+        step: avatar.field_step,
+    };
+    let output = avatar.field.forward(&input)?;
+    let layout = packed_layout(samples);
+    let rendered = output.render(&layout.view())?;
+    let values = Tensor::cat(
+        vec![
+            rendered.rgb_over(avatar.background),
+            rendered.opacity.clone().unsqueeze_dim(1),
+            rendered.seg_logits.clone(),
+        ],
+        1,
+    );
+    Ok(Piece::Rendered(Box::new(values)))
+}
 
-    /// The frame's colour, opacity and labels from its pieces (`n` rays in all), read back
-    /// in one transfer (on a GPU, one wait for the frame's queued work).
-    #[allow(clippy::type_complexity)]
-    fn read_back(
-        &self,
-        pieces: Vec<Piece>,
-        n: usize,
-    ) -> Result<(Vec<f32>, Vec<f32>, Vec<u8>), AvatarError> {
-        let wrong = || AvatarError::BadInput {
-            what: "render".into(),
-            problem: "the field returned the wrong number of values".into(),
-        };
-        let rendered: Vec<Tensor<2>> = pieces
-            .iter()
-            .filter_map(|p| match p {
-                Piece::Rendered(t) => Some(t.as_ref().clone()),
-                Piece::Empty(_) => None,
-            })
-            .collect();
-        let (values, width) = match rendered.first() {
-            None => (Vec::new(), 0),
-            Some(first) => {
-                let width = first.dims()[1];
-                let values =
-                    talkin_nets::read_floats(Tensor::cat(rendered, 0)).map_err(|_| wrong())?;
-                (values, width)
+/// The frame's colour, opacity and labels from its pieces (`n` rays in all), read back
+/// in one transfer (on a GPU, one wait for the frame's queued work).
+#[allow(clippy::type_complexity)]
+fn read_back(
+    avatar: &Avatar,
+    pieces: Vec<Piece>,
+    n: usize,
+) -> Result<(Vec<f32>, Vec<f32>, Vec<u8>), AvatarError> {
+    let wrong = || AvatarError::BadInput {
+        what: "render".into(),
+        problem: "the field returned the wrong number of values".into(),
+    };
+    let rendered: Vec<Tensor<2>> = pieces
+        .iter()
+        .filter_map(|p| match p {
+            Piece::Rendered(t) => Some(t.as_ref().clone()),
+            Piece::Empty(_) => None,
+        })
+        .collect();
+    let (values, width) = match rendered.first() {
+        None => (Vec::new(), 0),
+        Some(first) => {
+            let width = first.dims()[1];
+            let values = talkin_nets::read_floats(Tensor::cat(rendered, 0)).map_err(|_| wrong())?;
+            (values, width)
+        }
+    };
+    let classes = width.saturating_sub(4);
+    let mut rgb = Vec::with_capacity(3 * n);
+    let mut opacity = Vec::with_capacity(n);
+    let mut labels = Vec::with_capacity(n);
+    let mut rows = values.chunks_exact(width.max(1));
+    for piece in &pieces {
+        let count = match piece {
+            Piece::Empty(count) => {
+                rgb.extend((0..*count).flat_map(|_| avatar.background));
+                opacity.extend(std::iter::repeat_n(0.0, *count));
+                labels.extend(std::iter::repeat_n(0u8, *count));
+                continue;
             }
+            Piece::Rendered(t) => t.dims()[0],
         };
-        let classes = width.saturating_sub(4);
-        let mut rgb = Vec::with_capacity(3 * n);
-        let mut opacity = Vec::with_capacity(n);
-        let mut labels = Vec::with_capacity(n);
-        let mut rows = values.chunks_exact(width.max(1));
-        for piece in &pieces {
-            let count = match piece {
-                Piece::Empty(count) => {
-                    rgb.extend((0..*count).flat_map(|_| self.background));
-                    opacity.extend(std::iter::repeat_n(0.0, *count));
-                    labels.extend(std::iter::repeat_n(0u8, *count));
-                    continue;
-                }
-                Piece::Rendered(t) => t.dims()[0],
-            };
-            for _ in 0..count {
-                let row = rows.next().ok_or_else(wrong)?;
-                if row.iter().take(4).any(|v| !v.is_finite()) {
-                    return Err(AvatarError::BadInput {
-                        what: "render".into(),
-                        problem: "the field produced a non-finite colour or opacity \
+        for _ in 0..count {
+            let row = rows.next().ok_or_else(wrong)?;
+            if row.iter().take(4).any(|v| !v.is_finite()) {
+                return Err(AvatarError::BadInput {
+                    what: "render".into(),
+                    problem: "the field produced a non-finite colour or opacity \
                                   (a diverged checkpoint?)"
-                            .into(),
-                    });
-                }
-                rgb.extend_from_slice(&row[..3]);
-                opacity.push(row[3]);
-                let logits = &row[4..];
-                // Argmax among the person classes where the ray is mostly opaque.
-                labels.push(if row[3] < 0.5 || classes == 0 {
-                    0
-                } else {
-                    (1..classes)
-                        .max_by(|&a, &b| logits[a].total_cmp(&logits[b]))
-                        .unwrap_or(0) as u8
+                        .into(),
                 });
             }
+            rgb.extend_from_slice(&row[..3]);
+            opacity.push(row[3]);
+            let logits = &row[4..];
+            // Argmax among the person classes where the ray is mostly opaque.
+            labels.push(if row[3] < 0.5 || classes == 0 {
+                0
+            } else {
+                (1..classes)
+                    .max_by(|&a, &b| logits[a].total_cmp(&logits[b]))
+                    .unwrap_or(0) as u8
+            });
         }
-        if rgb.len() != 3 * n || rows.next().is_some() {
-            return Err(wrong());
-        }
-        Ok((rgb, opacity, labels))
     }
+    if rgb.len() != 3 * n || rows.next().is_some() {
+        return Err(wrong());
+    }
+    Ok((rgb, opacity, labels))
 }

@@ -27,7 +27,9 @@ pub use report::{
     AnchorMeans, CropScore, EvalReport, FrameScore, LPIPS_SCALE, RegionMeans, SkippedCrop,
 };
 
-use crate::avatar::{Avatar, AvatarError};
+use talkin_avatar::{Avatar, AvatarError};
+
+use crate::avatar::RenderFrame;
 use crate::sequence::{
     SequenceError, SheetRow, Shot, comparison_sheet, shots_from_frames, smooth_shots, write_png,
 };

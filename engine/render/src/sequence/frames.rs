@@ -7,7 +7,9 @@ use image::RgbImage;
 
 use super::sheet::{SheetRow, comparison_sheet};
 use super::{SequenceError, Shot};
-use crate::avatar::Avatar;
+use talkin_avatar::Avatar;
+
+use crate::avatar::RenderFrame;
 use crate::crops::{CropKind, frame_crops};
 use talkin_data::dataset::Dataset;
 use talkin_data::draw::LABEL_COLOURS;

@@ -20,7 +20,8 @@ pub use poses_file::{
 };
 pub use sheet::{HEAT_FULL_SCALE, SheetRow, comparison_sheet, error_heat, outline};
 
-use crate::avatar::{Avatar, AvatarError};
+use talkin_avatar::{Avatar, AvatarError};
+
 use talkin_data::dataset::{Dataset, DatasetError, Split};
 use talkin_human::body::FrameParams;
 use talkin_human::camera::Camera;
