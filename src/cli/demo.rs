@@ -150,6 +150,8 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
             smooth: false,
             anchors: None,
             background: None,
+            pose_fit: 0,
+            pose_fit_lr: talkin_train::FitPosesOptions::default().lr,
             device: args.device.clone(),
         })?;
         let report: serde_json::Value = serde_json::from_slice(

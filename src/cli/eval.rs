@@ -2,10 +2,12 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use clap::builder::{PossibleValuesParser, TypedValueParser};
+use talkin_avatar::refined::RefinedFits;
 use talkin_data::atomic::StagedDir;
-use talkin_data::dataset::{Matting, Split};
-use talkin_render::eval::{EvalOptions, evaluate_with_progress};
+use talkin_data::dataset::{Dataset, Matting, Split};
+use talkin_render::eval::{EvalOptions, PoseFitScore, evaluate_with_progress};
 use talkin_render::sequence::split_frames;
+use talkin_train::{FitPosesOptions, FittedPoses, fit_held_out_poses};
 
 use super::train::DEFAULT_LPIPS_DIR;
 use crate::progress::Progress;
@@ -55,6 +57,15 @@ pub struct EvalArgs {
     /// capture), off otherwise.
     #[arg(long, value_name = "on|off", value_parser = PossibleValuesParser::new(["on", "off"]).map(|s| s == "on"))]
     pub anchors: Option<bool>,
+    /// Also score the frames after a test-time fit of their poses with the model frozen
+    /// (InstantAvatar's evaluation of novel poses): STEPS steps of the training loss per
+    /// frame move each frame's correction alone, on the CPU; reported beside the plain
+    /// score (JSON `pose_fit`), never instead of it. 0: no fit.
+    #[arg(long, value_name = "STEPS", default_value_t = 0)]
+    pub pose_fit: usize,
+    /// The pose fit's Adam rate (radians a step; translation at 0.2x, metres).
+    #[arg(long, default_value_t = FitPosesOptions::default().lr)]
+    pub pose_fit_lr: f64,
     #[command(flatten)]
     pub device: super::DeviceArg,
 }
@@ -63,6 +74,12 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
     let split: Split = args.split.parse().map_err(anyhow::Error::msg)?;
     let device = args.device.open()?;
     let mut dataset = super::load_dataset(&args.data)?;
+    let frames = split_frames(&dataset, split)?;
+    // The fit sees the frames as training did (before they are shown over the scoring
+    // background).
+    let fitted = (args.pose_fit > 0)
+        .then(|| fit_poses(&args, &dataset, &frames))
+        .transpose()?;
     let (background, note) = match args.background.as_deref() {
         Some("declared") => (None, None),
         Some(text) => (Some(super::parse_rgb(text)?), None),
@@ -85,7 +102,6 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
     if let Some(rgb) = background {
         avatar.background = rgb;
     }
-    let frames = split_frames(&dataset, split)?;
     let renders = args.renders.clone().unwrap_or_else(|| {
         let stem = args
             .json
@@ -112,8 +128,41 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
             args.data.display()
         )
     })?;
+    if let Some((fit, fit_opts)) = fitted {
+        let mut refined = avatar.refined.take().unwrap_or_else(|| RefinedFits {
+            dataset_sha256: fit.fits.dataset_sha256.clone(),
+            delta: Default::default(),
+        });
+        refined
+            .delta
+            .extend(fit.fits.delta.iter().map(|(&i, d)| (i, d.clone())));
+        avatar.refined = Some(refined);
+        let fit_renders = staging.path().join("pose_fit");
+        let opts = EvalOptions {
+            renders_dir: Some(fit_renders),
+            ..opts
+        };
+        let progress = Progress::new("evaluating the fitted poses", frames.len(), "frames");
+        let after = evaluate_with_progress(&avatar, &dataset, &frames, &opts, &mut |done, _| {
+            progress.update(done, "")
+        })
+        .context("evaluating the fitted poses")?;
+        report.pose_fit = Some(PoseFitScore {
+            steps_per_frame: fit_opts.steps_per_frame,
+            lr: fit_opts.lr,
+            seconds: fit.seconds,
+            rotation_rms_deg: fit.rotation_rms_deg,
+            translation_mean_m: fit.translation_mean_m,
+            corrections: fit.fits.delta.into_iter().collect(),
+            report: Box::new(after),
+        });
+    }
     // Each score names its PNG where it will be, not where it was written.
-    for score in &mut report.frames {
+    let fit_frames = report
+        .pose_fit
+        .iter_mut()
+        .flat_map(|f| &mut f.report.frames);
+    for score in report.frames.iter_mut().chain(fit_frames) {
         if let Some(file) = &mut score.render
             && let Ok(name) = file.strip_prefix(staging.path())
         {
@@ -136,4 +185,39 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
         renders.display()
     );
     Ok(())
+}
+
+/// The test-time fit of `frames`' poses to the run (its log in a scratch directory that
+/// is removed after).
+fn fit_poses(
+    args: &EvalArgs,
+    dataset: &Dataset,
+    frames: &[usize],
+) -> anyhow::Result<(FittedPoses, FitPosesOptions)> {
+    let opts = FitPosesOptions {
+        steps_per_frame: args.pose_fit,
+        lr: args.pose_fit_lr,
+    };
+    let scratch = tempfile::tempdir().context("a scratch directory for the pose fit")?;
+    let progress = Progress::new(
+        "fitting poses",
+        opts.steps_per_frame * frames.len(),
+        "steps",
+    );
+    let fitted = fit_held_out_poses(
+        dataset,
+        &args.run,
+        frames,
+        &opts,
+        scratch.path(),
+        &mut |done, _| progress.update(done, ""),
+    )
+    .with_context(|| {
+        format!(
+            "fitting the poses of {} to {}",
+            args.data.display(),
+            args.run.display()
+        )
+    })?;
+    Ok((fitted, opts))
 }

@@ -90,8 +90,9 @@ impl StagedDir {
     }
 
     /// Moves the files into the target: one rename when it is absent or empty, else file
-    /// by file (replacing same-named files). Renames need no space, so a full disk fails
-    /// before this, while writing.
+    /// by file (replacing same-named files; a folder already there takes the staged
+    /// folder's files the same way). Renames need no space, so a full disk fails before
+    /// this, while writing.
     pub fn publish(mut self) -> std::io::Result<()> {
         let empty = match std::fs::read_dir(&self.target) {
             Ok(mut entries) => entries.next().is_none(),
@@ -104,15 +105,26 @@ impl StagedDir {
             }
             std::fs::rename(&self.staging, &self.target)?;
         } else {
-            for entry in std::fs::read_dir(&self.staging)? {
-                let entry = entry?;
-                std::fs::rename(entry.path(), self.target.join(entry.file_name()))?;
-            }
-            std::fs::remove_dir(&self.staging)?;
+            move_into(&self.staging, &self.target)?;
         }
         self.published = true;
         sync_dir(parent_dir(&self.target))
     }
+}
+
+/// Moves the entries of folder `from` into folder `to`, replacing same-named files and
+/// merging same-named folders, then removes `from`.
+fn move_into(from: &Path, to: &Path) -> std::io::Result<()> {
+    for entry in std::fs::read_dir(from)? {
+        let entry = entry?;
+        let there = to.join(entry.file_name());
+        if entry.file_type()?.is_dir() && there.is_dir() {
+            move_into(&entry.path(), &there)?;
+        } else {
+            std::fs::rename(entry.path(), there)?;
+        }
+    }
+    std::fs::remove_dir(from)
 }
 
 impl Drop for StagedDir {
@@ -192,6 +204,20 @@ mod tests {
         assert_eq!(listing(), ["renders"]);
         assert_eq!(std::fs::read(target.join("a.png")).unwrap(), b"a");
         assert_eq!(std::fs::read(target.join("b.png")).unwrap(), b"b");
+        // A folder published twice takes the second's files beside the first's.
+        for name in ["c.png", "d.png"] {
+            let staged = StagedDir::new(&target).unwrap();
+            std::fs::create_dir_all(staged.path().join("sub")).unwrap();
+            std::fs::write(staged.path().join("sub").join(name), name).unwrap();
+            staged.publish().unwrap();
+        }
+        for name in ["c.png", "d.png"] {
+            assert_eq!(
+                std::fs::read(target.join("sub").join(name)).unwrap(),
+                name.as_bytes()
+            );
+        }
+        assert_eq!(listing(), ["renders"]);
         std::fs::remove_dir_all(&dir).unwrap();
     }
 }

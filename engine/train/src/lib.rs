@@ -37,4 +37,6 @@ pub use run_lock::{LOCK_FILE, RunLock, RunLockError};
 pub use setup::existing_run;
 pub use step_log::{LOG_FILE, StepLog};
 pub use talkin_grids::SamplerKind;
-pub use trainer::{ScheduleAnchor, TrainReport, Trainer, train};
+pub use trainer::{
+    FitPosesOptions, FittedPoses, ScheduleAnchor, TrainReport, Trainer, fit_held_out_poses, train,
+};

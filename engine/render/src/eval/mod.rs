@@ -24,7 +24,8 @@ pub use anchors::{ANCHOR_SSIM_RANGE, AnchorScore, anchor_score, ssim_skimage};
 pub use lpips::LpipsScorer;
 pub use regions::{PersonRegions, RegionScore, outline_px, person_regions};
 pub use report::{
-    AnchorMeans, CropScore, EvalReport, FrameScore, LPIPS_SCALE, RegionMeans, SkippedCrop,
+    AnchorMeans, CropScore, EvalReport, FrameScore, LPIPS_SCALE, PoseFitScore, RegionMeans,
+    SkippedCrop,
 };
 
 use talkin_avatar::{Avatar, AvatarError};

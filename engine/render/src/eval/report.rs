@@ -129,6 +129,30 @@ pub struct EvalReport {
     pub notes: Vec<String>,
     pub seconds: f64,
     pub frames: Vec<FrameScore>,
+    /// The same frames scored again after a test-time fit of their poses with the model
+    /// frozen (`talkin eval --pose-fit`): beside the plain score, never instead of it.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub pose_fit: Option<PoseFitScore>,
+}
+
+/// An evaluation after a test-time fit of the frames' poses (InstantAvatar's evaluation
+/// of novel poses), with what the fit did.
+#[derive(Clone, Debug, Serialize)]
+pub struct PoseFitScore {
+    pub steps_per_frame: usize,
+    pub lr: f64,
+    /// Seconds the fit took (its evaluation not included).
+    pub seconds: f64,
+    /// Root mean square of the body joints' corrections (axis-angle norm, global
+    /// orientation included), degrees.
+    pub rotation_rms_deg: f64,
+    /// Mean length of the translation's correction, metres.
+    pub translation_mean_m: f64,
+    /// Per dataset frame, its fitted correction in the layout of a checkpoint's
+    /// `pose_refinement.delta` (`talkin_avatar::refined::layout`).
+    pub corrections: std::collections::BTreeMap<usize, Vec<f32>>,
+    /// The frames scored at their fitted poses.
+    pub report: Box<EvalReport>,
 }
 
 /// The anchors' protocol ([`super::anchors`]) averaged over the frames.
@@ -281,6 +305,7 @@ impl EvalReport {
             notes,
             seconds,
             frames,
+            pose_fit: None,
         }
     }
 
@@ -385,6 +410,25 @@ impl EvalReport {
                 a.psnr,
                 a.ssim,
                 num(a.lpips_vgg, 1)
+            );
+        }
+        if let Some(fit) = &self.pose_fit {
+            let r = &fit.report;
+            let _ = writeln!(
+                s,
+                "after a test-time pose fit (model frozen; {} steps a frame, corrections {:.2} deg RMS, {:.1} cm): full {:.2} dB, person {} dB / LPIPS* {}{}",
+                fit.steps_per_frame,
+                fit.rotation_rms_deg,
+                100.0 * fit.translation_mean_m,
+                r.psnr,
+                num(r.psnr_person, 2),
+                num(r.lpips_person, 1),
+                r.anchors.as_ref().map_or(String::new(), |a| format!(
+                    "; anchors' protocol PSNR {:.2}  SSIM {:.4}  LPIPS-VGG {}",
+                    a.psnr,
+                    a.ssim,
+                    num(a.lpips_vgg, 1)
+                ))
             );
         }
         for note in &self.notes {

@@ -86,6 +86,15 @@ impl PoseRefiner {
         PoseRefiner::from_state(dataset, state, opts)
     }
 
+    /// Zero corrections for `frames` of `dataset` that trust no fit: every group learns at
+    /// `--pose-lr-jitter` and none is pulled toward its fit beyond `--pose-prior` (a
+    /// test-time fit of held-out frames, [`crate::fit_held_out_poses`]).
+    pub fn untrusting(dataset: &Dataset, frames: &[usize], opts: RefineOptions) -> PoseRefiner {
+        let mut r = PoseRefiner::new(dataset, frames, opts);
+        r.jitter_gain = vec![[1.0; layout::GROUPS.len()]; frames.len()];
+        r
+    }
+
     /// The refiner a checkpoint recorded (its frames must be `dataset`'s).
     pub fn from_state(dataset: &Dataset, state: RefinerState, opts: RefineOptions) -> Self {
         let frames = &state.frames;

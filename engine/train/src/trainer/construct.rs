@@ -30,7 +30,7 @@ use crate::setup::{
 
 use super::progress::RunProgress;
 use super::save::Checkpoints;
-use super::{Trainer, is_imported};
+use super::{StepMode, Trainer, is_imported};
 
 /// What a trainer is built from: a fresh run's start (`start`) or a checkpoint's contents
 /// (`resume`).
@@ -50,6 +50,7 @@ pub(super) struct Parts {
     pub resumed_from: Option<(usize, PathBuf)>,
     /// What loading that checkpoint had to say.
     pub notes: Vec<String>,
+    pub mode: StepMode,
 }
 
 impl<'a> Trainer<'a> {
@@ -234,6 +235,7 @@ impl<'a> Trainer<'a> {
                 log,
                 resumed_from: None,
                 notes: Vec::new(),
+                mode: StepMode::Train,
             },
         )
     }
@@ -255,6 +257,7 @@ impl<'a> Trainer<'a> {
             log,
             resumed_from,
             notes,
+            mode,
         } = parts;
         let device = field.identity.val().device();
         let perceptual = match opts.perceptual_dir() {
@@ -277,9 +280,12 @@ impl<'a> Trainer<'a> {
         let dataset_sha256 = dataset_sha256(dataset)?;
         let refiner = (opts.refine.refine_poses == RefineMode::On).then(|| {
             let refine = opts.refine.clone();
-            match pose_refinement {
-                Some(recorded) => PoseRefiner::from_state(dataset, recorded, refine),
-                None => PoseRefiner::new(dataset, &progress.frames, refine),
+            match (pose_refinement, mode) {
+                (Some(recorded), _) => PoseRefiner::from_state(dataset, recorded, refine),
+                (None, StepMode::Train) => PoseRefiner::new(dataset, &progress.frames, refine),
+                (None, StepMode::FitPoses { .. }) => {
+                    PoseRefiner::untrusting(dataset, &progress.frames, refine)
+                }
             }
         });
         let mut checkpoints = Checkpoints::new(opts.checkpoint_every_s);
@@ -303,6 +309,7 @@ impl<'a> Trainer<'a> {
             grids: GridUpdates::new(occ_opts),
             dataset_sha256,
             notes,
+            mode,
         })
     }
 }

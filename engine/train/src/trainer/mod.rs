@@ -6,7 +6,8 @@
 //!
 //! This file holds the trainer's state, its accessors and the run loop; `construct`
 //! builds one (fresh or adapted), `progress` is the state a checkpoint saves as it is,
-//! `resume` continues a run from a checkpoint, `step`
+//! `resume` continues a run from a checkpoint, `fit_poses` fits held-out frames' poses
+//! to a frozen checkpoint, `step`
 //! takes one optimizer step, `save` writes checkpoints and `budget` maps a run onto the
 //! schedule.
 
@@ -33,12 +34,14 @@ use crate::step_log::journal::Journal;
 use crate::step_log::{LOG_FILE, StepLog};
 mod budget;
 mod construct;
+mod fit_poses;
 mod progress;
 mod resume;
 mod save;
 mod step;
 
 pub use budget::ScheduleAnchor;
+pub use fit_poses::{FitPosesOptions, FittedPoses, fit_held_out_poses};
 use progress::RunProgress;
 
 /// What a run did.
@@ -84,6 +87,17 @@ struct TrainState {
     pose_refinement: Option<RefinerState>,
 }
 
+/// What a step moves.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum StepMode {
+    /// The field, its occupancy grids and (when refining) the training fits' corrections.
+    Train,
+    /// Only the frames' pose corrections: the field and its grids stay as a checkpoint
+    /// left them, seen at that checkpoint's field step, every frame with the mean frame
+    /// code (a test-time fit of held-out frames' poses, `fit_poses`).
+    FitPoses { field_step: usize },
+}
+
 /// A run in progress. Its parts own their state: its progress (`RunProgress`), the
 /// frames' caches (`FrameCaches`), the
 /// log (`Journal`), the checkpoints (`save::Checkpoints`) and the grid updates
@@ -113,6 +127,7 @@ pub struct Trainer<'a> {
     refiner: Option<PoseRefiner>,
     /// What loading the checkpoint this run resumed from had to say.
     notes: Vec<String>,
+    mode: StepMode,
 }
 
 impl Trainer<'_> {

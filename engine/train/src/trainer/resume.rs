@@ -14,7 +14,7 @@ use crate::refine::RefineMode;
 use crate::step_log::{LOG_FILE, TrainLog};
 
 use super::construct::{Parts, open_device, optimizer};
-use super::{TrainState, Trainer};
+use super::{StepMode, TrainState, Trainer};
 
 impl<'a> Trainer<'a> {
     /// Continues the run in `run` from its newest usable checkpoint, with the same options
@@ -93,6 +93,7 @@ impl<'a> Trainer<'a> {
                 pose_refinement: state.pose_refinement,
                 log,
                 notes,
+                mode: StepMode::Train,
             },
         )
     }
@@ -101,7 +102,7 @@ impl<'a> Trainer<'a> {
 /// Refuses a resume on another dataset than the run's (by its fingerprint) or on one
 /// that lacks the run's training frames; a run from a build without fingerprints gives
 /// a note instead.
-fn check_same_dataset(
+pub(super) fn check_same_dataset(
     dataset: &Dataset,
     run: &Path,
     state: &TrainState,

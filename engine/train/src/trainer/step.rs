@@ -8,7 +8,7 @@ use burn::module::Module;
 use burn::optim::GradientsParams;
 use talkin_grids::{GridError, PackedSamples, SamplerKind};
 
-use super::Trainer;
+use super::{StepMode, Trainer};
 use crate::error::TrainError;
 use crate::loss::{LossValues, StepBatch, StepLoss, loss_and_grads};
 use crate::rays::{Batch, BatchSpec, CacheError, FrameCache, PATCH, draw_batch};
@@ -28,7 +28,10 @@ impl Trainer<'_> {
     /// any that a checkpoint read since the last call).
     pub fn step(&mut self) -> Result<Vec<StepLog>, TrainError> {
         let t0 = Instant::now();
-        let vstep = self.field_step();
+        let vstep = match self.mode {
+            StepMode::Train => self.field_step(),
+            StepMode::FitPoses { field_step } => field_step,
+        };
         let lr = schedule::learning_rate(self.opts.initial_lr(), vstep);
 
         // Rays: a seeded training frame (posed as its refined pose, when refining), its
@@ -68,13 +71,16 @@ impl Trainer<'_> {
             });
         }
 
-        // Optimizer (and the frame's pose correction).
-        self.optimize(lr, grads);
+        // Optimizer (and the frame's pose correction), then the grid update when due; a
+        // pose fit moves the correction alone.
+        if self.mode == StepMode::Train {
+            self.optimize(lr, grads);
+        }
         self.refine_pose(frame, pose.as_ref());
         self.progress.step += 1;
-
-        // Grid update, when due.
-        self.update_grids_if_due()?;
+        if self.mode == StepMode::Train {
+            self.update_grids_if_due()?;
+        }
 
         // On a GPU the step's queued ops go to the device now, without waiting for them:
         // fusion then cuts every step's ops at the same places and the same fused kernels
@@ -130,10 +136,16 @@ impl Trainer<'_> {
 
     /// A seeded training frame, cached with its decoded images and sampler on first use.
     fn pick_frame(&mut self) -> Result<usize, TrainError> {
-        let k = self.progress.rng.below(self.progress.frames.len() as u64) as usize;
+        let n = self.progress.frames.len();
+        // A pose fit visits its frames in turn, each as often.
+        let k = match self.mode {
+            StepMode::Train => self.progress.rng.below(n as u64) as usize,
+            StepMode::FitPoses { .. } => self.progress.step % n,
+        };
         let i = self.progress.frames[k];
-        // A run's frame codes are its training frames', in order.
-        let code = (k < self.field().n_frame_codes()).then_some(k);
+        // A run's frame codes are its training frames', in order; the frames a pose fit
+        // draws have none (the mean code, as renders use).
+        let code = (self.mode == StepMode::Train && k < self.field().n_frame_codes()).then_some(k);
         // Only a frame's first draw builds its cache (the closure borrows the fields it
         // reads beside the caches it fills).
         let dataset = self.dataset;
