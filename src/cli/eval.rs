@@ -59,7 +59,8 @@ pub struct EvalArgs {
     pub anchors: Option<bool>,
     /// Also score the frames after a test-time fit of their poses with the model frozen
     /// (InstantAvatar's evaluation of novel poses): STEPS steps of the training loss per
-    /// frame move each frame's correction alone, on the CPU; reported beside the plain
+    /// frame move each frame's correction alone, on the CPU, from the fit as given (on
+    /// training frames, in place of the run's refinement); reported beside the plain
     /// score (JSON `pose_fit`), never instead of it. 0: no fit.
     #[arg(long, value_name = "STEPS", default_value_t = 0)]
     pub pose_fit: usize,
