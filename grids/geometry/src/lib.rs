@@ -35,6 +35,7 @@ mod tests {
         assert_eq!(segment_distance2([0.0, 0.0, 5.0], b, b), 29.0);
         // Far from the origin the clamped parameter stays exact.
         let far = [1e6, 1e6, 1e6];
-        assert!(segment_distance2([1e6, 1e6 + 1.0, 1e6], far, [1e6 + 1.0, 1e6, 1e6]) - 1.0 < 1e-9);
+        let d2 = segment_distance2([1e6, 1e6 + 1.0, 1e6], far, [1e6 + 1.0, 1e6, 1e6]);
+        assert!((d2 - 1.0).abs() < 1e-9, "{d2}");
     }
 }

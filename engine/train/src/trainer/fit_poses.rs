@@ -7,20 +7,19 @@
 use std::path::Path;
 use std::time::Instant;
 
-use talkin_avatar::checkpoint::{Checkpoint, STATE_FILE};
 use talkin_avatar::refined::{RefinedFits, layout};
 use talkin_data::dataset::Dataset;
 use talkin_nets::ComputeDevice;
 
 use crate::error::TrainError;
-use crate::recipe::{Budget, TrainOptions, record};
+use crate::recipe::{Budget, TrainOptions};
 use crate::refine::{RefineMode, RefineOptions};
 use crate::step_log::{LOG_FILE, TrainLog};
 
 use super::construct::{Parts, open_device};
 use super::progress::RunProgress;
-use super::resume::check_same_dataset;
-use super::{StepMode, TrainState, Trainer};
+use super::resume::Recorded;
+use super::{StepMode, Trainer};
 
 /// How held-out frames' poses are fitted.
 #[derive(Clone, Debug, PartialEq)]
@@ -66,12 +65,6 @@ pub fn fit_held_out_poses(
     scratch: &Path,
     progress: &mut dyn FnMut(usize, usize),
 ) -> Result<FittedPoses, TrainError> {
-    if !(opts.lr.is_finite() && opts.lr > 0.0) {
-        return Err(TrainError::BadOption {
-            flag: "--pose-fit-lr",
-            problem: "must be a positive number".into(),
-        });
-    }
     let start = Instant::now();
     let mut trainer = Trainer::fit_poses(dataset, run, frames, opts, scratch)?;
     let total = opts.steps_per_frame * frames.len();
@@ -116,19 +109,12 @@ impl<'a> Trainer<'a> {
         opts: &FitPosesOptions,
         scratch: &Path,
     ) -> Result<Self, TrainError> {
-        let checkpoint = Checkpoint::load(run)?;
-        let state_file = checkpoint.dir.join(STATE_FILE);
-        let state: TrainState =
-            serde_json::from_value(checkpoint.state.clone()).map_err(|e| TrainError::Resume {
-                file: state_file.clone(),
-                problem: format!("not a training state: {e}"),
-            })?;
-        check_same_dataset(dataset, run, &state, &state_file)?;
-        let recorded =
-            record::from_json(state.options.clone()).map_err(|problem| TrainError::Resume {
-                file: state_file.clone(),
-                problem: format!("`options`: {problem}"),
-            })?;
+        let Recorded {
+            checkpoint,
+            state,
+            options: recorded,
+            ..
+        } = Recorded::load(dataset, run)?;
         let slot_of = state.progress.slot_of.clone();
         if let Some(&i) = frames.iter().find(|&&i| {
             dataset
@@ -143,6 +129,12 @@ impl<'a> Trainer<'a> {
                     dataset.root.display(),
                     run.display()
                 ),
+            });
+        }
+        if !(opts.lr.is_finite() && opts.lr > 0.0) {
+            return Err(TrainError::BadOption {
+                flag: "--pose-fit-lr",
+                problem: "must be a positive number".into(),
             });
         }
         if frames.is_empty() || opts.steps_per_frame == 0 {

@@ -31,22 +31,13 @@ impl<'a> Trainer<'a> {
         run: &Path,
         on: ComputeDevice,
     ) -> Result<Self, TrainError> {
-        let checkpoint = Checkpoint::load(run)?;
-        let mut notes = checkpoint.notes.clone();
-        let state_file = checkpoint.dir.join(talkin_avatar::checkpoint::STATE_FILE);
-        let state: TrainState =
-            serde_json::from_value(checkpoint.state.clone()).map_err(|e| TrainError::Resume {
-                file: state_file.clone(),
-                problem: format!("not a training state: {e}"),
-            })?;
-        if let Some(note) = check_same_dataset(dataset, run, &state, &state_file)? {
-            notes.push(note);
-        }
-        let options =
-            record::from_json(state.options.clone()).map_err(|problem| TrainError::Resume {
-                file: state_file.clone(),
-                problem: format!("`options`: {problem}"),
-            })?;
+        let Recorded {
+            checkpoint,
+            state,
+            options,
+            state_file,
+            notes,
+        } = Recorded::load(dataset, run)?;
         let refine_on = options.refine.refine_poses == RefineMode::On;
         match &state.pose_refinement {
             Some(recorded) if refine_on && recorded.frames == state.progress.frames => {}
@@ -99,10 +90,50 @@ impl<'a> Trainer<'a> {
     }
 }
 
+/// A run's newest usable checkpoint with its training state and options, checked to
+/// belong to the dataset given (what resuming and fitting poses to a run both start from).
+pub(super) struct Recorded {
+    pub checkpoint: Checkpoint,
+    pub state: TrainState,
+    pub options: TrainOptions,
+    /// The checkpoint's `state.json` (for messages).
+    pub state_file: std::path::PathBuf,
+    /// What loading it had to say.
+    pub notes: Vec<String>,
+}
+
+impl Recorded {
+    pub fn load(dataset: &Dataset, run: &Path) -> Result<Recorded, TrainError> {
+        let checkpoint = Checkpoint::load(run)?;
+        let mut notes = checkpoint.notes.clone();
+        let state_file = checkpoint.dir.join(talkin_avatar::checkpoint::STATE_FILE);
+        let state: TrainState =
+            serde_json::from_value(checkpoint.state.clone()).map_err(|e| TrainError::Resume {
+                file: state_file.clone(),
+                problem: format!("not a training state: {e}"),
+            })?;
+        if let Some(note) = check_same_dataset(dataset, run, &state, &state_file)? {
+            notes.push(note);
+        }
+        let options =
+            record::from_json(state.options.clone()).map_err(|problem| TrainError::Resume {
+                file: state_file.clone(),
+                problem: format!("`options`: {problem}"),
+            })?;
+        Ok(Recorded {
+            checkpoint,
+            state,
+            options,
+            state_file,
+            notes,
+        })
+    }
+}
+
 /// Refuses a resume on another dataset than the run's (by its fingerprint) or on one
 /// that lacks the run's training frames; a run from a build without fingerprints gives
 /// a note instead.
-pub(super) fn check_same_dataset(
+fn check_same_dataset(
     dataset: &Dataset,
     run: &Path,
     state: &TrainState,
