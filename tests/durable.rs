@@ -447,6 +447,7 @@ fn paths_that_are_not_utf8_round_trip() {
         seed: 1,
         motion: None,
         capture: None,
+        framing: None,
     };
     talkin::synth::generate(&cfg, &data, &mut |_, _| {}).unwrap();
     let dataset = Dataset::load(&data).unwrap();

@@ -32,6 +32,7 @@ fn accelerated_sampling_keeps_every_training_surface_point() {
         seed: 3,
         motion: None,
         capture: None,
+        framing: None,
     };
     generate(&cfg, &dir, &mut |_, _| {}).unwrap();
     let dataset = Dataset::load(&dir).unwrap();

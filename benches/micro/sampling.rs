@@ -28,6 +28,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         seed: 0,
         motion: None,
         capture: None,
+        framing: None,
     };
     // Scene generation is set-up, outside every timed part.
     generate(&cfg, &dir, &mut |_, _| {})?;

@@ -101,6 +101,7 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
         smooth_skin: 0.0,
         fit_bias: "0,0".into(),
         masks_only: false,
+        framing: None,
     })?;
     println!("== 2/4 validate it and write a contact sheet");
     inspect::run(InspectArgs {
@@ -131,6 +132,7 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
         out: run_dir.clone(),
         resume: false,
         force: true,
+        plan: true,
         recipe,
         given: Default::default(),
     })?;

@@ -3,6 +3,8 @@ use std::path::PathBuf;
 use anyhow::{Context, bail};
 use talkin_data::dataset::Dataset;
 use talkin_data::inspect;
+use talkin_train::TrainOptions;
+use talkin_train::plan::Plan;
 
 use crate::progress::Progress;
 
@@ -39,6 +41,19 @@ pub fn run(args: InspectArgs) -> anyhow::Result<()> {
         dataset.frames.len()
     );
     println!("{summary}");
+    // What `talkin train` with no other flag would build from these frames.
+    let plan = Plan::for_run(
+        &dataset,
+        TrainOptions::default().for_dataset(&dataset, |_| false),
+        |_| false,
+    )
+    .map(|opts| opts.plan);
+    match plan {
+        Ok(Some(plan)) => print!("{}", plan.describe()),
+        Ok(None) => {}
+        // A dataset without training frames has nothing to plan; the problems below say so.
+        Err(e) => println!("no plan: {e}"),
+    }
     if let Some(path) = &args.sheet {
         let (sheet, frames) = inspect::contact_sheet(&dataset, args.sheet_frames)?;
         sheet

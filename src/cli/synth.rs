@@ -53,6 +53,17 @@ pub struct SynthArgs {
     /// matting tool gives, or all four (`off`).
     #[arg(long, value_name = "on|off", requires = "capture", default_value = "on", value_parser = PossibleValuesParser::new(["on", "off"]).map(|s| s == "on"), action = clap::ArgAction::Set)]
     pub masks_only: bool,
+    /// What the camera frames: `waist` (from mid-thigh up, both hands kept inside: the
+    /// talking scene's), `full-body` (the capture-like scene's), `chest` (head and
+    /// shoulders; the hands show only when raised) or `head` (from the collarbones up).
+    /// Default: the scene's own.
+    #[arg(long, value_name = "waist|full-body|chest|head", value_parser = PossibleValuesParser::new(["waist", "full-body", "chest", "head"]).map(|s| match s.as_str() {
+        "full-body" => synth::Framing::FullBody,
+        "chest" => synth::Framing::Chest,
+        "head" => synth::Framing::Head,
+        _ => synth::Framing::Waist,
+    }))]
+    pub framing: Option<synth::Framing>,
 }
 
 /// The capture-like scene's settings from the flags (checked).
@@ -111,6 +122,7 @@ pub fn generate(args: &SynthArgs) -> anyhow::Result<Dataset> {
         seed: args.seed,
         motion,
         capture: capture_config(args)?,
+        framing: args.framing,
     };
     let mut progress: Option<Progress> = None;
     let dataset = synth::generate(&cfg, &args.out, &mut |done, total| {

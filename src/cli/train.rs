@@ -3,9 +3,11 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 
 use anyhow::Context;
+use clap::builder::{PossibleValuesParser, TypedValueParser};
 use clap::parser::ValueSource;
 use clap::{ArgMatches, FromArgMatches};
 pub use talkin_train::DEFAULT_LPIPS_DIR;
+use talkin_train::plan::Plan;
 use talkin_train::{Budget, DEVICE_ARG, RunLock, StepLog, TrainOptions, Trainer, existing_run};
 
 use crate::progress::Progress;
@@ -28,6 +30,12 @@ pub struct TrainArgs {
     /// log and recipe replaced.
     #[arg(long)]
     pub force: bool,
+    /// Plan the run from a census of its training frames (`on`): which networks, inputs,
+    /// finger bones and hash-grid levels it builds, each decision printed with its reason
+    /// and recorded in recipe.json; every flag named here overrides its decision. `off`:
+    /// everything the options say, as given.
+    #[arg(long, value_name = "on|off", default_value = "on", value_parser = PossibleValuesParser::new(["on", "off"]).map(|s| s == "on"), action = clap::ArgAction::Set)]
+    pub plan: bool,
     /// Read before `recipe`, whose parser takes its values out of the matches.
     #[command(flatten)]
     pub given: GivenFlags,
@@ -51,7 +59,7 @@ impl FromArgMatches for GivenFlags {
     fn from_arg_matches(m: &ArgMatches) -> Result<Self, clap::Error> {
         // The command's own flags (`train`'s, and `adapt`'s `--run` and `--subject`).
         let own = [
-            "data", "out", "resume", "force", "run", "subject", DEVICE_ARG,
+            "data", "out", "resume", "force", "plan", "run", "subject", DEVICE_ARG,
         ];
         let given = |id: &str| m.value_source(id) == Some(ValueSource::CommandLine);
         let named: Vec<String> = m
@@ -106,6 +114,10 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
         }
         let mut trainer = Trainer::resume_on(&dataset, &args.out, args.recipe.device)
             .with_context(|| format!("resuming {}", args.out.display()))?;
+        if let Some(plan) = &trainer.options().plan {
+            println!("resuming with the plan the run started with:");
+            print!("{}", plan.describe());
+        }
         if args.given.budget {
             trainer
                 .set_budget(args.recipe.budget)
@@ -113,10 +125,15 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
         }
         trainer
     } else {
-        let recipe = args
-            .recipe
-            .clone()
-            .for_dataset(&dataset, |id| args.given.named.iter().any(|n| n == id));
+        let named = |id: &str| args.given.named.iter().any(|n| n == id);
+        let mut recipe = args.recipe.clone().for_dataset(&dataset, named);
+        if args.plan {
+            recipe = Plan::for_run(&dataset, recipe, named)
+                .with_context(|| format!("planning a run on {}", args.data.display()))?;
+        }
+        if let Some(plan) = &recipe.plan {
+            print!("{}", plan.describe());
+        }
         Trainer::new(&dataset, &args.out, &recipe)
             .with_context(|| format!("training on {}", args.data.display()))?
     };

@@ -164,6 +164,7 @@ pub fn synthetic_scene(name: &str, identities: usize, size: u32, seed: u64) -> D
         seed,
         motion: None,
         capture: None,
+        framing: None,
     };
     talkin::synth::generate(&cfg, &data, &mut |_, _| {}).unwrap();
     Dataset::load(&data).unwrap()

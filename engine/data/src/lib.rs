@@ -1,8 +1,9 @@
 //! data: what comes in from disk. Owns the dataset format (reading with errors that name
 //! the file, field and expected shape, validating, writing atomically), frame parameters
 //! as JSON, the arrays users hand over (`.npy`/`.npz` in [`npz`], the SMPL-X model file in
-//! [`smplx_model`]), motion files, `talkin inspect` and the raster helpers of its contact
-//! sheets.
+//! [`smplx_model`]), motion files, the [`census`] of a run's frames (pixels by part,
+//! articulation, the pixel's footprint), `talkin inspect` and the raster helpers of its
+//! contact sheets.
 //!
 //! Must not know about neural nets, samplers or training: it hands the later stages
 //! validated frames, cameras and parameters. Nor about other tools' layouts: converting a
@@ -10,6 +11,7 @@
 
 pub mod array;
 pub mod atomic;
+pub mod census;
 pub mod dataset;
 pub mod draw;
 pub mod inspect;

@@ -48,6 +48,7 @@ use talkin_human::camera::CameraError;
 
 pub use body::{default_rest_joints, look, proportions};
 pub use capture::{CAPTURE_FPS, CaptureConfig, TRUE_FITS_FILE, biased_fits, capture_clip};
+pub use framing::Framing;
 pub use talk::{FPS, Style, talking_clip};
 
 /// Background colour of every synthetic image (white), also the dataset's `background`.
@@ -69,6 +70,9 @@ pub struct SynthConfig {
     /// The capture-like scene ([`capture`]): its performance (unless `motion` is given),
     /// the whole body in frame, and its flaws; `None`: the clean talking scene.
     pub capture: Option<CaptureConfig>,
+    /// What the camera frames; `None`: the scene's own (the talking scene from mid-thigh
+    /// up, the capture-like scene whole).
+    pub framing: Option<Framing>,
 }
 
 impl Default for SynthConfig {
@@ -80,11 +84,21 @@ impl Default for SynthConfig {
             seed: 0,
             motion: None,
             capture: None,
+            framing: None,
         }
     }
 }
 
 impl SynthConfig {
+    /// What the camera frames.
+    pub fn framing(&self) -> Framing {
+        self.framing.unwrap_or(if self.capture.is_some() {
+            Framing::FullBody
+        } else {
+            Framing::Waist
+        })
+    }
+
     /// The authored person (proportions and look) identity `i` is: itself, and in the
     /// capture-like scene the next one, so that its first identity wears a jacket and
     /// trousers as people in captures mostly do (the first talking identity wears a skirt).

@@ -205,7 +205,7 @@ pub(crate) fn plan(cfg: &SynthConfig) -> Result<Plan, SynthError> {
             (width, height),
             &posed,
             aim,
-            cfg.capture.is_some(),
+            cfg.framing(),
         )
         .map_err(|source| SynthError::Camera {
             identity: i,

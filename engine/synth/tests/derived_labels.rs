@@ -14,6 +14,7 @@ fn derived_labels_agree_with_the_scenes_own() {
         seed: 0,
         motion: None,
         capture: None,
+        framing: None,
     };
     let ds = generate(&cfg, &dir, &mut |_, _| {}).unwrap();
     // confusion[true][derived] over person pixels.

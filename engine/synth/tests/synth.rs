@@ -27,6 +27,7 @@ fn tiny() -> SynthConfig {
         seed: 3,
         motion: None,
         capture: None,
+        framing: None,
     }
 }
 
@@ -245,6 +246,7 @@ fn jaw_and_expressions_move_only_the_face() {
         seed: 0,
         motion: Some(vec![pose, jaw, brows, smile, blink]),
         capture: None,
+        framing: None,
     };
     let ds = generate(&cfg, &dir, &mut |_, _| {}).unwrap();
     let base = ds.images(0).unwrap();
@@ -307,6 +309,7 @@ fn generator_renders_a_given_motion() {
             },
         ]),
         capture: None,
+        framing: None,
     };
     let ds = generate(&cfg, &dir, &mut |_, _| {}).unwrap();
     assert_eq!(ds.frames.len(), 2);
@@ -481,6 +484,7 @@ fn the_capture_scene_has_its_flaws_and_its_true_fits() {
         seed: 1,
         motion: None,
         capture: Some(CaptureConfig::default()),
+        framing: None,
     };
     let made = generate(&cfg, &dir, &mut |_, _| {}).unwrap();
     let count = |s: Split| made.frames.iter().filter(|f| f.split == s).count();
@@ -550,6 +554,7 @@ fn smooth_skin_bends_the_joints_and_nothing_else() {
         seed: 2,
         motion: None,
         capture: Some(CaptureConfig::clean()),
+        framing: None,
     };
     let dir = temp_dir("smooth");
     let made = generate(&cfg, &dir, &mut |_, _| {}).unwrap();

@@ -173,7 +173,7 @@ fn canonical_density(
             TensorData::new(rows.iter().map(|&i| i as i32).collect(), [rows.len()]),
             &device,
         );
-        let cond = if face {
+        let cond = if face && face_dim > 0 {
             Tensor::cat(
                 vec![Tensor::<2>::zeros([1, face_dim], &device), id.clone()],
                 1,

@@ -6,8 +6,9 @@
 //! `journal`: on a GPU a few steps' losses at a time, read in one transfer by `pending`)
 //! and the avatar's checkpoints. A run is told its [`recipe`] (on a camera capture, the
 //! capture recipe wherever the command line named nothing; runs record it as
-//! [`recipe::record`] declares, versioned, in `recipe.json`), whose [`preset`] names the
-//! architecture and optimiser settings; with
+//! [`recipe::record`] declares, versioned, in `recipe.json`; the [`plan`], decided from the
+//! census of the training frames, sets which networks, inputs, finger bones and grid
+//! levels it builds), whose [`preset`] names the architecture and optimiser settings; with
 //! [`refine`] it also learns per-frame corrections of the training fits.
 //!
 //! Must not know about rendering whole frames, evaluation, the server or the
@@ -17,6 +18,7 @@
 pub mod error;
 pub mod grid_update;
 pub mod loss;
+pub mod plan;
 pub mod preset;
 pub mod rays;
 pub mod recipe;

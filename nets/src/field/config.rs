@@ -85,6 +85,10 @@ pub struct FieldConfig {
     /// Condition F_face on `e = [psi; jaw]` (13); false: psi only (10).
     #[config(default = true)]
     pub face_uses_jaw: bool,
+    /// F_face reads the expression `psi`; false (a capture whose expression never
+    /// changes): the jaw alone, or the identity alone without the jaw either.
+    #[config(default = true)]
+    pub face_uses_expression: bool,
     /// Per-frame latent codes ([`FrameCodes`]); `None` (checkpoints written before the
     /// codes existed, and runs without them): none.
     #[config(default = "None")]
@@ -185,8 +189,13 @@ impl FieldConfig {
         .with_unit_map(Some(UnitMap::Isotropic))
     }
 
-    fn expression_dim(&self) -> usize {
-        EXPRESSION_DIM + if self.face_uses_jaw { JAW_DIM } else { 0 }
+    /// Width of F_face's expression condition (`[psi; jaw]`, or what of it it reads).
+    pub fn expression_dim(&self) -> usize {
+        (if self.face_uses_expression {
+            EXPRESSION_DIM
+        } else {
+            0
+        }) + if self.face_uses_jaw { JAW_DIM } else { 0 }
     }
 
     /// Builds the field; `prior` initialises the skinning weights and `rng` draws the
@@ -267,6 +276,7 @@ impl FieldConfig {
                 non_rigid_start_step: self.non_rigid_start_step,
                 hand_background: self.hand_background,
                 face_uses_jaw: self.face_uses_jaw,
+                face_uses_expression: self.face_uses_expression,
                 unit_map: self.unit_map.unwrap_or(UnitMap::PerAxis),
                 pose_dim: self.pose_dim,
                 n_identities: self.n_identities.max(1),

@@ -106,6 +106,7 @@ struct FieldSettings {
     non_rigid_start_step: Option<usize>,
     hand_background: bool,
     face_uses_jaw: bool,
+    face_uses_expression: bool,
     unit_map: UnitMap,
     pose_dim: usize,
     n_identities: usize,
@@ -585,24 +586,39 @@ impl TalkinField {
         let (head, xh) = self.routed(route, PART_BIT_HEAD, SEG_HEAD, x)?; // [h, 3]
         let device = self.device();
         let frame = input.frame;
-        let e = match leaves {
-            Some(l) if self.settings.face_uses_jaw => {
-                Tensor::cat(vec![l.expression.clone(), l.jaw.clone()], 1)
+        let (expression, jaw) = (
+            self.settings.face_uses_expression,
+            self.settings.face_uses_jaw,
+        );
+        let mut parts = Vec::with_capacity(3);
+        match leaves {
+            Some(l) => {
+                if expression {
+                    parts.push(l.expression.clone());
+                }
+                if jaw {
+                    parts.push(l.jaw.clone());
+                }
             }
-            Some(l) => l.expression.clone(),
             None => {
-                let mut e = frame.expression.to_vec();
-                if self.settings.face_uses_jaw {
+                let mut e = Vec::new();
+                if expression {
+                    e.extend(frame.expression);
+                }
+                if jaw {
                     e.extend(frame.jaw);
                 }
-                let d_e = e.len();
-                floats(e, [1, d_e], &device)
+                if !e.is_empty() {
+                    let d_e = e.len();
+                    parts.push(floats(e, [1, d_e], &device));
+                }
             }
-        };
+        }
+        parts.push(identity.clone());
         let raw = face.forward(
             self.to_unit(xh),
             frame.identity,
-            Tensor::cat(vec![e, identity.clone()], 1),
+            Tensor::cat(parts, 1),
             input.step,
         );
         let (sigma, rgb) = activate(&raw);

@@ -361,6 +361,14 @@ fn absent_modules_are_not_built_or_run() {
         .init(&ladder_prior(), &device, &mut WeightRng::seeded(5))
         .unwrap();
     assert!(jawless.num_params() < full.num_params());
+    let blind = tiny_fast()
+        .with_face_uses_jaw(false)
+        .with_face_uses_expression(false);
+    assert_eq!(blind.expression_dim(), 0);
+    let blind = blind
+        .init(&ladder_prior(), &device, &mut WeightRng::seeded(5))
+        .unwrap();
+    assert!(blind.face.is_some() && blind.num_params() < jawless.num_params());
 
     force_body(&mut bare, [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 5.0]);
     let (pts, _) = batch(2, 4);
@@ -731,4 +739,33 @@ fn device_op_heads_match_the_composed_ops() {
     let (dev, composed) = (run(true), run(false));
     crate::util::assert_close_to("heads", &dev[0], &composed[0], 1e-6);
     crate::util::assert_close_to("output gradient", &dev[1], &composed[1], 1e-6);
+}
+
+/// F_face that reads neither the expression nor the jaw (a capture whose face never
+/// moves) takes the identity alone and renders its routed rows.
+#[test]
+fn a_face_without_expression_inputs_renders_its_rows() {
+    let device = Device::flex();
+    let (pts, _) = batch(2, 6);
+    let n = pts.len();
+    let bones = vec![1u64 << 15; n];
+    let frame = FrameConditions::still();
+    let mut field = tiny_fast()
+        .with_face_uses_jaw(false)
+        .with_face_uses_expression(false)
+        .init(&ladder_prior(), &device, &mut WeightRng::seeded(5))
+        .unwrap();
+    force_body(&mut field, [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 5.0]);
+    let parts = vec![PART_BIT_HEAD; n];
+    let input = FieldInput {
+        points: &pts,
+        bone_masks: &bones,
+        part_masks: &parts,
+        frame: &frame,
+        step: 0,
+    };
+    let out = field.forward(&input).unwrap();
+    assert_eq!(out.stats.face_rows, n);
+    assert!(host(&out.sigma).iter().all(|s| s.is_finite()));
+    assert!(host(&out.rgb).iter().all(|c| c.is_finite()));
 }

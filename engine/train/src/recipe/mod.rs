@@ -3,6 +3,7 @@
 //! run records of them is [`record`]'s own type.
 
 mod file;
+mod hash_grid;
 pub mod record;
 
 pub use file::RECIPE_FILE;
@@ -20,6 +21,7 @@ use talkin_nets::ComputeDevice;
 use talkin_nets::mlp::MlpPath;
 
 use crate::error::TrainError;
+use crate::plan::Plan;
 use crate::preset::Preset;
 use crate::refine::RefineOptions;
 
@@ -157,6 +159,22 @@ pub struct TrainOptions {
     /// without them the perceptual term is 1 - SSIM, and the run says so.
     #[arg(long = "lpips-dir", value_name = "DIR", default_value_os = DEFAULT_LPIPS_DIR.as_os_str(), help_heading = "Loss")]
     pub perceptual: Option<PathBuf>,
+    /// Levels of the `fast` preset's hash grids (default: the preset's 12, or the plan's:
+    /// the finest level at half a pixel's footprint on the person).
+    #[arg(
+        long = "hash-levels",
+        value_name = "N",
+        help_heading = "Model and device"
+    )]
+    pub hash_levels: Option<usize>,
+    /// Entries per level of the `fast` preset's F_body table, as a power of two (F_face's
+    /// and F_hands' are a quarter of it; default: the preset's 17, or the plan's).
+    #[arg(
+        long = "hash-table",
+        value_name = "LOG2",
+        help_heading = "Model and device"
+    )]
+    pub hash_table_log2: Option<usize>,
     /// Checkpoint every this many seconds of training (and always at the end).
     #[arg(long = "checkpoint-every", value_name = "SECONDS", default_value_t = TrainOptions::default().checkpoint_every_s, help_heading = "Run")]
     pub checkpoint_every_s: f64,
@@ -170,6 +188,11 @@ pub struct TrainOptions {
     pub clip_seconds: Option<f64>,
     #[command(flatten, next_help_heading = "Pose refinement")]
     pub refine: RefineOptions,
+    /// The plan these options were decided by (the census of the training frames and each
+    /// decision; `talkin train` makes one unless `--plan off`); `None`: the options as
+    /// given.
+    #[arg(skip)]
+    pub plan: Option<Plan>,
 }
 
 /// The most rows a slice of the composed MLP products may take (a batch is rarely more).
@@ -336,8 +359,9 @@ impl std::fmt::Display for Identities {
     }
 }
 
-/// The paper's ablations (Tables 1 and 3), as switches on the field. `--hand-deform` is
-/// the one a user sets; the ablation bench sets the others.
+/// Switches on the field's parts: the paper's ablations (Tables 1 and 3; the ablation
+/// bench sets the ones without a flag) and which networks and inputs a run builds (the
+/// plan sets those from the data's census; each flag overrides it).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Args)]
 pub struct Ablation {
     /// D_hands, the paper's offset for hand samples from the hand pose: `on` or `off`.
@@ -354,8 +378,21 @@ pub struct Ablation {
     /// The body's rendered colour is the hands' background (off: "w/o background").
     #[arg(skip = true)]
     pub hand_background: bool,
-    /// F_face is conditioned on [psi; jaw] (off: psi only).
-    #[arg(skip = true)]
+    /// F_hands (and D_hands): `on`, or `off` (the hands are the body's, as F_body learns
+    /// them). The plan turns it off where the hands cover too few pixels to teach it.
+    #[arg(long = "hands", value_name = "on|off", default_value = "on", value_parser = PossibleValuesParser::new(["on", "off"]).map(|s| s == "on"), action = clap::ArgAction::Set, help_heading = "Model and device")]
+    pub hands: bool,
+    /// F_face: `on`, or `off` (the head is the body's). The plan turns it off where the
+    /// head covers too few pixels to teach it.
+    #[arg(long = "face", value_name = "on|off", default_value = "on", value_parser = PossibleValuesParser::new(["on", "off"]).map(|s| s == "on"), action = clap::ArgAction::Set, help_heading = "Model and device")]
+    pub face: bool,
+    /// F_face reads the expression psi: `on` or `off`. The plan turns it off where the
+    /// fits' expression never changes.
+    #[arg(long = "face-expression", value_name = "on|off", default_value = "on", value_parser = PossibleValuesParser::new(["on", "off"]).map(|s| s == "on"), action = clap::ArgAction::Set, help_heading = "Model and device")]
+    pub face_uses_expression: bool,
+    /// F_face reads the jaw's pose beside psi: `on` or `off` (the paper's "w/o jaw in
+    /// e"). The plan turns it off where the fits' jaw never moves.
+    #[arg(long = "face-jaw", value_name = "on|off", default_value = "on", value_parser = PossibleValuesParser::new(["on", "off"]).map(|s| s == "on"), action = clap::ArgAction::Set, help_heading = "Model and device")]
     pub face_uses_jaw: bool,
 }
 
@@ -365,6 +402,9 @@ impl Default for Ablation {
             use_d_hands: true,
             non_rigid: true,
             hand_background: true,
+            hands: true,
+            face: true,
+            face_uses_expression: true,
             face_uses_jaw: true,
         }
     }
@@ -395,11 +435,14 @@ impl Default for TrainOptions {
             non_rigid_lr_scale: 0.1,
             occ_every: 64,
             grid_resolution: 128,
+            hash_levels: None,
+            hash_table_log2: None,
             perceptual: None,
             checkpoint_every_s: 120.0,
             ablation: Ablation::default(),
             clip_seconds: None,
             refine: RefineOptions::default(),
+            plan: None,
         }
     }
 }
@@ -505,6 +548,9 @@ impl TrainOptions {
         }
         if self.grid_resolution < 8 || self.grid_resolution > 512 {
             return bad("--grid-resolution", "must be in 8..=512");
+        }
+        if let Err((flag, problem)) = self.check_hash_grid() {
+            return bad(flag, &problem);
         }
         if self.checkpoint_every_s.is_nan() || self.checkpoint_every_s <= 0.0 {
             return bad("--checkpoint-every", "must be positive");

@@ -17,6 +17,7 @@ use serde_json::Value;
 use talkin_grids::SamplerKind;
 use talkin_nets::ComputeDevice;
 
+use crate::plan::Plan;
 use crate::preset::Preset;
 use crate::recipe::{Ablation, Budget, FingerSkinning, Identities, TrainOptions};
 use crate::refine::{RefineMode, RefineOptions};
@@ -108,6 +109,12 @@ struct TrainOptionsRecord {
     non_rigid_lr_scale: f64,
     occ_every: u32,
     grid_resolution: u32,
+    /// Absent: the preset's.
+    #[serde(default)]
+    hash_levels: Option<usize>,
+    /// Absent: the preset's.
+    #[serde(default)]
+    hash_table_log2: Option<usize>,
     /// The LPIPS weights' directory (a path that is not UTF-8 round-trips).
     #[serde(default, with = "lpips_dir")]
     perceptual: Option<PathBuf>,
@@ -121,6 +128,9 @@ struct TrainOptionsRecord {
     /// Absent: the fits trusted.
     #[serde(default = "fits_trusted", with = "RefineRecord")]
     refine: RefineOptions,
+    /// Absent: no plan, the options as given.
+    #[serde(default)]
+    plan: Option<Plan>,
 }
 
 /// [`Ablation`] as recorded.
@@ -132,6 +142,15 @@ struct AblationRecord {
     #[serde(default = "yes")]
     non_rigid: bool,
     hand_background: bool,
+    /// Absent: F_hands built.
+    #[serde(default = "yes")]
+    hands: bool,
+    /// Absent: F_face built.
+    #[serde(default = "yes")]
+    face: bool,
+    /// Absent: F_face reads psi.
+    #[serde(default = "yes")]
+    face_uses_expression: bool,
     face_uses_jaw: bool,
 }
 

@@ -66,6 +66,13 @@ impl<'a> Trainer<'a> {
         }
         config.hand_background = opts.ablation.hand_background;
         config.face_uses_jaw = opts.ablation.face_uses_jaw;
+        config.face_uses_expression = opts.ablation.face_uses_expression;
+        config.has_face = opts.ablation.face;
+        config.has_hands = opts.ablation.hands;
+        if !opts.ablation.hands {
+            config.use_d_hands = false;
+        }
+        opts.apply_hash_grid(&mut config);
         config.skinning.finger_bones = Some(opts.skin_fingers.finger_bones());
         config.mlp_path = Some(opts.mlp_path());
         config.frame_codes = (opts.frame_code_dim > 0).then_some(FrameCodes {

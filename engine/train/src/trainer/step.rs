@@ -327,12 +327,7 @@ impl Trainer<'_> {
         if self.opts.sampler != SamplerKind::Accelerated || !self.grids.due(self.progress.step) {
             return Ok(());
         }
-        let face_dim = talkin_nets::field::EXPRESSION_DIM
-            + if self.config.face_uses_jaw {
-                talkin_nets::field::JAW_DIM
-            } else {
-                0
-            };
+        let face_dim = self.config.expression_dim();
         let virtual_per_step = self.field_step() as f64 / self.progress.step as f64;
         let field = self.field().valid();
         self.grids.update(

@@ -68,10 +68,26 @@ fn the_record_round_trips_and_keeps_its_names() {
     assert_eq!(json["skin_fingers"], "bones");
     assert_eq!(json["refine"]["refine_poses"], "auto");
     let unversioned: Value = serde_json::from_str(UNVERSIONED).unwrap();
-    let mut names: Vec<&String> = json.as_object().unwrap().keys().collect();
-    names.retain(|n| *n != "version");
-    let old_names: Vec<&String> = unversioned.as_object().unwrap().keys().collect();
+    // Every name a run before versions wrote, and the fields added since (absent from
+    // older records, which read as those runs trained: the next test).
+    const ADDED: [&str; 3] = ["hash_levels", "hash_table_log2", "plan"];
+    let mut names: Vec<&str> = json
+        .as_object()
+        .unwrap()
+        .keys()
+        .map(String::as_str)
+        .collect();
+    names.retain(|n| *n != "version" && !ADDED.contains(n));
+    let old_names: Vec<&str> = unversioned
+        .as_object()
+        .unwrap()
+        .keys()
+        .map(String::as_str)
+        .collect();
     assert_eq!(names, old_names);
+    for added in ADDED {
+        assert!(unversioned.get(added).is_none() && json.get(added).is_some());
+    }
     assert_eq!(read(json).unwrap(), opts);
     let all = to_json(&TrainOptions::default()).unwrap();
     assert!(all["identities"].is_null());
@@ -130,6 +146,9 @@ fn absent_fields_read_as_the_runs_before_them_trained() {
     assert_eq!(opts.ablation, Ablation::default());
     assert_eq!(opts.clip_seconds, None);
     assert_eq!(opts.refine.refine_poses, RefineMode::Off);
+    // Fields no version-0 record holds: the preset's grid, no plan, every part built.
+    assert_eq!((opts.hash_levels, opts.hash_table_log2), (None, None));
+    assert!(opts.plan.is_none());
     // Inside the refinement record, the jitter rate came last.
     let mut json: Value = serde_json::from_str(UNVERSIONED).unwrap();
     json["refine"]
