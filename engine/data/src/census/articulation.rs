@@ -111,9 +111,11 @@ mod tests {
         assert_eq!(Articulation::of(&frames), Articulation::default());
         assert_eq!(Articulation::of(&[]), Articulation::default());
         assert_eq!(Articulation::of(&[&still]), Articulation::default());
-        let mut bent = FrameParams::default();
+        let mut bent = FrameParams {
+            jaw_pose: DVec3::new(0.2, 0.0, 0.0),
+            ..FrameParams::default()
+        };
         bent.left_hand_pose[4] = DVec3::new(0.0, 0.0, 0.5);
-        bent.jaw_pose = DVec3::new(0.2, 0.0, 0.0);
         bent.expression[3] = 1.0;
         let mut frames = vec![&still; 9];
         frames.push(&bent);
@@ -130,12 +132,15 @@ mod tests {
 
     #[test]
     fn rotations_near_pi_and_non_finite_fits_stay_finite() {
-        let mut a = FrameParams::default();
-        let mut b = FrameParams::default();
-        a.jaw_pose = DVec3::new(std::f64::consts::PI - 1e-9, 0.0, 0.0);
-        b.jaw_pose = DVec3::new(-(std::f64::consts::PI - 1e-9), 0.0, 0.0);
-        let mut c = FrameParams::default();
-        c.jaw_pose = DVec3::new(f64::NAN, 0.0, 0.0);
+        let jaw = |x: f64| FrameParams {
+            jaw_pose: DVec3::new(x, 0.0, 0.0),
+            ..FrameParams::default()
+        };
+        let (a, b) = (
+            jaw(std::f64::consts::PI - 1e-9),
+            jaw(-(std::f64::consts::PI - 1e-9)),
+        );
+        let mut c = jaw(f64::NAN);
         c.expression[0] = f64::INFINITY;
         let s = Articulation::of(&[&a, &b, &c]);
         // +pi and -pi about one axis are one rotation: no spread.
