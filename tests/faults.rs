@@ -207,13 +207,17 @@ fn a_full_disk_loses_nothing_and_the_run_resumes_exactly() {
     let dataset = common::synthetic_scene("faults_scene_disk", 1, 48, 1);
     let data = &dataset.root;
     let base = common::temp_dir("faults_disk_inputs");
-    // A checkpoint after every step, refined poses too (export-poses reads them).
+    // A checkpoint after every step, refined poses too (export-poses reads them); every
+    // network built (`--plan off`), so that a checkpoint has the size the disk is
+    // sized for.
     let flags: &[&str] = &[
         "--steps",
         "4",
         "--checkpoint-every",
         "0.001",
         "--refine-poses",
+        "--plan",
+        "off",
     ];
     let straight = base.join("straight");
     let out = talkin(&train_args(data, &straight, flags));
