@@ -133,6 +133,7 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
         resume: false,
         force: true,
         plan: true,
+        peers: Default::default(),
         recipe,
         given: Default::default(),
     })?;

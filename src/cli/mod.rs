@@ -9,6 +9,7 @@ mod export_poses;
 pub mod import;
 mod inspect;
 mod lpips;
+mod peers;
 mod render;
 mod serve;
 mod synth;

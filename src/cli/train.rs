@@ -8,7 +8,9 @@ use clap::parser::ValueSource;
 use clap::{ArgMatches, FromArgMatches};
 pub use talkin_train::DEFAULT_LPIPS_DIR;
 use talkin_train::plan::Plan;
-use talkin_train::{Budget, DEVICE_ARG, RunLock, StepLog, TrainOptions, Trainer, existing_run};
+use talkin_train::{
+    Budget, DEVICE_ARG, RunLock, RunWriter, StepLog, TrainOptions, Trainer, existing_run,
+};
 
 use crate::progress::Progress;
 
@@ -36,11 +38,46 @@ pub struct TrainArgs {
     /// everything the options say, as given.
     #[arg(long, value_name = "on|off", default_value = "on", value_parser = PossibleValuesParser::new(["on", "off"]).map(|s| s == "on"), action = clap::ArgAction::Set)]
     pub plan: bool,
+    #[command(flatten)]
+    pub peers: PeerArgs,
     /// Read before `recipe`, whose parser takes its values out of the matches.
     #[command(flatten)]
     pub given: GivenFlags,
     #[command(flatten)]
     pub recipe: TrainOptions,
+}
+
+/// Data-parallel training: one of N peers started together by an MPI launcher
+/// (`mpirun -n N talkin train ...`, or `srun` in a Slurm allocation), each computing its
+/// share of every step's batch; peer 0 writes the run.
+#[derive(clap::Args, Debug, Clone)]
+pub struct PeerArgs {
+    /// How many peers the run has (checked against the launcher's; read from it when
+    /// left out).
+    #[arg(long, value_name = "N")]
+    pub nodes: Option<usize>,
+    /// This peer's rank, 0 to N-1 (checked against the launcher's).
+    #[arg(long, value_name = "R")]
+    pub node_rank: Option<usize>,
+    /// Seconds a peer waits for the others at an exchange before it stops with exit 1,
+    /// naming them (a peer that died or hangs); at most 60.
+    #[arg(long, value_name = "SECS", default_value_t = PeerArgs::TIMEOUT_S)]
+    pub peer_timeout: f64,
+}
+
+impl PeerArgs {
+    const TIMEOUT_S: f64 = 45.0;
+}
+
+/// Alone (no flags), as `demo` trains.
+impl Default for PeerArgs {
+    fn default() -> Self {
+        PeerArgs {
+            nodes: None,
+            node_rank: None,
+            peer_timeout: PeerArgs::TIMEOUT_S,
+        }
+    }
 }
 
 /// Which of the recipe's options the command line named: clap fills every other one with
@@ -59,7 +96,17 @@ impl FromArgMatches for GivenFlags {
     fn from_arg_matches(m: &ArgMatches) -> Result<Self, clap::Error> {
         // The command's own flags (`train`'s, and `adapt`'s `--run` and `--subject`).
         let own = [
-            "data", "out", "resume", "force", "plan", "run", "subject", DEVICE_ARG,
+            "data",
+            "out",
+            "resume",
+            "force",
+            "plan",
+            "run",
+            "subject",
+            "nodes",
+            "node_rank",
+            "peer_timeout",
+            DEVICE_ARG,
         ];
         let given = |id: &str| m.value_source(id) == Some(ValueSource::CommandLine);
         let named: Vec<String> = m
@@ -94,27 +141,36 @@ impl clap::Args for GivenFlags {
 pub fn run(args: TrainArgs) -> anyhow::Result<()> {
     // Before any work: a signal from here on ends the run with a checkpoint.
     let signals = StopSignals::install()?;
+    // Which peer this is (alone unless an MPI launcher started several), and the link to
+    // the others; peer 0 alone writes the run.
+    let peers = super::peers::join(&args.peers)?;
+    let rank = peers.as_ref().map_or(0, |p| p.rank());
+    let writes = if rank == 0 {
+        RunWriter::Writes
+    } else {
+        RunWriter::ReadsOnly
+    };
     // One writer per run, taken before anything reads or clears it (`--force` included). A
     // --resume of a directory that is not there takes none: resuming fails on its own.
-    let _lock = if args.resume && !args.out.is_dir() {
+    let _lock = if writes == RunWriter::ReadsOnly || (args.resume && !args.out.is_dir()) {
         None
     } else {
         Some(RunLock::take(&args.out)?)
     };
-    if !args.resume {
+    if !args.resume && writes == RunWriter::Writes {
         refuse_existing_run(&args.out, args.force)?;
     }
     let dataset = super::load_dataset(&args.data)?;
-    let trainer = if args.resume {
+    let mut trainer = if args.resume {
         if args.given.other {
             tracing::warn!(
                 "--resume continues with the run's own options (its recipe.json); only \
                  --steps, --minutes and --device given here apply"
             );
         }
-        let mut trainer = Trainer::resume_on(&dataset, &args.out, args.recipe.device)
+        let mut trainer = Trainer::resume_as(&dataset, &args.out, args.recipe.device, writes)
             .with_context(|| format!("resuming {}", args.out.display()))?;
-        if let Some(plan) = &trainer.options().plan {
+        if let Some(plan) = trainer.options().plan.as_ref().filter(|_| rank == 0) {
             println!("resuming with the plan the run started with:");
             print!("{}", plan.describe());
         }
@@ -131,12 +187,18 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
             recipe = Plan::for_run(&dataset, recipe, named)
                 .with_context(|| format!("planning a run on {}", args.data.display()))?;
         }
-        if let Some(plan) = &recipe.plan {
+        if let Some(plan) = recipe.plan.as_ref().filter(|_| rank == 0) {
             print!("{}", plan.describe());
         }
-        Trainer::new(&dataset, &args.out, &recipe)
+        Trainer::new_as(&dataset, &args.out, &recipe, writes)
             .with_context(|| format!("training on {}", args.data.display()))?
     };
+    if let Some(peers) = peers {
+        let size = peers.size();
+        trainer
+            .join_peers(peers)
+            .with_context(|| format!("joining the run's {size} peers"))?;
+    }
     run_trainer(trainer, &args.data, &args.out, &signals)
 }
 
@@ -304,6 +366,9 @@ pub fn run_trainer(
             mean(&|l| l.rays_per_s),
             mean(&|l| l.samples_per_s),
         );
+    }
+    if let Some(line) = &report.peers {
+        println!("{line}");
     }
     println!(
         "log: {}\ncheckpoint: {}",

@@ -60,6 +60,22 @@ pub enum TrainError {
     },
     #[error("step {step}: the loss is not finite ({loss}); lower --lr?")]
     NonFinite { step: usize, loss: f32 },
+    /// The peers of a data-parallel run refused each other or an exchange failed.
+    #[error(transparent)]
+    Peers(#[from] talkin_peers::PeerError),
+    /// The peers stopped drawing the same run (a bug, or machines whose arithmetic
+    /// differs): stopped before they train different models.
+    #[error(
+        "step {step}: the peers no longer agree on {what} (peer {rank} holds {mine}, the \
+         peers' mean is {mean}); the last checkpoint stands"
+    )]
+    PeersDiverged {
+        step: usize,
+        what: &'static str,
+        rank: usize,
+        mine: f32,
+        mean: f32,
+    },
     #[error("step {step}: handing its work to the device failed: {problem}")]
     Flush { step: usize, problem: String },
     #[error("steps {first}-{last}: reading their losses back from the device failed: {problem}")]

@@ -18,6 +18,7 @@
 pub mod error;
 pub mod grid_update;
 pub mod loss;
+pub mod peers;
 pub mod plan;
 pub mod preset;
 pub mod rays;
@@ -40,5 +41,6 @@ pub use setup::existing_run;
 pub use step_log::{LOG_FILE, StepLog};
 pub use talkin_grids::SamplerKind;
 pub use trainer::{
-    FitPosesOptions, FittedPoses, ScheduleAnchor, TrainReport, Trainer, fit_held_out_poses, train,
+    FitPosesOptions, FittedPoses, RunWriter, ScheduleAnchor, TrainReport, Trainer,
+    fit_held_out_poses, train,
 };

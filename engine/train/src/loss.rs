@@ -33,7 +33,11 @@ pub const FRAME_CODE_PRIOR: f32 = 1e-2;
 
 /// One step's batch as the loss sees it.
 pub(crate) struct StepBatch<'a> {
+    /// The step's whole batch (every peer's rays).
     pub rays: &'a [Ray],
+    /// The rays this process computes: all of them alone, a peer's share among peers
+    /// (`crate::peers::share_of`). Each ray's loss is weighted by the whole batch's size.
+    pub share: std::ops::Range<usize>,
     pub samples: PackedSamples,
     /// `[rays * 3]` in [0, 1].
     pub rgb: &'a [f32],
@@ -117,22 +121,43 @@ pub(crate) fn loss_and_grads(
     perceptual: Option<&PerceptualLoss>,
     batch: StepBatch,
 ) -> Result<StepLoss, NetsError> {
-    let n = batch.rays.len();
-    let patch_rays = batch.patches * batch.patch_side * batch.patch_side;
+    let share = batch.share.clone();
+    let n = share.len();
+    if n == 0 {
+        // A peer whose share is empty (more peers than rays beside the patches).
+        let device = field.identity.val().device();
+        return Ok(StepLoss {
+            values: LossValues::of(Tensor::<1>::zeros([2], &device)),
+            grads: GradientsParams::new(),
+            pose: batch.pose_grads.then(|| zero_grads(field.pose_dim())),
+        });
+    }
+    let samples = if share.len() == batch.rays.len() {
+        None
+    } else {
+        let (_, rest) = batch.samples.split_at_ray(share.start);
+        Some(rest.split_at_ray(n).0)
+    };
+    let samples = samples.as_ref().unwrap_or(&batch.samples);
+    // The patches in this share: all of them in peer 0's (or the lone process's).
+    let patch_rays = (batch.patches * batch.patch_side * batch.patch_side)
+        .saturating_sub(share.start)
+        .min(n);
     // A GPU takes the batch whole: its work is queued, not run on this thread.
     let on_cpu = is_cpu(&field.identity.val().device());
     let Some(k) = split_point(n, patch_rays).filter(|_| on_cpu) else {
-        let whole = half(field, false, perceptual, &batch, 0..n, &batch.samples)?;
+        let whole = half(field, false, perceptual, &batch, share, samples)?;
         return Ok(StepLoss {
             values: LossValues::of(whole.values),
             grads: whole.grads,
             pose: whole.pose,
         });
     };
-    let (head, tail) = batch.samples.split_at_ray(k);
+    let (head, tail) = samples.split_at_ray(k);
+    let cut = share.start + k;
     let (a, b) = std::thread::scope(|scope| {
-        let first = scope.spawn(|| half(field, true, perceptual, &batch, 0..k, &head));
-        let second = half(field, true, perceptual, &batch, k..n, &tail);
+        let first = scope.spawn(|| half(field, true, perceptual, &batch, share.start..cut, &head));
+        let second = half(field, true, perceptual, &batch, cut..share.end, &tail);
         (first.join(), second)
     });
     // A panic in the other thread is a bug; pass it on as one.
@@ -447,6 +472,7 @@ mod tests {
             let silhouette: Vec<f32> = (0..9).map(|i| if i == 6 { 0.0 } else { 1.0 }).collect();
             let batch = || StepBatch {
                 rays: &rays,
+                share: 0..9,
                 samples: samples.clone(),
                 rgb: &rgb,
                 labels: &labels,
@@ -500,6 +526,36 @@ mod tests {
                 "only {} parameters had gradients",
                 same.compared
             );
+            // Peers: each share's loss and gradients, summed, are the whole batch's
+            // (three peers of nine rays: shares of three, each split again in two).
+            for size in [2, 3] {
+                let mut loss = 0.0;
+                let mut grads = GradientsParams::new();
+                for rank in 0..size {
+                    let part = loss_and_grads(
+                        &field,
+                        None,
+                        StepBatch {
+                            share: crate::peers::share_of(rank, size, 9, 0),
+                            ..batch()
+                        },
+                    )
+                    .unwrap();
+                    loss += part.values.read().0;
+                    grads = sum_grads(&field, grads, part.grads);
+                }
+                assert!(
+                    (whole_loss - loss).abs() <= 1e-5 * whole_loss.abs(),
+                    "{size} peers: {whole_loss} vs {loss}"
+                );
+                let mut same = SameGrads {
+                    a: &whole.grads,
+                    b: &grads,
+                    compared: 0,
+                };
+                field.visit(&mut same);
+                assert!(same.compared >= 5, "{size} peers");
+            }
         }
     }
 

@@ -40,10 +40,10 @@ pub struct StepLog {
     pub bones_per_sample: f64,
 }
 
-/// The open log of a run.
+/// The open log of a run (`None`: a peer that writes nothing, peer 0 writing the log).
 pub(crate) struct TrainLog {
     path: PathBuf,
-    writer: csv::Writer<std::fs::File>,
+    writer: Option<csv::Writer<std::fs::File>>,
 }
 
 impl TrainLog {
@@ -87,10 +87,20 @@ impl TrainLog {
             .map_err(io)?;
         Ok(TrainLog {
             path: path.to_path_buf(),
-            writer: csv::WriterBuilder::new()
-                .has_headers(false)
-                .from_writer(file),
+            writer: Some(
+                csv::WriterBuilder::new()
+                    .has_headers(false)
+                    .from_writer(file),
+            ),
         })
+    }
+
+    /// A log that writes nothing (a peer other than 0: peer 0 writes the run's log).
+    pub fn sink(path: &Path) -> TrainLog {
+        TrainLog {
+            path: path.to_path_buf(),
+            writer: None,
+        }
     }
 
     /// Appends `entry`; flushes every 25 steps, so `tail -f` follows the run without a
@@ -111,9 +121,11 @@ impl TrainLog {
             format!("{:.6}", entry.sampling_s),
             format!("{:.3}", entry.bones_per_sample),
         ];
-        self.writer
-            .write_record(&row)
-            .map_err(|source| log_error(&self.path, source))?;
+        if let Some(writer) = &mut self.writer {
+            writer
+                .write_record(&row)
+                .map_err(|source| log_error(&self.path, source))?;
+        }
         if entry.step.is_multiple_of(25) {
             self.flush()?;
         }
@@ -122,17 +134,23 @@ impl TrainLog {
 
     /// Hands the buffered rows to the OS.
     pub fn flush(&mut self) -> Result<(), TrainError> {
-        self.writer.flush().map_err(|source| self.io(source))
+        match &mut self.writer {
+            Some(w) => w.flush().map_err(|source| TrainError::Io {
+                file: self.path.clone(),
+                source,
+            }),
+            None => Ok(()),
+        }
     }
 
     /// Flushes and fsyncs: every row written so far survives a crash (at a checkpoint,
     /// whose step the rows must reach).
     pub fn sync(&mut self) -> Result<(), TrainError> {
         self.flush()?;
-        self.writer
-            .get_ref()
-            .sync_data()
-            .map_err(|source| self.io(source))
+        match &self.writer {
+            Some(w) => w.get_ref().sync_data().map_err(|source| self.io(source)),
+            None => Ok(()),
+        }
     }
 
     fn io(&self, source: std::io::Error) -> TrainError {

@@ -85,6 +85,9 @@ impl Trainer<'_> {
             file: self.out.join(crate::recipe::RECIPE_FILE),
             problem: e.to_string(),
         })?;
+        if !self.writes {
+            return Ok(());
+        }
         write_recipe(&self.out, &self.opts, &self.config, Some(extended))
     }
 

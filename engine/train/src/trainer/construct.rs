@@ -30,7 +30,7 @@ use crate::setup::{
 
 use super::progress::RunProgress;
 use super::save::Checkpoints;
-use super::{StepMode, Trainer, is_imported};
+use super::{RunWriter, StepMode, Trainer, is_imported};
 
 /// What a trainer is built from: a fresh run's start (`start`) or a checkpoint's contents
 /// (`resume`).
@@ -51,11 +51,23 @@ pub(super) struct Parts {
     /// What loading that checkpoint had to say.
     pub notes: Vec<String>,
     pub mode: StepMode,
+    pub writes: RunWriter,
 }
 
 impl<'a> Trainer<'a> {
     /// A fresh run of `opts` on `dataset`, writing into `out` (created).
     pub fn new(dataset: &'a Dataset, out: &Path, opts: &TrainOptions) -> Result<Self, TrainError> {
+        Trainer::new_as(dataset, out, opts, RunWriter::Writes)
+    }
+
+    /// [`Trainer::new`]; with [`RunWriter::ReadsOnly`] (a peer other than 0) nothing is
+    /// written into `out`.
+    pub fn new_as(
+        dataset: &'a Dataset,
+        out: &Path,
+        opts: &TrainOptions,
+        writes: RunWriter,
+    ) -> Result<Self, TrainError> {
         opts.check()?;
         let frames = training_frames(dataset, opts.identities.names(), opts.clip_seconds)?;
         let n_subjects = dataset.subjects.len();
@@ -102,7 +114,9 @@ impl<'a> Trainer<'a> {
             field.fork(&device)
         };
         let slot_of = (0..n_subjects).map(Some).collect();
-        Trainer::start(dataset, out, opts, config, field, subjects, frames, slot_of)
+        Trainer::start(
+            dataset, out, opts, config, field, subjects, frames, slot_of, writes,
+        )
     }
 
     /// Adapts the run in `base` to the subject `subject` of `dataset` (a novel identity:
@@ -181,7 +195,17 @@ impl<'a> Trainer<'a> {
         };
         let mut slot_of = vec![None; dataset.subjects.len()];
         slot_of[s] = Some(slot);
-        Trainer::start(dataset, out, opts, config, field, subjects, frames, slot_of)
+        Trainer::start(
+            dataset,
+            out,
+            opts,
+            config,
+            field,
+            subjects,
+            frames,
+            slot_of,
+            RunWriter::Writes,
+        )
     }
 
     /// A new run directory: creates it (clearing any run it held), writes the recipe and
@@ -196,12 +220,15 @@ impl<'a> Trainer<'a> {
         subjects: Vec<SubjectSlot>,
         frames: Vec<usize>,
         slot_of: Vec<Option<usize>>,
+        writes: RunWriter,
     ) -> Result<Self, TrainError> {
-        std::fs::create_dir_all(out).map_err(|source| TrainError::Io {
-            file: out.to_path_buf(),
-            source,
-        })?;
-        clear_run(out)?;
+        if writes == RunWriter::Writes {
+            std::fs::create_dir_all(out).map_err(|source| TrainError::Io {
+                file: out.to_path_buf(),
+                source,
+            })?;
+            clear_run(out)?;
+        }
         // The mask defines the person: a frame declared matted that shows its
         // surroundings is composited by its mask when decoded; say so before training.
         let contradicting = dataset.contradicting_frames(&frames)?;
@@ -225,8 +252,13 @@ impl<'a> Trainer<'a> {
         } else {
             RefineMode::Off
         };
-        write_recipe(out, &opts, &config, None)?;
-        let log = TrainLog::open(&out.join(LOG_FILE), None)?;
+        let log = match writes {
+            RunWriter::Writes => {
+                write_recipe(out, &opts, &config, None)?;
+                TrainLog::open(&out.join(LOG_FILE), None)?
+            }
+            RunWriter::ReadsOnly => TrainLog::sink(&out.join(LOG_FILE)),
+        };
         let progress = RunProgress::start(opts.seed, frames, slot_of);
         Trainer::assemble(
             dataset,
@@ -243,6 +275,7 @@ impl<'a> Trainer<'a> {
                 resumed_from: None,
                 notes: Vec::new(),
                 mode: StepMode::Train,
+                writes,
             },
         )
     }
@@ -265,6 +298,7 @@ impl<'a> Trainer<'a> {
             resumed_from,
             notes,
             mode,
+            writes,
         } = parts;
         let device = field.identity.val().device();
         let perceptual = match opts.perceptual_dir() {
@@ -317,6 +351,8 @@ impl<'a> Trainer<'a> {
             dataset_sha256,
             notes,
             mode,
+            writes: writes == RunWriter::Writes,
+            peers: None,
         })
     }
 }

@@ -180,6 +180,7 @@ impl<'a> Trainer<'a> {
                 mode: StepMode::FitPoses {
                     field_step: state.field_step,
                 },
+                writes: super::RunWriter::Writes,
             },
         )
     }

@@ -26,6 +26,7 @@ use talkin_nets::{FieldConfig, TalkinField};
 
 use crate::error::TrainError;
 use crate::grid_update::GridUpdates;
+use crate::peers::PeerLink;
 use crate::rays::FrameCaches;
 use crate::recipe::TrainOptions;
 use crate::refine::PoseRefiner;
@@ -35,6 +36,7 @@ use crate::step_log::{LOG_FILE, StepLog};
 mod budget;
 mod construct;
 mod fit_poses;
+mod join;
 mod progress;
 mod resume;
 mod save;
@@ -62,6 +64,8 @@ pub struct TrainReport {
     pub seconds: f64,
     /// `Some` when the perceptual term is SSIM rather than LPIPS: why.
     pub perceptual_note: Option<String>,
+    /// Among peers: what the exchanges cost (bytes a step, the all-reduce's share).
+    pub peers: Option<String>,
 }
 
 /// What `state.json` holds: the run's progress as it is, and what it was trained with
@@ -128,6 +132,19 @@ pub struct Trainer<'a> {
     /// What loading the checkpoint this run resumed from had to say.
     notes: Vec<String>,
     mode: StepMode,
+    /// Whether this process writes the run: alone, or peer 0 of a data-parallel run
+    /// (the other peers write nothing into it).
+    writes: bool,
+    /// The other peers of a data-parallel run (`None`: alone).
+    peers: Option<PeerLink>,
+}
+
+/// Who writes a run: the process training it alone (or peer 0 of several), or a peer
+/// that only reads it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum RunWriter {
+    Writes,
+    ReadsOnly,
 }
 
 impl Trainer<'_> {
@@ -189,8 +206,12 @@ impl Trainer<'_> {
 
     /// `secs` more of training: on the run's clock and the checkpoints'.
     fn spend(&mut self, secs: f64) {
-        self.progress.elapsed += secs;
         self.checkpoints.count(secs);
+        match &mut self.peers {
+            None => self.progress.elapsed += secs,
+            // The run's clock is peer 0's, set at each step's exchange.
+            Some(link) => link.local_elapsed += secs,
+        }
     }
 
     /// The colour the dataset's images are composited on.
@@ -231,9 +252,20 @@ impl Trainer<'_> {
         let mut logs = Vec::new();
         let mut interrupted = false;
         while !self.done() {
-            if stop.load(Ordering::SeqCst) {
-                interrupted = true;
-                break;
+            match &mut self.peers {
+                // Peers stop together: after the step at whose exchange any was asked.
+                Some(link) => {
+                    if link.stop_agreed {
+                        interrupted = true;
+                        break;
+                    }
+                    link.stop_asked = stop.load(Ordering::SeqCst);
+                }
+                None if stop.load(Ordering::SeqCst) => {
+                    interrupted = true;
+                    break;
+                }
+                None => {}
             }
             for entry in self.step()? {
                 progress(&entry);
@@ -255,6 +287,7 @@ impl Trainer<'_> {
             log_file: self.out.join(LOG_FILE),
             seconds: self.progress.elapsed - start,
             perceptual_note: self.perceptual_note(),
+            peers: self.peers.as_ref().map(PeerLink::summary),
         })
     }
 }

@@ -14,7 +14,7 @@ use crate::refine::RefineMode;
 use crate::step_log::{LOG_FILE, TrainLog};
 
 use super::construct::{Parts, open_device, optimizer};
-use super::{StepMode, TrainState, Trainer};
+use super::{RunWriter, StepMode, TrainState, Trainer};
 
 impl<'a> Trainer<'a> {
     /// Continues the run in `run` from its newest usable checkpoint, with the same options
@@ -30,6 +30,17 @@ impl<'a> Trainer<'a> {
         dataset: &'a Dataset,
         run: &Path,
         on: ComputeDevice,
+    ) -> Result<Self, TrainError> {
+        Trainer::resume_as(dataset, run, on, RunWriter::Writes)
+    }
+
+    /// [`Trainer::resume_on`]; with [`RunWriter::ReadsOnly`] (a peer other than 0) the run
+    /// is read, never written.
+    pub fn resume_as(
+        dataset: &'a Dataset,
+        run: &Path,
+        on: ComputeDevice,
+        writes: RunWriter,
     ) -> Result<Self, TrainError> {
         let Recorded {
             checkpoint,
@@ -66,7 +77,10 @@ impl<'a> Trainer<'a> {
                 file: checkpoint.optimizer_file(),
                 problem: e.to_string(),
             })?;
-        let log = TrainLog::open(&run.join(LOG_FILE), Some(state.progress.step))?;
+        let log = match writes {
+            RunWriter::Writes => TrainLog::open(&run.join(LOG_FILE), Some(state.progress.step))?,
+            RunWriter::ReadsOnly => TrainLog::sink(&run.join(LOG_FILE)),
+        };
         Trainer::assemble(
             dataset,
             run,
@@ -85,6 +99,7 @@ impl<'a> Trainer<'a> {
                 log,
                 notes,
                 mode: StepMode::Train,
+                writes,
             },
         )
     }

@@ -11,6 +11,7 @@ use talkin_grids::{GridError, PackedSamples, SamplerKind};
 use super::{StepMode, Trainer};
 use crate::error::TrainError;
 use crate::loss::{LossValues, StepBatch, StepLoss, loss_and_grads};
+use crate::peers::{StepShare, share_of};
 use crate::rays::{Batch, BatchSpec, CacheError, FrameCache, PATCH, draw_batch};
 use crate::refine::chain::correction_gradient;
 use crate::schedule;
@@ -56,12 +57,15 @@ impl Trainer<'_> {
         let bones_per_sample =
             mean_candidate_bones(&samples.bone_mask, self.config.skinning.skins_fingers());
 
-        // Field and loss: forward, render, loss and backward.
+        // Field and loss: forward, render, loss and backward (of this peer's share of the
+        // rays, among peers), then the peers' sum: the whole batch's.
+        let share = self.share_of(&batch);
         let StepLoss {
             values,
             grads,
             pose,
-        } = self.field_loss(frame, &batch, background, samples, vstep, refining)?;
+        } = self.field_loss(frame, &batch, share, background, samples, vstep, refining)?;
+        let (values, grads, pose) = self.exchange(frame, values, grads, pose, t0)?;
         if let LossValues::Read { loss, .. } = values
             && !loss.is_finite()
         {
@@ -266,13 +270,86 @@ impl Trainer<'_> {
         }
     }
 
+    /// The rays of `batch` this process computes: all of them alone, its share among
+    /// peers.
+    fn share_of(&self, batch: &Batch) -> std::ops::Range<usize> {
+        let n = batch.rays.len();
+        match &self.peers {
+            None => 0..n,
+            Some(link) => {
+                let patch_rays = if self.perceptual.is_some() {
+                    batch.patches * (PATCH * PATCH) as usize
+                } else {
+                    0
+                };
+                share_of(link.rank(), link.size(), n, patch_rays)
+            }
+        }
+    }
+
+    /// Among peers: sums this peer's loss, gradients and pose gradients with the others'
+    /// (each then holds the whole batch's) and sets the run's clock to peer 0's. Alone:
+    /// the step's own, unchanged.
+    fn exchange(
+        &mut self,
+        frame: usize,
+        values: LossValues,
+        grads: GradientsParams,
+        pose: Option<PoseGrads>,
+        step_start: Instant,
+    ) -> Result<(LossValues, GradientsParams, Option<PoseGrads>), TrainError> {
+        let Some(link) = self.peers.as_mut() else {
+            return Ok((values, grads, pose));
+        };
+        let (loss, mse) = match &values {
+            LossValues::Read { loss, mse } => (*loss, *mse),
+            LossValues::Queued(t) => {
+                let v = t
+                    .as_ref()
+                    .clone()
+                    .try_to_vec_as::<f32>()
+                    .unwrap_or_default();
+                (
+                    v.first().copied().unwrap_or(f32::NAN),
+                    v.get(1).copied().unwrap_or(f32::NAN),
+                )
+            }
+        };
+        let share = StepShare {
+            step: self.progress.step + 1,
+            loss,
+            mse,
+            clock: link.local_elapsed + step_start.elapsed().as_secs_f64(),
+            agree: [
+                frame as f32,
+                // Occupied cells to 1/65536 of the grid: exact in an f32 sum.
+                ((self.grids.occupied() * 65536.0).round() % 65536.0) as f32,
+            ],
+        };
+        let field = self
+            .field
+            .as_ref()
+            .expect("the field is back after every step");
+        let out = link.exchange(field, grads, pose, share)?;
+        self.progress.elapsed = out.clock;
+        Ok((
+            LossValues::Read {
+                loss: out.loss,
+                mse: out.mse,
+            },
+            out.grads,
+            out.pose,
+        ))
+    }
+
     /// The field at the samples, rendered, scored against the batch's targets and
     /// differentiated ([`loss_and_grads`]); with `pose_grads`, w.r.t. the frame's pose
-    /// too.
+    /// too. `share`: the rays of the batch this process computes.
     fn field_loss(
         &self,
         frame: usize,
         batch: &Batch,
+        share: std::ops::Range<usize>,
         background: [f32; 3],
         samples: PackedSamples,
         vstep: usize,
@@ -283,6 +360,7 @@ impl Trainer<'_> {
             self.perceptual.as_ref(),
             StepBatch {
                 rays: &batch.rays,
+                share,
                 samples,
                 rgb: &batch.rgb,
                 labels: &batch.labels,

@@ -1,0 +1,267 @@
+//! Which peer this process is, from `--nodes`/`--node-rank` and the variables launchers
+//! set. MPI's launcher (`mpirun`, or `srun` under Slurm) starts the peers and tells each
+//! its rank; the flags say what the user expects and are checked against it. Scheduler
+//! variables (Slurm's `SLURM_NTASKS`, torchrun's `WORLD_SIZE`) without an MPI launcher
+//! mean a job that asked for several peers but started them alone: refused, not run as
+//! N unrelated single runs.
+
+/// What started this process.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum Launcher {
+    /// One process, no peers.
+    Alone,
+    /// An MPI launcher; `via` names the variables it set.
+    Mpi { via: &'static str },
+}
+
+/// This process's place among the peers.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Launch {
+    pub size: usize,
+    pub rank: usize,
+    pub launcher: Launcher,
+}
+
+/// A launch that cannot run, naming the flag or variable at fault.
+#[derive(Debug, thiserror::Error, PartialEq, Eq)]
+pub enum LaunchError {
+    #[error("{name} must be {expected}, got {value:?}")]
+    Value {
+        name: String,
+        expected: &'static str,
+        value: String,
+    },
+    #[error("--node-rank {rank} is out of range for {size} peers (0 to {})", size - 1)]
+    RankOutOfRange { rank: usize, size: usize },
+    #[error("--node-rank {0} needs --nodes (how many peers in all)")]
+    RankWithoutNodes(usize),
+    #[error(
+        "{what}, but this process was not started by an MPI launcher: start every peer with \
+         one `mpirun -n {size} talkin train ...` (or `srun` inside a Slurm allocation); \
+         {alone}"
+    )]
+    NoLauncher {
+        what: String,
+        size: usize,
+        alone: &'static str,
+    },
+    #[error("{flag} says {flag_value}, but {via} started this process as {mpi_value}")]
+    Disagrees {
+        flag: &'static str,
+        flag_value: usize,
+        via: &'static str,
+        mpi_value: usize,
+    },
+    #[error("this build has no MPI (built without the `mpi` feature): it trains alone")]
+    NoMpi,
+}
+
+/// The MPI launchers' variables, most specific first: (size, rank, what sets them).
+const MPI_VARS: [(&str, &str, &str); 2] = [
+    (
+        "OMPI_COMM_WORLD_SIZE",
+        "OMPI_COMM_WORLD_RANK",
+        "Open MPI's mpirun",
+    ),
+    (
+        "PMI_SIZE",
+        "PMI_RANK",
+        "a PMI launcher (MPICH's mpiexec, srun)",
+    ),
+];
+
+/// Schedulers' variables that ask for several processes.
+const SCHEDULER_VARS: [(&str, &str); 2] = [
+    ("SLURM_NTASKS", "Slurm's SLURM_NTASKS"),
+    ("WORLD_SIZE", "torchrun's WORLD_SIZE"),
+];
+
+impl Launch {
+    /// One process, no peers.
+    pub fn alone() -> Launch {
+        Launch {
+            size: 1,
+            rank: 0,
+            launcher: Launcher::Alone,
+        }
+    }
+
+    /// Whether this process has peers (or was started by an MPI launcher, even of one).
+    pub fn is_peer(&self) -> bool {
+        self.launcher != Launcher::Alone
+    }
+
+    /// The launch from the flags and the process's environment.
+    pub fn resolve(nodes: Option<usize>, node_rank: Option<usize>) -> Result<Launch, LaunchError> {
+        Launch::resolve_in(nodes, node_rank, &|k| std::env::var(k).ok())
+    }
+
+    /// [`Launch::resolve`] with the environment read through `env`.
+    pub fn resolve_in(
+        nodes: Option<usize>,
+        node_rank: Option<usize>,
+        env: &dyn Fn(&str) -> Option<String>,
+    ) -> Result<Launch, LaunchError> {
+        if nodes == Some(0) {
+            return Err(LaunchError::Value {
+                name: "--nodes".into(),
+                expected: "at least 1",
+                value: "0".into(),
+            });
+        }
+        match (nodes, node_rank) {
+            (None, Some(rank)) => return Err(LaunchError::RankWithoutNodes(rank)),
+            (Some(size), Some(rank)) if rank >= size => {
+                return Err(LaunchError::RankOutOfRange { rank, size });
+            }
+            _ => {}
+        }
+        let number = |name: &str| -> Result<Option<usize>, LaunchError> {
+            match env(name) {
+                None => Ok(None),
+                Some(v) => v
+                    .trim()
+                    .parse::<usize>()
+                    .map(Some)
+                    .map_err(|_| LaunchError::Value {
+                        name: name.to_string(),
+                        expected: "a whole number",
+                        value: v,
+                    }),
+            }
+        };
+        for (size_var, rank_var, via) in MPI_VARS {
+            let (Some(size), Some(rank)) = (number(size_var)?, number(rank_var)?) else {
+                continue;
+            };
+            if size == 0 || rank >= size {
+                return Err(LaunchError::Value {
+                    name: rank_var.to_string(),
+                    expected: "below its size variable",
+                    value: format!("{rank} of {size}"),
+                });
+            }
+            if let Some(n) = nodes.filter(|&n| n != size) {
+                return Err(LaunchError::Disagrees {
+                    flag: "--nodes",
+                    flag_value: n,
+                    via,
+                    mpi_value: size,
+                });
+            }
+            if let Some(r) = node_rank.filter(|&r| r != rank) {
+                return Err(LaunchError::Disagrees {
+                    flag: "--node-rank",
+                    flag_value: r,
+                    via,
+                    mpi_value: rank,
+                });
+            }
+            return Ok(Launch {
+                size,
+                rank,
+                launcher: Launcher::Mpi { via },
+            });
+        }
+        // No MPI launcher: alone, unless the flags or a scheduler ask for more.
+        if let Some(size) = nodes {
+            if size > 1 {
+                return Err(LaunchError::NoLauncher {
+                    what: format!("--nodes {size} asks for {size} peers"),
+                    size,
+                    alone: "without peers, leave --nodes out",
+                });
+            }
+            return Ok(Launch::alone());
+        }
+        for (var, name) in SCHEDULER_VARS {
+            if let Some(size) = number(var)?.filter(|&n| n > 1) {
+                return Err(LaunchError::NoLauncher {
+                    what: format!("{name} is {size}"),
+                    size,
+                    alone: "to train alone in this allocation, give --nodes 1",
+                });
+            }
+        }
+        Ok(Launch::alone())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn env(vars: &[(&str, &str)]) -> impl Fn(&str) -> Option<String> {
+        let vars: Vec<(String, String)> = vars
+            .iter()
+            .map(|(k, v)| (k.to_string(), v.to_string()))
+            .collect();
+        move |k| vars.iter().find(|(n, _)| n == k).map(|(_, v)| v.clone())
+    }
+
+    #[test]
+    fn alone_without_flags_or_launchers() {
+        assert_eq!(
+            Launch::resolve_in(None, None, &env(&[])),
+            Ok(Launch::alone())
+        );
+        assert_eq!(
+            Launch::resolve_in(Some(1), Some(0), &env(&[])),
+            Ok(Launch::alone())
+        );
+        // --nodes 1 overrides an allocation's task count.
+        assert_eq!(
+            Launch::resolve_in(Some(1), None, &env(&[("SLURM_NTASKS", "4")])),
+            Ok(Launch::alone())
+        );
+    }
+
+    #[test]
+    fn mpirun_gives_the_rank_and_the_flags_must_agree() {
+        let mpi = env(&[("OMPI_COMM_WORLD_SIZE", "2"), ("OMPI_COMM_WORLD_RANK", "1")]);
+        let l = Launch::resolve_in(Some(2), Some(1), &mpi).unwrap();
+        assert_eq!((l.size, l.rank), (2, 1));
+        assert!(l.is_peer());
+        assert_eq!(Launch::resolve_in(None, None, &mpi).unwrap().rank, 1);
+        let e = Launch::resolve_in(Some(3), None, &mpi).unwrap_err();
+        assert!(e.to_string().contains("--nodes says 3"), "{e}");
+        let e = Launch::resolve_in(Some(2), Some(0), &mpi).unwrap_err();
+        assert!(e.to_string().contains("--node-rank says 0"), "{e}");
+        // PMI's variables (MPICH, srun) too.
+        let pmi = env(&[("PMI_SIZE", "4"), ("PMI_RANK", "3")]);
+        assert_eq!(Launch::resolve_in(None, None, &pmi).unwrap().rank, 3);
+    }
+
+    #[test]
+    fn bad_values_name_the_flag_or_variable() {
+        let none = env(&[]);
+        let e = Launch::resolve_in(Some(2), Some(2), &none).unwrap_err();
+        assert_eq!(e, LaunchError::RankOutOfRange { rank: 2, size: 2 });
+        assert!(e.to_string().contains("--node-rank 2"));
+        assert!(
+            Launch::resolve_in(Some(0), None, &none)
+                .unwrap_err()
+                .to_string()
+                .contains("--nodes")
+        );
+        assert!(
+            Launch::resolve_in(None, Some(1), &none)
+                .unwrap_err()
+                .to_string()
+                .contains("--nodes")
+        );
+        let e = Launch::resolve_in(Some(2), Some(0), &none).unwrap_err();
+        assert!(e.to_string().contains("mpirun -n 2"), "{e}");
+        let e = Launch::resolve_in(None, None, &env(&[("WORLD_SIZE", "8")])).unwrap_err();
+        assert!(e.to_string().contains("torchrun's WORLD_SIZE is 8"), "{e}");
+        let e = Launch::resolve_in(None, None, &env(&[("SLURM_NTASKS", "x")])).unwrap_err();
+        assert!(e.to_string().contains("SLURM_NTASKS"), "{e}");
+        let bad = env(&[("OMPI_COMM_WORLD_SIZE", "2"), ("OMPI_COMM_WORLD_RANK", "5")]);
+        assert!(
+            Launch::resolve_in(None, None, &bad)
+                .unwrap_err()
+                .to_string()
+                .contains("OMPI_COMM_WORLD_RANK")
+        );
+    }
+}

@@ -1,0 +1,40 @@
+//! `train`'s peers: which one this process is, and its link to the others over MPI.
+
+use std::time::Duration;
+
+use anyhow::Context;
+use talkin_peers::{Collective, Launch};
+
+use super::train::PeerArgs;
+
+/// The longest a peer waits at an exchange (a peer that died or hangs stops the others
+/// within this).
+const MAX_TIMEOUT_S: f64 = 60.0;
+
+/// The link to the run's other peers (`None`: this process trains alone). Refuses bad
+/// flags, a launch without an MPI launcher and a build without MPI, naming the flag.
+pub fn join(args: &PeerArgs) -> anyhow::Result<Option<Box<dyn Collective>>> {
+    if !(args.peer_timeout > 0.0 && args.peer_timeout <= MAX_TIMEOUT_S) {
+        anyhow::bail!(
+            "--peer-timeout must be above 0 and at most {MAX_TIMEOUT_S} seconds, got {}",
+            args.peer_timeout
+        );
+    }
+    let launch = Launch::resolve(args.nodes, args.node_rank)?;
+    if !launch.is_peer() {
+        return Ok(None);
+    }
+    connect(&launch, Duration::from_secs_f64(args.peer_timeout))
+        .with_context(|| format!("joining as peer {} of {}", launch.rank, launch.size))
+}
+
+#[cfg(feature = "mpi")]
+fn connect(launch: &Launch, within: Duration) -> anyhow::Result<Option<Box<dyn Collective>>> {
+    let peers = talkin_peers::mpi_world::MpiPeers::join(launch, within)?;
+    Ok(Some(Box::new(peers)))
+}
+
+#[cfg(not(feature = "mpi"))]
+fn connect(_launch: &Launch, _within: Duration) -> anyhow::Result<Option<Box<dyn Collective>>> {
+    Err(talkin_peers::LaunchError::NoMpi.into())
+}
