@@ -8,8 +8,8 @@ use talkin_peers::{Collective, Launch};
 use super::train::PeerArgs;
 
 /// The longest a peer waits at an exchange (a peer that died or hangs stops the others
-/// within this).
-const MAX_TIMEOUT_S: f64 = 60.0;
+/// within this and the 2 s a lost peer's message is given to reach the launcher: under a minute).
+const MAX_TIMEOUT_S: f64 = 55.0;
 
 /// The link to the run's other peers (`None`: this process trains alone). Refuses bad
 /// flags, a launch without an MPI launcher and a build without MPI, naming the flag.

@@ -56,6 +56,9 @@ impl Deadline {
     pub fn exiting() -> Deadline {
         Deadline::start(|message| {
             eprintln!("error: {message}");
+            // An MPI launcher forwards the line through a pipe it may stop reading once
+            // it sees the exit: give it time to pass the line on.
+            std::thread::sleep(Duration::from_millis(2000));
             std::process::exit(1);
         })
     }
