@@ -163,6 +163,27 @@ impl Launch {
                 launcher: Launcher::Mpi { via },
             });
         }
+        // srun --mpi=pmix sets PMIx's rank before MPI starts, and Slurm's task count.
+        if let Some(rank) = number("PMIX_RANK")? {
+            let via = "a PMIx launcher (srun --mpi=pmix)";
+            let size = nodes.or(number("SLURM_NTASKS")?).unwrap_or(rank + 1);
+            if let Some(r) = node_rank.filter(|&r| r != rank) {
+                return Err(LaunchError::Disagrees {
+                    flag: "--node-rank",
+                    flag_value: r,
+                    via,
+                    mpi_value: rank,
+                });
+            }
+            if rank >= size {
+                return Err(LaunchError::RankOutOfRange { rank, size });
+            }
+            return Ok(Launch {
+                size,
+                rank,
+                launcher: Launcher::Mpi { via },
+            });
+        }
         // No MPI launcher: alone, unless the flags or a scheduler ask for more.
         if let Some(size) = nodes {
             if size > 1 {
@@ -230,6 +251,10 @@ mod tests {
         // PMI's variables (MPICH, srun) too.
         let pmi = env(&[("PMI_SIZE", "4"), ("PMI_RANK", "3")]);
         assert_eq!(Launch::resolve_in(None, None, &pmi).unwrap().rank, 3);
+        // srun --mpi=pmix: PMIx's rank and Slurm's task count.
+        let pmix = env(&[("PMIX_RANK", "1"), ("SLURM_NTASKS", "2"), ("SLURM_PROCID", "1")]);
+        let l = Launch::resolve_in(None, None, &pmix).unwrap();
+        assert_eq!((l.size, l.rank), (2, 1));
     }
 
     #[test]

@@ -64,9 +64,15 @@ pub struct PeerLink {
     pub(crate) local_elapsed: f64,
     /// `local_elapsed` when it joined (a resumed run's earlier seconds).
     pub(crate) joined_at: f64,
-    /// Seconds spent packing, all-reducing and unpacking, and in the all-reduce alone.
+    /// Seconds spent packing, all-reducing and unpacking; waiting at the barrier before
+    /// the all-reduce (for the slowest peer); and in the all-reduce alone.
     pub exchange_s: f64,
+    pub wait_s: f64,
     pub reduce_s: f64,
+    /// Over every tenth step: the gradient's 64-value blocks, and those zero on every
+    /// peer (what an all-reduce of the touched blocks alone would leave out).
+    pub blocks: u64,
+    pub zero_blocks: u64,
     /// Steps exchanged.
     pub steps: usize,
     /// This peer was asked to stop (a signal), and whether any peer was, at the last
@@ -84,7 +90,10 @@ impl PeerLink {
             local_elapsed: 0.0,
             joined_at: 0.0,
             exchange_s: 0.0,
+            wait_s: 0.0,
             reduce_s: 0.0,
+            blocks: 0,
+            zero_blocks: 0,
             steps: 0,
             stop_asked: false,
             stop_agreed: false,
@@ -104,18 +113,24 @@ impl PeerLink {
     pub fn summary(&self) -> String {
         let steps = self.steps.max(1) as f64;
         let share = |s: f64| 100.0 * s / (self.local_elapsed - self.joined_at).max(1e-9);
+        let zero = self.zero_blocks as f64 / self.blocks.max(1) as f64;
         format!(
             "peer {} of {}: {} steps exchanged, {:.2} MB all-reduced a step; the all-reduce \
-             {:.1} ms a step ({:.1}% of this peer's training time), packing and unpacking \
-             included {:.1} ms ({:.1}%)",
+             {:.1} ms a step ({:.1}% of this peer's training time), waiting for the slowest \
+             peer {:.1} ms ({:.1}%), the whole exchange (waiting, packing and unpacking \
+             included) {:.1} ms ({:.1}%); {:.0}% of the gradient's 64-value blocks were zero \
+             on every peer",
             self.rank(),
             self.size(),
             self.steps,
             self.bytes_reduced() as f64 / steps / 1e6,
             1e3 * self.reduce_s / steps,
             share(self.reduce_s),
+            1e3 * self.wait_s / steps,
+            share(self.wait_s),
             1e3 * self.exchange_s / steps,
             share(self.exchange_s),
+            100.0 * zero,
         )
     }
 
@@ -150,10 +165,22 @@ impl PeerLink {
             self.buf[tail + pack::AGREE + i] = *a;
         }
         self.buf[tail + pack::STOP] = if self.stop_asked { 1.0 } else { 0.0 };
+        // A one-value all-reduce first: the wait for the slowest peer, apart from the
+        // transfer (a few microseconds on loopback).
+        let wait_start = Instant::now();
+        self.collective
+            .all_reduce_sum(&mut [0.0], &format!("step {}'s start", share.step))?;
         let reduce_start = Instant::now();
+        self.wait_s += (reduce_start - wait_start).as_secs_f64();
         self.collective
             .all_reduce_sum(&mut self.buf, &format!("step {}'s gradients", share.step))?;
         self.reduce_s += reduce_start.elapsed().as_secs_f64();
+        if share.step % 10 == 0 {
+            for block in self.buf[..layout.grads].chunks(64) {
+                self.blocks += 1;
+                self.zero_blocks += u64::from(block.iter().all(|v| *v == 0.0));
+            }
+        }
         let size = self.size() as f32;
         const WHAT: [&str; pack::N_AGREE] = ["the frame drawn", "the occupancy grids"];
         for (i, (mine, what)) in share.agree.iter().zip(WHAT).enumerate() {
