@@ -116,24 +116,40 @@ fn two_peers_on_loopback_train_the_single_process_run_and_only_peer_0_writes() {
     let data = common::synthetic_scene("peers_scene_same", 1, 48, 1).root;
     let base = common::temp_dir("peers_same");
     let (one, two, elsewhere) = (base.join("one"), base.join("two"), base.join("peer1"));
-    let steps = ["--steps", "40"];
-    let out = talkin(&train_args(&data, &one, &steps)[1..]);
+    // One process: 20 steps, then resumed to 40.
+    let out = talkin(&train_args(&data, &one, &["--steps", "20"])[1..]);
     assert!(out.status.success(), "{}", stderr(&out));
-    // Rank 1 is told another --out: it must not even create it.
+    fn resume<'a>(data: &'a Path, run: &'a Path) -> Vec<&'a str> {
+        let args = ["-q", "train", "--data", p(data), "--out", p(run)];
+        [&[BIN][..], &args, &["--resume", "--steps", "40"]].concat()
+    }
+    let out = talkin(&resume(&data, &one)[1..]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    // Two peers for the first 20 steps; peer 1 is told another --out, and must not even
+    // create it.
     let mut args = vec!["-n", "1"];
-    args.extend(train_args(&data, &two, &["--steps", "40", "--nodes", "2"]));
+    args.extend(train_args(&data, &two, &["--steps", "20", "--nodes", "2"]));
     args.extend([":", "-n", "1"]);
     args.extend(train_args(
         &data,
         &elsewhere,
-        &["--steps", "40", "--nodes", "2"],
+        &["--steps", "20", "--nodes", "2"],
     ));
     let out = mpirun("same").args(&args).output().unwrap();
     assert!(out.status.success(), "{}", both(&out));
     let text = both(&out);
-    assert!(text.contains("peer 0 of 2: 40 steps exchanged"), "{text}");
+    assert!(text.contains("peer 0 of 2: 20 steps exchanged"), "{text}");
     assert!(text.contains("MB all-reduced a step"), "{text}");
     assert!(!elsewhere.exists(), "peer 1 wrote into its --out");
+    assert!(two.join(CHECKPOINT_DIR).join("step-000020").is_dir());
+    // Three peers resume it to 40: the batch does not depend on the peers, so another
+    // count re-partitions the same run.
+    let out = mpirun("same3")
+        .args(["-n", "3"])
+        .args(resume(&data, &two))
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", both(&out));
     // The same steps, each loss within 1e-4 of the single process's (the float sums'
     // order differs; measured below 2e-6 on this scene).
     let (a, b) = (losses(&one), losses(&two));
@@ -150,7 +166,6 @@ fn two_peers_on_loopback_train_the_single_process_run_and_only_peer_0_writes() {
             "step {sa}: mse {ma} vs {mb}"
         );
     }
-    assert!(two.join(CHECKPOINT_DIR).join("step-000040").is_dir());
 }
 
 #[test]

@@ -252,7 +252,11 @@ mod tests {
         let pmi = env(&[("PMI_SIZE", "4"), ("PMI_RANK", "3")]);
         assert_eq!(Launch::resolve_in(None, None, &pmi).unwrap().rank, 3);
         // srun --mpi=pmix: PMIx's rank and Slurm's task count.
-        let pmix = env(&[("PMIX_RANK", "1"), ("SLURM_NTASKS", "2"), ("SLURM_PROCID", "1")]);
+        let pmix = env(&[
+            ("PMIX_RANK", "1"),
+            ("SLURM_NTASKS", "2"),
+            ("SLURM_PROCID", "1"),
+        ]);
         let l = Launch::resolve_in(None, None, &pmix).unwrap();
         assert_eq!((l.size, l.rank), (2, 1));
     }
