@@ -68,6 +68,10 @@ pub struct PeerLink {
     /// the all-reduce (for the slowest peer); and in the all-reduce alone.
     pub exchange_s: f64,
     pub wait_s: f64,
+    /// Seconds of the work every peer repeats whatever its share: Adam, pose refinement
+    /// and the grid updates (`update_s`), drawing the whole batch's samples (`sampling_s`).
+    pub update_s: f64,
+    pub sampling_s: f64,
     pub reduce_s: f64,
     /// Over every tenth step: the gradient's 64-value blocks, and those zero on every
     /// peer (what an all-reduce of the touched blocks alone would leave out).
@@ -91,6 +95,8 @@ impl PeerLink {
             joined_at: 0.0,
             exchange_s: 0.0,
             wait_s: 0.0,
+            update_s: 0.0,
+            sampling_s: 0.0,
             reduce_s: 0.0,
             blocks: 0,
             zero_blocks: 0,
@@ -118,8 +124,9 @@ impl PeerLink {
             "peer {} of {}: {} steps exchanged, {:.2} MB all-reduced a step; the all-reduce \
              {:.1} ms a step ({:.1}% of this peer's training time), waiting for the slowest \
              peer {:.1} ms ({:.1}%), the whole exchange (waiting, packing and unpacking \
-             included) {:.1} ms ({:.1}%); {:.0}% of the gradient's 64-value blocks were zero \
-             on every peer",
+             included) {:.1} ms ({:.1}%); repeated on every peer: Adam and the grid updates \
+             {:.1} ms ({:.1}%), sampling the whole batch {:.1} ms ({:.1}%); {:.0}% of the \
+             gradient's 64-value blocks were zero on every peer",
             self.rank(),
             self.size(),
             self.steps,
@@ -130,6 +137,10 @@ impl PeerLink {
             share(self.wait_s),
             1e3 * self.exchange_s / steps,
             share(self.exchange_s),
+            1e3 * self.update_s / steps,
+            share(self.update_s),
+            1e3 * self.sampling_s / steps,
+            share(self.sampling_s),
             100.0 * zero,
         )
     }

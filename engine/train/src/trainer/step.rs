@@ -77,6 +77,7 @@ impl Trainer<'_> {
 
         // Optimizer (and the frame's pose correction), then the grid update when due; a
         // pose fit moves the correction alone.
+        let update_start = Instant::now();
         if self.mode == StepMode::Train {
             self.optimize(lr, grads);
         }
@@ -84,6 +85,11 @@ impl Trainer<'_> {
         self.progress.step += 1;
         if self.mode == StepMode::Train {
             self.update_grids_if_due()?;
+        }
+        if let Some(link) = &mut self.peers {
+            // What every peer repeats whatever its share: Adam and the grid updates.
+            link.update_s += update_start.elapsed().as_secs_f64();
+            link.sampling_s += sampling_s;
         }
 
         // On a GPU the step's queued ops go to the device now, without waiting for them:
