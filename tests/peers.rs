@@ -77,7 +77,7 @@ fn peer_pid(marker: &str, rank: usize) -> u32 {
                 continue;
             };
             let vars: Vec<&[u8]> = env.split(|&b| b == 0).collect();
-            let has = |s: &str| vars.iter().any(|v| *v == s.as_bytes());
+            let has = |s: &str| vars.contains(&s.as_bytes());
             if has(&want_marker) && has(&want_rank) {
                 return pid;
             }

@@ -141,22 +141,7 @@ impl Launch {
                     value: format!("{rank} of {size}"),
                 });
             }
-            if let Some(n) = nodes.filter(|&n| n != size) {
-                return Err(LaunchError::Disagrees {
-                    flag: "--nodes",
-                    flag_value: n,
-                    via,
-                    mpi_value: size,
-                });
-            }
-            if let Some(r) = node_rank.filter(|&r| r != rank) {
-                return Err(LaunchError::Disagrees {
-                    flag: "--node-rank",
-                    flag_value: r,
-                    via,
-                    mpi_value: rank,
-                });
-            }
+            check_flags(nodes, node_rank, size, rank, via)?;
             return Ok(Launch {
                 size,
                 rank,
@@ -166,17 +151,20 @@ impl Launch {
         // srun --mpi=pmix sets PMIx's rank before MPI starts, and Slurm's task count.
         if let Some(rank) = number("PMIX_RANK")? {
             let via = "a PMIx launcher (srun --mpi=pmix)";
-            let size = nodes.or(number("SLURM_NTASKS")?).unwrap_or(rank + 1);
-            if let Some(r) = node_rank.filter(|&r| r != rank) {
-                return Err(LaunchError::Disagrees {
-                    flag: "--node-rank",
-                    flag_value: r,
-                    via,
-                    mpi_value: rank,
+            let Some(size) = nodes.or(number("SLURM_NTASKS")?) else {
+                return Err(LaunchError::Value {
+                    name: "SLURM_NTASKS".into(),
+                    expected: "set beside PMIX_RANK (or --nodes given)",
+                    value: "unset".into(),
                 });
-            }
+            };
+            check_flags(None, node_rank, size, rank, via)?;
             if rank >= size {
-                return Err(LaunchError::RankOutOfRange { rank, size });
+                return Err(LaunchError::Value {
+                    name: "PMIX_RANK".into(),
+                    expected: "below SLURM_NTASKS (or --nodes)",
+                    value: format!("{rank} of {size}"),
+                });
             }
             return Ok(Launch {
                 size,
@@ -206,6 +194,28 @@ impl Launch {
         }
         Ok(Launch::alone())
     }
+}
+
+/// Refuses `--nodes` or `--node-rank` that disagree with the `size` and `rank` a launcher
+/// (`via`) gave this process.
+pub(crate) fn check_flags(
+    nodes: Option<usize>,
+    node_rank: Option<usize>,
+    size: usize,
+    rank: usize,
+    via: &'static str,
+) -> Result<(), LaunchError> {
+    for (flag, given, actual) in [("--nodes", nodes, size), ("--node-rank", node_rank, rank)] {
+        if let Some(v) = given.filter(|&v| v != actual) {
+            return Err(LaunchError::Disagrees {
+                flag,
+                flag_value: v,
+                via,
+                mpi_value: actual,
+            });
+        }
+    }
+    Ok(())
 }
 
 #[cfg(test)]

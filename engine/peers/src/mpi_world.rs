@@ -14,7 +14,7 @@ use mpi::traits::*;
 
 use crate::collective::{Collective, PeerError};
 use crate::deadline::Deadline;
-use crate::launch::{Launch, LaunchError, Launcher};
+use crate::launch::{Launch, LaunchError, Launcher, check_flags};
 
 /// This process as one peer of an MPI job.
 pub struct MpiPeers {
@@ -51,22 +51,7 @@ impl MpiPeers {
             })?;
         let world = universe.world();
         let (rank, size) = (world.rank() as usize, world.size() as usize);
-        if size != launch.size {
-            return Err(LaunchError::Disagrees {
-                flag: "--nodes",
-                flag_value: launch.size,
-                via,
-                mpi_value: size,
-            });
-        }
-        if rank != launch.rank {
-            return Err(LaunchError::Disagrees {
-                flag: "--node-rank",
-                flag_value: launch.rank,
-                via,
-                mpi_value: rank,
-            });
-        }
+        check_flags(Some(launch.size), Some(launch.rank), size, rank, via)?;
         Ok(MpiPeers {
             world,
             rank,

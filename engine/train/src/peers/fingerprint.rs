@@ -79,28 +79,20 @@ pub fn register(peers: &mut dyn Collective, mine: &Fingerprint) -> Result<(), Pe
             problems.push(format!("peer {rank} sent no fingerprint"));
             continue;
         };
-        let mut differs = Vec::new();
-        if p.dataset != first.dataset {
-            differs.push(format!(
-                "its dataset (dataset.json and training frames, sha256 {}... against {}...)",
-                hex(&p.dataset),
-                hex(&first.dataset)
-            ));
-        }
-        if p.recipe != first.recipe {
-            differs.push(format!(
-                "its recipe (the recorded options, sha256 {}... against {}...)",
-                hex(&p.recipe),
-                hex(&first.recipe)
-            ));
-        }
-        if p.build != first.build {
-            differs.push(format!(
-                "its build (the talkin executable, sha256 {}... against {}...)",
-                hex(&p.build),
-                hex(&first.build)
-            ));
-        }
+        let parts = [
+            (
+                "dataset (dataset.json and training frames",
+                &p.dataset,
+                &first.dataset,
+            ),
+            ("recipe (the recorded options", &p.recipe, &first.recipe),
+            ("build (the talkin executable", &p.build, &first.build),
+        ];
+        let mut differs: Vec<String> = parts
+            .iter()
+            .filter(|(_, a, b)| a != b)
+            .map(|(what, a, b)| format!("its {what}, sha256 {}... against {}...)", hex(a), hex(b)))
+            .collect();
         if p.step != first.step {
             differs.push(format!("its step ({} against {})", p.step, first.step));
         }

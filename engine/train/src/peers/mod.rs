@@ -186,7 +186,7 @@ impl PeerLink {
         self.collective
             .all_reduce_sum(&mut self.buf, &format!("step {}'s gradients", share.step))?;
         self.reduce_s += reduce_start.elapsed().as_secs_f64();
-        if share.step % 10 == 0 {
+        if share.step.is_multiple_of(10) {
             for block in self.buf[..layout.grads].chunks(64) {
                 self.blocks += 1;
                 self.zero_blocks += u64::from(block.iter().all(|v| *v == 0.0));

@@ -49,6 +49,26 @@ fn on_off(b: bool) -> String {
 }
 
 /// The largest of `f` over the subjects with frames (0 without any).
+/// An input F_face reads only where it moves (`moved`, described by `moves`), and only
+/// when the run has F_face.
+fn face_input(
+    opts: &TrainOptions,
+    input: &str,
+    moved: bool,
+    moves: String,
+) -> Option<(Choice, String)> {
+    let on = opts.ablation.face && moved;
+    let seen = if opts.ablation.face {
+        moves
+    } else {
+        "no F_face".into()
+    };
+    Some((
+        Choice::Switch(on),
+        format!("{input}: {seen}: F_face reads it {}", on_off(on)),
+    ))
+}
+
 fn widest(census: &Census, f: impl Fn(&SubjectCensus) -> f64) -> f64 {
     census.present().map(f).fold(0.0, f64::max)
 }
@@ -219,19 +239,8 @@ pub(super) const RULES: [Rule; 8] = [
         },
         choose: |census, opts, t| {
             let sd = widest(census, |s| s.articulation.expression);
-            let on = opts.ablation.face && sd >= t.expression_min;
-            Some((
-                Choice::Switch(on),
-                format!(
-                    "expression: {}: F_face reads it {}",
-                    if opts.ablation.face {
-                        format!("moves {sd:.3} (SD, widest coefficient)")
-                    } else {
-                        "no F_face".into()
-                    },
-                    on_off(on)
-                ),
-            ))
+            let moves = format!("moves {sd:.3} (SD, widest coefficient)");
+            face_input(opts, "expression", sd >= t.expression_min, moves)
         },
     },
     Rule {
@@ -247,19 +256,12 @@ pub(super) const RULES: [Rule; 8] = [
         },
         choose: |census, opts, t| {
             let deg = widest(census, |s| s.articulation.jaw_deg);
-            let on = opts.ablation.face && deg >= t.jaw_min_deg;
-            Some((
-                Choice::Switch(on),
-                format!(
-                    "jaw: {}: F_face reads it {}",
-                    if opts.ablation.face {
-                        format!("moves {deg:.1} deg")
-                    } else {
-                        "no F_face".into()
-                    },
-                    on_off(on)
-                ),
-            ))
+            face_input(
+                opts,
+                "jaw",
+                deg >= t.jaw_min_deg,
+                format!("moves {deg:.1} deg"),
+            )
         },
     },
     Rule {
