@@ -5,7 +5,38 @@ use std::time::Duration;
 use anyhow::Context;
 use talkin_peers::{Collective, Launch};
 
-use super::train::PeerArgs;
+/// Data-parallel training: one of N peers started together by an MPI launcher
+/// (`mpirun -n N talkin train ...`, or `srun` in a Slurm allocation), each computing its
+/// share of every step's batch; peer 0 writes the run.
+#[derive(clap::Args, Debug, Clone)]
+pub struct PeerArgs {
+    /// How many peers the run has (checked against the launcher's; read from it when
+    /// left out).
+    #[arg(long, value_name = "N")]
+    pub nodes: Option<usize>,
+    /// This peer's rank, 0 to N-1 (checked against the launcher's).
+    #[arg(long, value_name = "R")]
+    pub node_rank: Option<usize>,
+    /// Seconds a peer waits for the others at an exchange before it stops with exit 1,
+    /// naming them (a peer that died or hangs); at most 60.
+    #[arg(long, value_name = "SECS", default_value_t = PeerArgs::TIMEOUT_S)]
+    pub peer_timeout: f64,
+}
+
+impl PeerArgs {
+    const TIMEOUT_S: f64 = 45.0;
+}
+
+/// Alone (no flags), as `demo` trains.
+impl Default for PeerArgs {
+    fn default() -> Self {
+        PeerArgs {
+            nodes: None,
+            node_rank: None,
+            peer_timeout: PeerArgs::TIMEOUT_S,
+        }
+    }
+}
 
 /// The longest a peer waits at an exchange (a peer that died or hangs stops the others
 /// within this and the 2 s a lost peer's message is given to reach the launcher: under a minute).

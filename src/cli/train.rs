@@ -39,45 +39,12 @@ pub struct TrainArgs {
     #[arg(long, value_name = "on|off", default_value = "on", value_parser = PossibleValuesParser::new(["on", "off"]).map(|s| s == "on"), action = clap::ArgAction::Set)]
     pub plan: bool,
     #[command(flatten)]
-    pub peers: PeerArgs,
+    pub peers: super::peers::PeerArgs,
     /// Read before `recipe`, whose parser takes its values out of the matches.
     #[command(flatten)]
     pub given: GivenFlags,
     #[command(flatten)]
     pub recipe: TrainOptions,
-}
-
-/// Data-parallel training: one of N peers started together by an MPI launcher
-/// (`mpirun -n N talkin train ...`, or `srun` in a Slurm allocation), each computing its
-/// share of every step's batch; peer 0 writes the run.
-#[derive(clap::Args, Debug, Clone)]
-pub struct PeerArgs {
-    /// How many peers the run has (checked against the launcher's; read from it when
-    /// left out).
-    #[arg(long, value_name = "N")]
-    pub nodes: Option<usize>,
-    /// This peer's rank, 0 to N-1 (checked against the launcher's).
-    #[arg(long, value_name = "R")]
-    pub node_rank: Option<usize>,
-    /// Seconds a peer waits for the others at an exchange before it stops with exit 1,
-    /// naming them (a peer that died or hangs); at most 60.
-    #[arg(long, value_name = "SECS", default_value_t = PeerArgs::TIMEOUT_S)]
-    pub peer_timeout: f64,
-}
-
-impl PeerArgs {
-    const TIMEOUT_S: f64 = 45.0;
-}
-
-/// Alone (no flags), as `demo` trains.
-impl Default for PeerArgs {
-    fn default() -> Self {
-        PeerArgs {
-            nodes: None,
-            node_rank: None,
-            peer_timeout: PeerArgs::TIMEOUT_S,
-        }
-    }
 }
 
 /// Which of the recipe's options the command line named: clap fills every other one with

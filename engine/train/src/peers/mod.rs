@@ -2,7 +2,7 @@
 //! the exchanges). Every peer draws the step's whole batch from the same seeded state,
 //! computes the loss of its share of the rays ([`share_of`]), weighted by that share of
 //! the batch, and the peers sum their gradients, pose gradients and losses
-//! ([`PeerLink::exchange`]): each then holds the gradient of the whole batch and applies
+//! (`PeerLink::exchange`): each then holds the gradient of the whole batch and applies
 //! the same Adam step, so the run is the single process's with the same `--batch`,
 //! split (to the order of the float sums). Peer 0's clock is the run's, so a `--minutes`
 //! budget ends every peer at the same step. Peer 0 alone writes the run.

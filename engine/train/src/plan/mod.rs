@@ -3,9 +3,9 @@
 //! uses (the command line's where it named the flag) and its reason in one line. The plan
 //! is recorded with the run's options, so a resumed run keeps the plan it started with.
 
+pub mod record;
 mod rules;
 
-use serde::{Deserialize, Serialize};
 use talkin_data::census::Census;
 use talkin_data::dataset::Dataset;
 
@@ -14,29 +14,8 @@ use crate::setup::training_frames;
 
 use crate::recipe::TrainOptions;
 
+pub use record::{Decision, Plan};
 pub use rules::Thresholds;
-
-/// The census and what was decided from it.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct Plan {
-    pub census: Census,
-    pub decisions: Vec<Decision>,
-}
-
-/// One decision.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct Decision {
-    /// The flag that sets it, as typed (`--hands`).
-    pub flag: String,
-    /// The value the census calls for.
-    pub planned: String,
-    /// The value the run uses.
-    pub used: String,
-    /// Whether the command line named the flag (then `used` is its value).
-    pub overridden: bool,
-    /// Why, in one line, with the census' numbers.
-    pub reason: String,
-}
 
 /// A setting the plan decides: its flag, its clap id, and how to read and set it.
 pub(crate) struct Setting {
@@ -100,24 +79,6 @@ impl Plan {
         let frames = training_frames(dataset, opts.identities.names(), opts.clip_seconds)?;
         let census = Census::of(dataset, &frames).map_err(TrainError::from)?;
         Ok(Plan::apply(census, opts, named))
-    }
-
-    /// The census and the decisions, for a terminal: one line a subject, one a decision.
-    pub fn describe(&self) -> String {
-        let mut out = String::from("census of the training frames:\n");
-        for s in &self.census.subjects {
-            out.push_str(&format!("  {}\n", rules::describe_subject(s)));
-        }
-        out.push_str("plan:\n");
-        for d in &self.decisions {
-            let value = if d.overridden {
-                format!("{} {} (given; the plan: {})", d.flag, d.used, d.planned)
-            } else {
-                format!("{} {}", d.flag, d.used)
-            };
-            out.push_str(&format!("  {value:<28} {}\n", d.reason));
-        }
-        out
     }
 }
 

@@ -21,7 +21,7 @@ use talkin_nets::ComputeDevice;
 use talkin_nets::mlp::MlpPath;
 
 use crate::error::TrainError;
-use crate::plan::Plan;
+use crate::plan::record::Plan;
 use crate::preset::Preset;
 use crate::refine::RefineOptions;
 

@@ -17,7 +17,7 @@ use serde_json::Value;
 use talkin_grids::SamplerKind;
 use talkin_nets::ComputeDevice;
 
-use crate::plan::Plan;
+use crate::plan::record::Plan;
 use crate::preset::Preset;
 use crate::recipe::{Ablation, Budget, FingerSkinning, Identities, TrainOptions};
 use crate::refine::{RefineMode, RefineOptions};
