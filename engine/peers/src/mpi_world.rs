@@ -16,6 +16,10 @@ use crate::collective::{Collective, PeerError};
 use crate::deadline::Deadline;
 use crate::launch::{Launch, LaunchError, Launcher, check_flags};
 
+/// How many times an exchange's bound the registration may wait for the slowest peer's
+/// start (a peer that dies meanwhile is seen by the launcher at once).
+pub const REGISTRATION_FACTOR: u32 = 4;
+
 /// This process as one peer of an MPI job.
 pub struct MpiPeers {
     world: SimpleCommunicator,
@@ -33,8 +37,9 @@ pub struct MpiPeers {
 impl MpiPeers {
     /// Joins the MPI job `launch` describes (initialising MPI, one thread calling it) and
     /// checks that its world is the one the flags and variables said. `within` bounds
-    /// every exchange after the first; `first_within` the first, which also waits for the
-    /// slowest peer's start (its dataset load).
+    /// every all-reduce; the gather, which registers the peers before the first step and
+    /// so also waits for the slowest peer's start (its dataset load, its census), gets
+    /// [`REGISTRATION_FACTOR`] times it.
     pub fn join(launch: &Launch, within: Duration) -> Result<MpiPeers, LaunchError> {
         let Launcher::Mpi { via } = launch.launcher else {
             return Err(LaunchError::NoLauncher {
@@ -109,8 +114,9 @@ impl Collective for MpiPeers {
     fn all_gather(&mut self, mine: &[u8], what: &str) -> Result<Vec<Vec<u8>>, PeerError> {
         self.bytes += mine.len() as u64;
         let mut all = vec![0u8; mine.len() * self.size];
-        let message = self.lost(what, self.within);
-        let _armed = self.deadline.arm(self.within, message);
+        let within = self.within * REGISTRATION_FACTOR;
+        let message = self.lost(what, within);
+        let _armed = self.deadline.arm(within, message);
         self.world.all_gather_into(mine, &mut all[..]);
         Ok(all.chunks(mine.len().max(1)).map(<[u8]>::to_vec).collect())
     }
