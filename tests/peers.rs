@@ -329,3 +329,64 @@ fn launches_that_cannot_run_exit_1_naming_the_flag() {
     assert!(start.elapsed() < Duration::from_secs(30));
     assert!(!run.join(CHECKPOINT_DIR).exists());
 }
+
+#[test]
+fn pose_corrections_learn_from_the_whole_batch_among_peers() {
+    let data = common::synthetic_scene("peers_scene_pose", 1, 48, 1).root;
+    let base = common::temp_dir("peers_pose");
+    let (one, two) = (base.join("one"), base.join("two"));
+    // Two steps of pose learning after a 10-step warm-up.
+    let flags = [
+        "--steps",
+        "12",
+        "--refine-poses",
+        "on",
+        "--pose-warmup",
+        "10",
+    ];
+    let out = talkin(&train_args(&data, &one, &flags)[1..]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let out = mpirun("pose")
+        .args(["-n", "2"])
+        .args(train_args(
+            &data,
+            &two,
+            &[&flags[..], &["--nodes", "2"]].concat(),
+        ))
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", both(&out));
+    // The corrections' Adam moments: `v` holds the squared pose gradients, so it matches
+    // only if every peer's share of them was summed.
+    let moments = |run: &Path, key: &str| -> Vec<f64> {
+        let state = run
+            .join(CHECKPOINT_DIR)
+            .join("step-000012")
+            .join("state.json");
+        let state: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(state).unwrap()).unwrap();
+        fn flat(v: &serde_json::Value, out: &mut Vec<f64>) {
+            match v {
+                serde_json::Value::Number(n) => out.push(n.as_f64().unwrap()),
+                serde_json::Value::Array(a) => a.iter().for_each(|x| flat(x, out)),
+                _ => {}
+            }
+        }
+        let mut out = Vec::new();
+        flat(&state["pose_refinement"][key], &mut out);
+        out
+    };
+    for key in ["m", "v"] {
+        let (a, b) = (moments(&one, key), moments(&two, key));
+        assert_eq!(a.len(), b.len());
+        let scale = a.iter().fold(0.0f64, |m, x| m.max(x.abs()));
+        assert!(scale > 0.0, "no pose gradient was learned");
+        for (x, y) in a.iter().zip(&b) {
+            // Measured within 1.2e-4 of each sizable value.
+            assert!(
+                (x - y).abs() <= 1e-3 * x.abs().max(1e-3 * scale),
+                "{key}: {x} vs {y}"
+            );
+        }
+    }
+}
