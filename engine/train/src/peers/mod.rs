@@ -7,6 +7,7 @@
 //! split (to the order of the float sums). Peer 0's clock is the run's, so a `--minutes`
 //! budget ends every peer at the same step. Peer 0 alone writes the run.
 
+mod costs;
 pub(crate) mod fingerprint;
 pub(crate) mod pack;
 
@@ -18,6 +19,7 @@ use talkin_nets::{PoseGrads, TalkinField};
 use talkin_peers::Collective;
 
 use crate::error::TrainError;
+pub use costs::ExchangeCosts;
 use pack::Layout;
 
 /// The rays of a batch of `n` rays that peer `rank` of `size` computes: contiguous ranges
@@ -64,21 +66,8 @@ pub struct PeerLink {
     pub(crate) local_elapsed: f64,
     /// `local_elapsed` when it joined (a resumed run's earlier seconds).
     pub(crate) joined_at: f64,
-    /// Seconds spent packing, all-reducing and unpacking; waiting at the barrier before
-    /// the all-reduce (for the slowest peer); and in the all-reduce alone.
-    pub exchange_s: f64,
-    pub wait_s: f64,
-    /// Seconds of the work every peer repeats whatever its share: Adam, pose refinement
-    /// and the grid updates (`update_s`), drawing the whole batch's samples (`sampling_s`).
-    pub update_s: f64,
-    pub sampling_s: f64,
-    pub reduce_s: f64,
-    /// Over every tenth step: the gradient's 64-value blocks, and those zero on every
-    /// peer (what an all-reduce of the touched blocks alone would leave out).
-    pub blocks: u64,
-    pub zero_blocks: u64,
-    /// Steps exchanged.
-    pub steps: usize,
+    /// What the exchanges cost this peer so far.
+    pub costs: ExchangeCosts,
     /// This peer was asked to stop (a signal), and whether any peer was, at the last
     /// exchange: then every peer stops after the same step.
     pub(crate) stop_asked: bool,
@@ -93,14 +82,7 @@ impl PeerLink {
             buf: Vec::new(),
             local_elapsed: 0.0,
             joined_at: 0.0,
-            exchange_s: 0.0,
-            wait_s: 0.0,
-            update_s: 0.0,
-            sampling_s: 0.0,
-            reduce_s: 0.0,
-            blocks: 0,
-            zero_blocks: 0,
-            steps: 0,
+            costs: ExchangeCosts::default(),
             stop_asked: false,
             stop_agreed: false,
         }
@@ -114,34 +96,13 @@ impl PeerLink {
         self.collective.size()
     }
 
-    /// What the exchanges cost this peer: bytes a step, and the all-reduce's and the whole
-    /// exchange's time a step and share of its training time.
+    /// What the exchanges cost this peer, in a line (`train` prints it at the end).
     pub fn summary(&self) -> String {
-        let steps = self.steps.max(1) as f64;
-        let share = |s: f64| 100.0 * s / (self.local_elapsed - self.joined_at).max(1e-9);
-        let zero = self.zero_blocks as f64 / self.blocks.max(1) as f64;
-        format!(
-            "peer {} of {}: {} steps exchanged, {:.2} MB all-reduced a step; the all-reduce \
-             {:.1} ms a step ({:.1}% of this peer's training time), waiting for the slowest \
-             peer {:.1} ms ({:.1}%), the whole exchange (waiting, packing and unpacking \
-             included) {:.1} ms ({:.1}%); repeated on every peer: Adam and the grid updates \
-             {:.1} ms ({:.1}%), sampling the whole batch {:.1} ms ({:.1}%); {:.0}% of the \
-             gradient's 64-value blocks were zero on every peer",
+        self.costs.summary(
             self.rank(),
             self.size(),
-            self.steps,
-            self.bytes_reduced() as f64 / steps / 1e6,
-            1e3 * self.reduce_s / steps,
-            share(self.reduce_s),
-            1e3 * self.wait_s / steps,
-            share(self.wait_s),
-            1e3 * self.exchange_s / steps,
-            share(self.exchange_s),
-            1e3 * self.update_s / steps,
-            share(self.update_s),
-            1e3 * self.sampling_s / steps,
-            share(self.sampling_s),
-            100.0 * zero,
+            self.bytes_reduced(),
+            self.local_elapsed - self.joined_at,
         )
     }
 
@@ -182,15 +143,12 @@ impl PeerLink {
         self.collective
             .all_reduce_sum(&mut [0.0], &format!("step {}'s start", share.step))?;
         let reduce_start = Instant::now();
-        self.wait_s += (reduce_start - wait_start).as_secs_f64();
+        self.costs.wait_s += (reduce_start - wait_start).as_secs_f64();
         self.collective
             .all_reduce_sum(&mut self.buf, &format!("step {}'s gradients", share.step))?;
-        self.reduce_s += reduce_start.elapsed().as_secs_f64();
+        self.costs.reduce_s += reduce_start.elapsed().as_secs_f64();
         if share.step.is_multiple_of(10) {
-            for block in self.buf[..layout.grads].chunks(64) {
-                self.blocks += 1;
-                self.zero_blocks += u64::from(block.iter().all(|v| *v == 0.0));
-            }
+            self.costs.count_blocks(&self.buf[..layout.grads]);
         }
         let size = self.size() as f32;
         const WHAT: [&str; pack::N_AGREE] = ["the frame drawn", "the occupancy grids"];
@@ -216,8 +174,8 @@ impl PeerLink {
             clock: f64::from(self.buf[tail + pack::CLOCK]),
         };
         self.layout = Some(layout);
-        self.exchange_s += start.elapsed().as_secs_f64();
-        self.steps += 1;
+        self.costs.exchange_s += start.elapsed().as_secs_f64();
+        self.costs.steps += 1;
         Ok(out)
     }
 }

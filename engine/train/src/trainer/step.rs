@@ -88,8 +88,8 @@ impl Trainer<'_> {
         }
         if let Some(link) = &mut self.peers {
             // What every peer repeats whatever its share: Adam and the grid updates.
-            link.update_s += update_start.elapsed().as_secs_f64();
-            link.sampling_s += sampling_s;
+            link.costs.update_s += update_start.elapsed().as_secs_f64();
+            link.costs.sampling_s += sampling_s;
         }
 
         // On a GPU the step's queued ops go to the device now, without waiting for them:
