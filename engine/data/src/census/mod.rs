@@ -143,8 +143,9 @@ fn subject_census(
     })
 }
 
-/// At most `n` of `items`, evenly spaced, the first included.
-fn spread(items: &[usize], n: usize) -> Vec<usize> {
+/// At most `n` of `items`, evenly spaced, the first included (also how `inspect` picks a
+/// contact sheet's frames).
+pub(crate) fn spread(items: &[usize], n: usize) -> Vec<usize> {
     if items.len() <= n {
         return items.to_vec();
     }

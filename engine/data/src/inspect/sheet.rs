@@ -2,6 +2,7 @@
 
 use image::RgbImage;
 
+use crate::census::spread;
 use crate::dataset::{Dataset, DatasetError, Split};
 use crate::draw;
 use talkin_human::body::{N_JOINTS, PARENTS, skeleton::part_of_joint};
@@ -35,8 +36,7 @@ fn pick_frames(dataset: &Dataset, max_frames: usize) -> Vec<usize> {
         .collect();
     let per_split = (max_frames / splits.len().max(1)).max(1);
     for frames in &splits {
-        let n = per_split.min(frames.len());
-        chosen.extend((0..n).map(|k| frames[k * frames.len() / n]));
+        chosen.extend(spread(frames, per_split));
     }
     chosen.truncate(max_frames);
     chosen.sort_unstable();
