@@ -87,6 +87,16 @@ const MIN_TABLE_LOG2: usize = 14;
 /// box's padding), metres a side.
 const BOX_MARGIN_M: f64 = 0.15;
 
+/// What sizes the fast preset's hash grid, in metres: the finest cell the data can teach
+/// and the side of the field's box. `None` for another preset (the plan leaves its grid
+/// alone); `Some(None)` without a footprint.
+fn grid_need(census: &Census, opts: &TrainOptions, t: &Thresholds) -> Option<Option<(f64, f64)>> {
+    (opts.preset == Preset::Fast).then(|| {
+        let side = widest(census, |s| s.canonical.extent_m) + BOX_MARGIN_M;
+        finest_cell_m(census, t).map(|cell| (cell, side))
+    })
+}
+
 /// The finest cell the data can teach (metres): a fraction of the smallest footprint of
 /// any subject; `None` without a footprint.
 fn finest_cell_m(census: &Census, t: &Thresholds) -> Option<f64> {
@@ -279,16 +289,12 @@ pub(super) const RULES: [Rule; 8] = [
             },
         },
         choose: |census, opts, t| {
-            if opts.preset != Preset::Fast {
-                return None;
-            }
-            let Some(cell) = finest_cell_m(census, t) else {
+            let Some((cell, side)) = grid_need(census, opts, t)? else {
                 return Some((
                     Choice::Count(PRESET_LEVELS),
                     "levels: no footprint to size them: the preset's".into(),
                 ));
             };
-            let side = widest(census, |s| s.canonical.extent_m) + BOX_MARGIN_M;
             let needed = 1.0 + ((side / cell / BASE_RESOLUTION).ln() / PER_LEVEL_SCALE.ln()).ceil();
             let levels = if needed.is_finite() {
                 (needed.max(0.0) as usize).clamp(MIN_LEVELS, PRESET_LEVELS)
@@ -325,10 +331,7 @@ pub(super) const RULES: [Rule; 8] = [
             },
         },
         choose: |census, opts, t| {
-            if opts.preset != Preset::Fast {
-                return None;
-            }
-            let Some(cell) = finest_cell_m(census, t) else {
+            let Some((cell, side)) = grid_need(census, opts, t)? else {
                 return Some((
                     Choice::Count(PRESET_TABLE_LOG2),
                     "table: no footprint to size it: the preset's".into(),
@@ -336,7 +339,6 @@ pub(super) const RULES: [Rule; 8] = [
             };
             // The finest level used (levels above it are not built): its cell.
             let levels = opts.hash_levels.unwrap_or(PRESET_LEVELS);
-            let side = widest(census, |s| s.canonical.extent_m) + BOX_MARGIN_M;
             let finest = side / (BASE_RESOLUTION * PER_LEVEL_SCALE.powi(levels as i32 - 1));
             let cell = cell.max(finest);
             let surface = widest(census, |s| s.canonical.surface_m2);

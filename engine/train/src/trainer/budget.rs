@@ -85,7 +85,7 @@ impl Trainer<'_> {
             file: self.out.join(crate::recipe::RECIPE_FILE),
             problem: e.to_string(),
         })?;
-        if !self.writes {
+        if !self.writes() {
             return Ok(());
         }
         write_recipe(&self.out, &self.opts, &self.config, Some(extended))

@@ -351,7 +351,7 @@ impl<'a> Trainer<'a> {
             dataset_sha256,
             notes,
             mode,
-            writes: writes == RunWriter::Writes,
+            writer: writes,
             peers: None,
         })
     }

@@ -134,7 +134,7 @@ pub struct Trainer<'a> {
     mode: StepMode,
     /// Whether this process writes the run: alone, or peer 0 of a data-parallel run
     /// (the other peers write nothing into it).
-    writes: bool,
+    writer: RunWriter,
     /// The other peers of a data-parallel run (`None`: alone).
     peers: Option<PeerLink>,
 }
@@ -202,6 +202,11 @@ impl Trainer<'_> {
     /// Every identity slot of the field, with the models of the trained subjects.
     pub fn subjects(&self) -> &[SubjectSlot] {
         &self.subjects
+    }
+
+    /// Whether this process writes the run (see [`RunWriter`]).
+    fn writes(&self) -> bool {
+        self.writer == RunWriter::Writes
     }
 
     /// `secs` more of training: on the run's clock and the checkpoints'.

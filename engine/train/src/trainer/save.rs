@@ -69,7 +69,7 @@ impl Trainer<'_> {
     /// previous one as a fallback. Without a step since the last checkpoint, returns
     /// that one.
     pub fn save(&mut self) -> Result<PathBuf, TrainError> {
-        if !self.writes {
+        if !self.writes() {
             // A peer other than 0: peer 0 writes the run's checkpoints.
             return Ok(talkin_avatar::checkpoint::checkpoint_root(&self.out));
         }
@@ -118,7 +118,7 @@ impl Trainer<'_> {
 
     /// Checkpoints when `checkpoint_every_s` of training passed since the last one.
     pub fn maybe_save(&mut self) -> Result<Option<PathBuf>, TrainError> {
-        if self.writes && self.checkpoints.due() {
+        if self.writes() && self.checkpoints.due() {
             self.save().map(Some)
         } else {
             Ok(None)
