@@ -62,3 +62,16 @@ pub struct Capsule {
     /// SMPL-X joint index (0..55) whose transform moves this capsule.
     pub bone: u16,
 }
+
+/// Axis-aligned box around capsules (each grown by its radius) plus `pad` metres: the
+/// dense sampler's "joints +/- margin" box, with the margin the data decided; with no
+/// capsule, an inverted (infinite) box.
+pub fn capsule_bounds(capsules: &[Capsule], pad: f32) -> (Vec3, Vec3) {
+    let mut lo = Vec3::splat(f32::INFINITY);
+    let mut hi = Vec3::splat(f32::NEG_INFINITY);
+    for c in capsules {
+        lo = lo.min(c.a.min(c.b) - Vec3::splat(c.radius));
+        hi = hi.max(c.a.max(c.b) + Vec3::splat(c.radius));
+    }
+    (lo - Vec3::splat(pad), hi + Vec3::splat(pad))
+}

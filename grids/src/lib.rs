@@ -85,7 +85,7 @@ pub mod samples;
 pub mod truncate;
 
 pub use bvh::CapsuleBvh;
-pub use capsule::{Capsule, Part};
+pub use capsule::{Capsule, Part, capsule_bounds};
 pub use cull::{CanonicalCull, DilatedOccupancy};
 pub use error::GridError;
 pub use intersect::{CapsuleHit, brute_force_hits, ray_capsule};

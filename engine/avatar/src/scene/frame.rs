@@ -70,17 +70,8 @@ pub fn shell_capsules(skeleton: &Skeleton, posed: &PosedSkeleton) -> Vec<Capsule
         .collect()
 }
 
-/// Axis-aligned box around capsules (each grown by its radius) plus `pad` metres: the
-/// dense sampler's "joints +/- margin" box, with the margin the data decided.
-pub fn capsule_bounds(capsules: &[Capsule], pad: f32) -> (Vec3, Vec3) {
-    let mut lo = Vec3::splat(f32::INFINITY);
-    let mut hi = Vec3::splat(f32::NEG_INFINITY);
-    for c in capsules {
-        lo = lo.min(c.a.min(c.b) - Vec3::splat(c.radius));
-        hi = hi.max(c.a.max(c.b) + Vec3::splat(c.radius));
-    }
-    (lo - Vec3::splat(pad), hi + Vec3::splat(pad))
-}
+/// The box around capsules (grids' own, re-exported where a frame's scene is built).
+pub use talkin_grids::capsule_bounds;
 
 /// Rays through the person's pixels (mask >= 128), labelled with their segmentation part
 /// (a person pixel labelled background counts as body). Also returns each ray's pixel

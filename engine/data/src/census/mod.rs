@@ -62,18 +62,14 @@ impl CanonicalSize {
     fn of(skeleton: &talkin_human::body::Skeleton) -> CanonicalSize {
         let posed = skeleton.pose(&talkin_human::body::canonical_params());
         let capsules = talkin_human::body::limb_capsules(skeleton, &posed);
-        let (mut lo, mut hi) = (
-            glam::Vec3::splat(f32::INFINITY),
-            glam::Vec3::splat(f32::NEG_INFINITY),
-        );
-        let mut surface = 0.0;
-        for c in &capsules {
-            let r = glam::Vec3::splat(c.radius);
-            lo = lo.min(c.a.min(c.b) - r);
-            hi = hi.max(c.a.max(c.b) + r);
-            let (r, len) = (f64::from(c.radius), f64::from(c.a.distance(c.b)));
-            surface += 2.0 * std::f64::consts::PI * r * len + 4.0 * std::f64::consts::PI * r * r;
-        }
+        let (lo, hi) = talkin_grids::capsule_bounds(&capsules, 0.0);
+        let surface: f64 = capsules
+            .iter()
+            .map(|c| {
+                let (r, len) = (f64::from(c.radius), f64::from(c.a.distance(c.b)));
+                2.0 * std::f64::consts::PI * r * len + 4.0 * std::f64::consts::PI * r * r
+            })
+            .sum();
         let extent = f64::from((hi - lo).max_element());
         CanonicalSize {
             extent_m: if extent.is_finite() { extent } else { 0.0 },

@@ -6,6 +6,7 @@ use talkin_data::census::{Census, SubjectCensus};
 use super::{Choice, Setting};
 use crate::preset::Preset;
 use crate::recipe::{FingerSkinning, TrainOptions};
+use talkin_nets::encoding::{EncodingConfig, HashGridConfig};
 
 /// Where a part or an input stops paying for itself.
 #[derive(Clone, Debug, PartialEq)]
@@ -73,13 +74,14 @@ fn widest(census: &Census, f: impl Fn(&SubjectCensus) -> f64) -> f64 {
     census.present().map(f).fold(0.0, f64::max)
 }
 
-/// The hash grid's base resolution and growth a level (the `fast` preset's).
-const BASE_RESOLUTION: f64 = 16.0;
-const PER_LEVEL_SCALE: f64 = 1.5;
-/// The `fast` preset's levels and F_body table (log2): the plan goes no finer than the
-/// CPU-sized preset (the demo's footprint asks for exactly these).
-const PRESET_LEVELS: usize = 12;
-const PRESET_TABLE_LOG2: usize = 17;
+/// The `fast` preset's F_body hash grid, which the plan sizes down from: it goes no finer
+/// than the CPU-sized preset (the demo's footprint asks for exactly its levels and table).
+fn preset_grid() -> HashGridConfig {
+    match Preset::Fast.field_config(1).encoding {
+        EncodingConfig::HashGrid(grid) => grid,
+        _ => unreachable!("the fast preset encodes with a hash grid"),
+    }
+}
 /// The smallest the plan makes them.
 const MIN_LEVELS: usize = 8;
 const MIN_TABLE_LOG2: usize = 14;
@@ -280,7 +282,9 @@ pub(super) const RULES: [Rule; 8] = [
             id: "hash_levels",
             get: |o| {
                 o.hash_levels
-                    .map_or(format!("{PRESET_LEVELS} (preset)"), |n| n.to_string())
+                    .map_or(format!("{} (preset)", preset_grid().n_levels), |n| {
+                        n.to_string()
+                    })
             },
             set: |o, c| {
                 if let Choice::Count(n) = c {
@@ -289,17 +293,22 @@ pub(super) const RULES: [Rule; 8] = [
             },
         },
         choose: |census, opts, t| {
+            let preset = preset_grid();
+            let most = preset.n_levels;
             let Some((cell, side)) = grid_need(census, opts, t)? else {
                 return Some((
-                    Choice::Count(PRESET_LEVELS),
+                    Choice::Count(most),
                     "levels: no footprint to size them: the preset's".into(),
                 ));
             };
-            let needed = 1.0 + ((side / cell / BASE_RESOLUTION).ln() / PER_LEVEL_SCALE.ln()).ceil();
+            let needed = 1.0
+                + ((side / cell / preset.base_resolution as f64).ln()
+                    / preset.per_level_scale.ln())
+                .ceil();
             let levels = if needed.is_finite() {
-                (needed.max(0.0) as usize).clamp(MIN_LEVELS, PRESET_LEVELS)
+                (needed.max(0.0) as usize).clamp(MIN_LEVELS, most)
             } else {
-                PRESET_LEVELS
+                most
             };
             Some((
                 Choice::Count(levels),
@@ -307,7 +316,7 @@ pub(super) const RULES: [Rule; 8] = [
                     "grid: a pixel spans {:.1} mm on the person, so the finest cell is {:.1} mm over a {side:.2} m box: {levels} levels{}",
                     cell * 1e3 / t.finest_cell_of_footprint,
                     cell * 1e3,
-                    if levels == PRESET_LEVELS && needed > PRESET_LEVELS as f64 {
+                    if levels == most && needed > most as f64 {
                         " (the preset's most)"
                     } else {
                         ""
@@ -321,8 +330,10 @@ pub(super) const RULES: [Rule; 8] = [
             flag: "--hash-table",
             id: "hash_table_log2",
             get: |o| {
-                o.hash_table_log2
-                    .map_or(format!("{PRESET_TABLE_LOG2} (preset)"), |n| n.to_string())
+                o.hash_table_log2.map_or(
+                    format!("{} (preset)", preset_grid().log2_hashmap_size),
+                    |n| n.to_string(),
+                )
             },
             set: |o, c| {
                 if let Choice::Count(n) = c {
@@ -331,22 +342,25 @@ pub(super) const RULES: [Rule; 8] = [
             },
         },
         choose: |census, opts, t| {
+            let preset = preset_grid();
+            let most = preset.log2_hashmap_size;
             let Some((cell, side)) = grid_need(census, opts, t)? else {
                 return Some((
-                    Choice::Count(PRESET_TABLE_LOG2),
+                    Choice::Count(most),
                     "table: no footprint to size it: the preset's".into(),
                 ));
             };
             // The finest level used (levels above it are not built): its cell.
-            let levels = opts.hash_levels.unwrap_or(PRESET_LEVELS);
-            let finest = side / (BASE_RESOLUTION * PER_LEVEL_SCALE.powi(levels as i32 - 1));
+            let levels = opts.hash_levels.unwrap_or(preset.n_levels);
+            let finest = side
+                / (preset.base_resolution as f64 * preset.per_level_scale.powi(levels as i32 - 1));
             let cell = cell.max(finest);
             let surface = widest(census, |s| s.canonical.surface_m2);
             let cells = surface / (cell * cell);
             let log2 = if cells.is_finite() && cells >= 1.0 {
-                (cells.log2().ceil() as usize).clamp(MIN_TABLE_LOG2, PRESET_TABLE_LOG2)
+                (cells.log2().ceil() as usize).clamp(MIN_TABLE_LOG2, most)
             } else {
-                PRESET_TABLE_LOG2
+                most
             };
             Some((
                 Choice::Count(log2),
@@ -354,7 +368,7 @@ pub(super) const RULES: [Rule; 8] = [
                     "table: {surface:.2} m2 of body surface in {:.1} mm cells is {:.0}k cells a level: 2^{log2} entries{}",
                     cell * 1e3,
                     cells / 1e3,
-                    if log2 == PRESET_TABLE_LOG2 && cells > (1u64 << PRESET_TABLE_LOG2) as f64 {
+                    if log2 == most && cells > (1u64 << most) as f64 {
                         " (the preset's most)"
                     } else {
                         ""
