@@ -1,8 +1,5 @@
 //! `train`'s peers: which one this process is, and its link to the others over MPI.
 
-use std::time::Duration;
-
-use anyhow::Context;
 use talkin_peers::{Collective, Launch};
 
 /// Data-parallel training: one of N peers started together by an MPI launcher
@@ -51,21 +48,25 @@ pub fn join(args: &PeerArgs) -> anyhow::Result<Option<Box<dyn Collective>>> {
             args.peer_timeout
         );
     }
+    connect(args)
+}
+
+#[cfg(feature = "mpi")]
+fn connect(args: &PeerArgs) -> anyhow::Result<Option<Box<dyn Collective>>> {
     let launch = Launch::resolve(args.nodes, args.node_rank)?;
     if !launch.is_peer() {
         return Ok(None);
     }
-    connect(&launch, Duration::from_secs_f64(args.peer_timeout))
-        .with_context(|| format!("joining as peer {} of {}", launch.rank, launch.size))
-}
-
-#[cfg(feature = "mpi")]
-fn connect(launch: &Launch, within: Duration) -> anyhow::Result<Option<Box<dyn Collective>>> {
-    let peers = talkin_peers::mpi_world::MpiPeers::join(launch, within)?;
+    use anyhow::Context;
+    let within = std::time::Duration::from_secs_f64(args.peer_timeout);
+    let peers = talkin_peers::mpi_world::MpiPeers::join(&launch, within)
+        .with_context(|| format!("joining as peer {} of {}", launch.rank, launch.size))?;
     Ok(Some(Box::new(peers)))
 }
 
+/// A build without MPI trains alone, and says how to build with it when asked for peers.
 #[cfg(not(feature = "mpi"))]
-fn connect(_launch: &Launch, _within: Duration) -> anyhow::Result<Option<Box<dyn Collective>>> {
-    Err(talkin_peers::LaunchError::NoMpi.into())
+fn connect(args: &PeerArgs) -> anyhow::Result<Option<Box<dyn Collective>>> {
+    Launch::resolve_alone(args.nodes, args.node_rank)?;
+    Ok(None)
 }

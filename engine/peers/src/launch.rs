@@ -52,8 +52,13 @@ pub enum LaunchError {
         via: &'static str,
         mpi_value: usize,
     },
-    #[error("this build has no MPI (built without the `mpi` feature): it trains alone")]
-    NoMpi,
+    #[error(
+        "{asked}, but this talkin was built without MPI and trains alone: build it with \
+         `cargo build --release --features mpi` (needs Open MPI and libclang: `apt-get install \
+         openmpi-bin libopenmpi-dev libclang-dev`) and start the peers with `mpirun -n {size} \
+         talkin train ...`; to train alone, leave --nodes out"
+    )]
+    NoMpi { asked: String, size: usize },
 }
 
 /// The MPI launchers' variables, most specific first: (size, rank, what sets them).
@@ -94,6 +99,46 @@ impl Launch {
     /// The launch from the flags and the process's environment.
     pub fn resolve(nodes: Option<usize>, node_rank: Option<usize>) -> Result<Launch, LaunchError> {
         Launch::resolve_in(nodes, node_rank, &|k| std::env::var(k).ok())
+    }
+
+    /// The launch of a build without MPI: alone, or [`LaunchError::NoMpi`] (saying how to
+    /// build with MPI) where `--nodes`, an MPI launcher or a scheduler asks for peers.
+    pub fn resolve_alone(
+        nodes: Option<usize>,
+        node_rank: Option<usize>,
+    ) -> Result<Launch, LaunchError> {
+        Launch::resolve_alone_in(nodes, node_rank, &|k| std::env::var(k).ok())
+    }
+
+    /// [`Launch::resolve_alone`] with the environment read through `env`.
+    pub fn resolve_alone_in(
+        nodes: Option<usize>,
+        node_rank: Option<usize>,
+        env: &dyn Fn(&str) -> Option<String>,
+    ) -> Result<Launch, LaunchError> {
+        if let Some(size) = nodes.filter(|&n| n > 1) {
+            return Err(LaunchError::NoMpi {
+                asked: format!("--nodes {size} asks for {size} peers"),
+                size,
+            });
+        }
+        match Launch::resolve_in(nodes, node_rank, env) {
+            Ok(launch) if launch.size > 1 => {
+                let via = match launch.launcher {
+                    Launcher::Mpi { via } => via,
+                    Launcher::Alone => "the launcher",
+                };
+                Err(LaunchError::NoMpi {
+                    asked: format!("{via} started this process as one of {} peers", launch.size),
+                    size: launch.size,
+                })
+            }
+            Ok(_) => Ok(Launch::alone()),
+            Err(LaunchError::NoLauncher { what, size, .. }) => {
+                Err(LaunchError::NoMpi { asked: what, size })
+            }
+            Err(e) => Err(e),
+        }
     }
 
     /// [`Launch::resolve`] with the environment read through `env`.
@@ -269,6 +314,49 @@ mod tests {
         ]);
         let l = Launch::resolve_in(None, None, &pmix).unwrap();
         assert_eq!((l.size, l.rank), (2, 1));
+    }
+
+    #[test]
+    fn a_build_without_mpi_refuses_peers_naming_the_feature() {
+        let none = env(&[]);
+        assert_eq!(
+            Launch::resolve_alone_in(None, None, &none),
+            Ok(Launch::alone())
+        );
+        assert_eq!(
+            Launch::resolve_alone_in(Some(1), Some(0), &none),
+            Ok(Launch::alone())
+        );
+        let mpi2 = env(&[("OMPI_COMM_WORLD_SIZE", "2"), ("OMPI_COMM_WORLD_RANK", "0")]);
+        let slurm = env(&[("SLURM_NTASKS", "4")]);
+        for (nodes, env, says) in [
+            (
+                Some(2),
+                &none as &dyn Fn(&str) -> Option<String>,
+                "--nodes 2 asks for 2 peers",
+            ),
+            (Some(2), &mpi2, "--nodes 2 asks for 2 peers"),
+            (
+                None,
+                &mpi2,
+                "Open MPI's mpirun started this process as one of 2 peers",
+            ),
+            (None, &slurm, "SLURM_NTASKS"),
+        ] {
+            let e = Launch::resolve_alone_in(nodes, None, env).unwrap_err();
+            assert!(matches!(e, LaunchError::NoMpi { .. }), "{e}");
+            let msg = e.to_string();
+            assert!(msg.contains(says), "{msg}");
+            assert!(msg.contains("--features mpi"), "{msg}");
+        }
+        // One rank under mpirun trains alone; a bad flag is still named as such.
+        let mpi1 = env(&[("OMPI_COMM_WORLD_SIZE", "1"), ("OMPI_COMM_WORLD_RANK", "0")]);
+        assert_eq!(
+            Launch::resolve_alone_in(None, None, &mpi1),
+            Ok(Launch::alone())
+        );
+        let e = Launch::resolve_alone_in(None, Some(1), &none).unwrap_err();
+        assert_eq!(e, LaunchError::RankWithoutNodes(1));
     }
 
     #[test]
