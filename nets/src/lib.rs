@@ -48,7 +48,7 @@ pub use device::{
 };
 pub use error::NetsError;
 pub use field::{
-    FieldConfig, FieldInput, FieldOutput, FrameCodes, FrameConditions, PoseGrads, PoseLeaves,
-    TalkinField, UnitMap,
+    Density, FieldConfig, FieldInput, FieldOutput, FrameCodes, FrameConditions, PoseGrads,
+    PoseLeaves, TalkinField, UnitMap,
 };
 pub use volume::{RaySamples, RenderedRays, render_packed};

@@ -152,6 +152,7 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
             lpips_dir: DEFAULT_LPIPS_DIR.clone(),
             smooth: false,
             anchors: None,
+            sampler: None,
             background: None,
             pose_fit: 0,
             pose_fit_lr: talkin_train::FitPosesOptions::default().lr,

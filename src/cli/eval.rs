@@ -57,6 +57,10 @@ pub struct EvalArgs {
     /// capture), off otherwise.
     #[arg(long, value_name = "on|off", value_parser = PossibleValuesParser::new(["on", "off"]).map(|s| s == "on"))]
     pub anchors: Option<bool>,
+    /// Render with this sampler instead of the one the run trained with: `dense` checks
+    /// that the accelerated sampler's samples lose nothing the field holds.
+    #[arg(long)]
+    pub sampler: Option<talkin_grids::SamplerKind>,
     /// Also score the frames after a test-time fit of their poses with the model frozen
     /// (InstantAvatar's evaluation of novel poses): STEPS steps of the training loss per
     /// frame move each frame's correction alone, on the CPU, from the fit as given (on
@@ -102,6 +106,9 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
     let mut avatar = super::load_avatar(&args.run, &device)?;
     if let Some(rgb) = background {
         avatar.background = rgb;
+    }
+    if let Some(kind) = args.sampler {
+        avatar.sampler = kind;
     }
     let renders = args.renders.clone().unwrap_or_else(|| {
         let stem = args

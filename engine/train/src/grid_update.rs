@@ -195,11 +195,11 @@ fn canonical_density(
                 .map(|net| routed_sigma(net, rows, false))
         },
     );
+    let density = field.density();
     raw.into_iter()
         .map(|r| {
-            // softplus (monotone, so after the max as well as before)
-            let d = r.max(0.0) + (-r.abs()).exp().ln_1p();
-            let d = d * scale;
+            // Monotone, so after the max as well as before.
+            let d = density.of(r) * scale;
             if d.is_finite() { d } else { f32::MAX }
         })
         .collect()

@@ -16,7 +16,7 @@ use talkin_avatar::field_inputs::packed_layout;
 use talkin_grids::{PackedSamples, Ray};
 use talkin_nets::field::leaves::zero_grads;
 use talkin_nets::loss::{PerceptualLoss, PixelInputs, PixelLoss, PixelWeights, pixel_loss};
-use talkin_nets::volume::RenderedRays;
+use talkin_nets::volume::{RenderedRays, distortion, hard_surface};
 use talkin_nets::{
     FieldInput, FrameConditions, NetsError, PoseGrads, PoseLeaves, TalkinField, is_cpu,
 };
@@ -54,6 +54,8 @@ pub(crate) struct StepBatch<'a> {
     pub mask_weight: f32,
     /// Weight of the distortion term (0: off).
     pub distortion: f32,
+    /// Weight of the hard-surface term (0: off).
+    pub hard_surface: f32,
     /// Differentiate with respect to the frame's pose too (pose refinement).
     pub pose_grads: bool,
 }
@@ -204,8 +206,9 @@ fn half(
 /// What the field rendered of a range of rays.
 struct RaysRender {
     rendered: RenderedRays,
-    /// The distortion term, weighted (with `--distortion`).
-    distortion: Option<Tensor<1>>,
+    /// The terms on the body pass's weights, weighted: the distortion (with
+    /// `--distortion`) and the hard surface (with `--hard-surface`).
+    weight_terms: Vec<Tensor<1>>,
     /// The frame's conditions as autodiff leaves (pose refinement).
     leaves: Option<PoseLeaves>,
 }
@@ -240,11 +243,22 @@ fn render_rays(
         Some(l) => field.forward_with_leaves(&input, l)?,
         None => field.forward(&input)?,
     };
-    let (rendered, distortion) =
-        out.render_with_distortion(&layout.view(), batch.distortion > 0.0)?;
+    let view = layout.view();
+    let (rendered, weights) = out.render_with_weights(&view)?;
+    let mut weight_terms = Vec::new();
+    if batch.distortion > 0.0 {
+        weight_terms.push(
+            distortion(&weights, &view)?
+                .mean()
+                .mul_scalar(batch.distortion),
+        );
+    }
+    if batch.hard_surface > 0.0 {
+        weight_terms.push(hard_surface(&weights).mul_scalar(batch.hard_surface));
+    }
     Ok(RaysRender {
         rendered,
-        distortion: distortion.map(|d| d.mean().mul_scalar(batch.distortion)),
+        weight_terms,
         leaves,
     })
 }
@@ -256,7 +270,7 @@ struct RaysLoss {
     values: Tensor<1>,
 }
 
-/// The pixel terms (MSE or 0.2 MSE, seg CE, the silhouette), the distortion and the
+/// The pixel terms (MSE or 0.2 MSE, seg CE, the silhouette), the weights' terms and the
 /// frame code's prior, weighted by the rays' share; the LPIPS patches on the first half.
 fn rays_loss(
     field: &TalkinField,
@@ -310,9 +324,11 @@ fn rays_loss(
     let code_prior = field
         .frame_code_norm2(batch.frame)
         .map(|n2| n2.mul_scalar(FRAME_CODE_PRIOR));
-    let pixel = [render.distortion.clone(), code_prior]
-        .into_iter()
-        .flatten()
+    let pixel = render
+        .weight_terms
+        .iter()
+        .cloned()
+        .chain(code_prior)
         .fold(pixel, |sum, term| sum + term)
         .mul_scalar(weight);
     let loss = match perceptual {
@@ -484,6 +500,7 @@ mod tests {
                 background: [1.0; 3],
                 mask_weight: 0.1,
                 distortion: 0.0,
+                hard_surface: 0.0,
                 pose_grads: false,
             };
             let whole_batch = batch();

@@ -101,6 +101,34 @@ pub struct FieldConfig {
     /// choice was recorded) is the default [`MlpPath`].
     #[config(default = "None")]
     pub mlp_path: Option<MlpPath>,
+    /// How a net's raw output becomes density; `None` (checkpoints written before the
+    /// choice existed) is [`Density::Softplus`].
+    #[config(default = "None")]
+    pub density: Option<Density>,
+}
+
+/// How a net's raw output becomes density (per metre).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub enum Density {
+    /// `softplus(x)`: the density grows linearly with the output, so an opaque surface
+    /// in one bin of a few millimetres (about 1000 /m) takes an output near 1000.
+    #[default]
+    Softplus,
+    /// `exp(min(x, 15))` (instant-ngp's truncated exponential): each unit of output
+    /// multiplies the density by e, so an output near 7 is a surface, and the gradient
+    /// scales with the density.
+    Exp,
+}
+
+impl Density {
+    /// The density of one raw output on the host, as the field's forward computes it
+    /// (NaN stays NaN).
+    pub fn of(self, raw: f32) -> f32 {
+        match self {
+            Density::Softplus => raw.max(0.0) + (-raw.abs()).exp().ln_1p(),
+            Density::Exp => raw.min(super::EXP_DENSITY_MAX_INPUT).exp(),
+        }
+    }
 }
 
 /// Per-frame latent codes: one per training frame, read by F_body (and by D_nr with
@@ -281,6 +309,7 @@ impl FieldConfig {
                 pose_dim: self.pose_dim,
                 n_identities: self.n_identities.max(1),
                 frame_code_deform: deform_code_dim > 0,
+                density: self.density.unwrap_or_default(),
             },
         })
     }

@@ -16,7 +16,7 @@ use crate::rows::{add_rows, gather_rows};
 use crate::skinning::{BlendWeightVolume, N_SMPLX_JOINTS};
 use crate::util::{floats, ints, softplus};
 use crate::volume::{
-    OwnedRaySamples, RaySamples, RenderWeights, RenderedRays, distortion, render_in_front,
+    OwnedRaySamples, RaySamples, RenderWeights, RenderedRays, depth_columns, render_in_front,
     render_weighted,
 };
 
@@ -26,7 +26,7 @@ mod frame;
 pub mod leaves;
 mod routing;
 
-pub use config::{FieldConfig, FrameCodes, PART_LOG2_ENTRIES, POSED_TAU_M, UnitMap};
+pub use config::{Density, FieldConfig, FrameCodes, PART_LOG2_ENTRIES, POSED_TAU_M, UnitMap};
 pub use frame::FrameConditions;
 pub use leaves::{PoseGrads, PoseLeaves};
 pub use routing::Routing;
@@ -111,6 +111,7 @@ struct FieldSettings {
     pose_dim: usize,
     n_identities: usize,
     frame_code_deform: bool,
+    density: Density,
 }
 
 impl FieldSettings {
@@ -190,21 +191,17 @@ impl FieldOutput {
     /// Volume-renders the batch: pass 1 composites every sample's body/face output;
     /// with hand samples, pass 2 composites them in ray order in front of pass 1's colour.
     pub fn render(&self, samples: &RaySamples) -> Result<RenderedRays, NetsError> {
-        Ok(self.render_with_distortion(samples, false)?.0)
+        Ok(self.render_with_weights(samples)?.0)
     }
 
-    /// [`FieldOutput::render`], and with `with_distortion` the distortion of every ray's
-    /// body pass ([`crate::volume::distortion`]: how far each ray's weight is spread
-    /// along it, `[r]`) from the same compositing weights.
-    pub fn render_with_distortion(
+    /// [`FieldOutput::render`], and the body pass's compositing weights, from which the
+    /// loss's terms on the weights' spread are taken ([`crate::volume::distortion`],
+    /// [`crate::volume::hard_surface`]) without compositing twice.
+    pub fn render_with_weights(
         &self,
         samples: &RaySamples,
-        with_distortion: bool,
-    ) -> Result<(RenderedRays, Option<Tensor<1>>), NetsError> {
+    ) -> Result<(RenderedRays, RenderWeights), NetsError> {
         let weights = RenderWeights::new(self.sigma.clone(), samples)?;
-        let distortion = with_distortion
-            .then(|| distortion(&weights, samples))
-            .transpose()?;
         let body = render_weighted(&weights, self.rgb.clone(), self.seg_logits.clone(), samples)?;
         let rendered = match &self.hands {
             None => body,
@@ -213,7 +210,24 @@ impl FieldOutput {
                 render_in_front(h.sigma.clone(), h.rgb.clone(), &front.view(), &body)?
             }
         };
-        Ok((rendered, distortion))
+        Ok((rendered, weights))
+    }
+
+    /// Per ray, the moments of depth under the weights it is rendered with (both
+    /// passes): `[sum w, sum w d, sum w d^2]`, `d` measured from the ray's first sample
+    /// ([`depth_columns`]); [`crate::volume::depth_spread`] makes them a thickness. `[r, 3]`
+    pub fn depth_moments(&self, samples: &RaySamples) -> Result<Tensor<2>, NetsError> {
+        let device = self.sigma.device();
+        let columns = depth_columns(samples, &device);
+        let body = RenderWeights::new(self.sigma.clone(), samples)?.integrate(columns.clone());
+        let Some(h) = &self.hands else {
+            return Ok(body);
+        };
+        let front = OwnedRaySamples::subset(samples, &h.indices);
+        let weights = RenderWeights::new(h.sigma.clone(), &front.view())?;
+        let rows = ints(h.indices.iter().map(|&i| i as i32).collect(), &device);
+        let in_front = weights.integrate(columns.select(0, rows));
+        Ok(in_front + weights.transmittance_end.unsqueeze_dim::<2>(1) * body)
     }
 }
 
@@ -240,21 +254,30 @@ pub struct TalkinField {
     settings: FieldSettings,
 }
 
+/// The largest output [`Density::Exp`] exponentiates (`e^15` is 3.3e6 /m, opaque in
+/// well under a micrometre): beyond it the density stops growing and overflow never comes.
+pub const EXP_DENSITY_MAX_INPUT: f32 = 15.0;
+
 /// Splits raw `[sigma, rgb]` into activated `(sigma [n], rgb [n, 3])`.
-fn activate(raw: &Tensor<2>) -> (Tensor<1>, Tensor<2>) {
+fn activate(raw: &Tensor<2>, density: Density) -> (Tensor<1>, Tensor<2>) {
     #[cfg(feature = "wgpu")]
-    if !crate::device::is_cpu(&raw.device()) {
+    if density == Density::Softplus && !crate::device::is_cpu(&raw.device()) {
         // A device op each, cut and activation (`kernels::cube::heads`).
         use crate::kernels::cube::heads::{Activation, columns};
         let sigma = columns(raw.clone(), 0, 1, Activation::Softplus).squeeze_dim::<1>(1);
         return (sigma, columns(raw.clone(), 1, 3, Activation::Sigmoid));
     }
-    activate_composed(raw)
+    activate_composed(raw, density)
 }
 
 /// [`activate`] as burn ops (the CPU's, and the device op's reference).
-fn activate_composed(raw: &Tensor<2>) -> (Tensor<1>, Tensor<2>) {
-    let sigma = softplus(raw.clone().narrow(1, 0, 1)).squeeze_dim::<1>(1);
+fn activate_composed(raw: &Tensor<2>, density: Density) -> (Tensor<1>, Tensor<2>) {
+    let out = raw.clone().narrow(1, 0, 1);
+    let sigma = match density {
+        Density::Softplus => softplus(out),
+        Density::Exp => out.clamp_max(EXP_DENSITY_MAX_INPUT).exp(),
+    }
+    .squeeze_dim::<1>(1);
     let rgb = sigmoid(raw.clone().narrow(1, 1, 3));
     (sigma, rgb)
 }
@@ -294,6 +317,11 @@ fn replace_rows<const D: usize>(base: Tensor<D>, idx: &[usize], values: Tensor<D
 }
 
 impl TalkinField {
+    /// How this field's nets turn their raw output into density.
+    pub fn density(&self) -> Density {
+        self.settings.density
+    }
+
     fn device(&self) -> Device {
         self.identity.val().device()
     }
@@ -432,7 +460,7 @@ impl TalkinField {
             body_condition,
             step,
         ); // [n, 9]
-        let (mut sigma, mut rgb) = activate(&raw);
+        let (mut sigma, mut rgb) = activate(&raw, self.settings.density);
         let seg_logits = seg_logits_of(raw); // [n, 5]
 
         // Hard routing: candidates (the sampler's capsules) whose body label is the part.
@@ -621,7 +649,7 @@ impl TalkinField {
             Tensor::cat(parts, 1),
             input.step,
         );
-        let (sigma, rgb) = activate(&raw);
+        let (sigma, rgb) = activate(&raw, self.settings.density);
         Some((head, sigma, rgb))
     }
 
@@ -646,7 +674,7 @@ impl TalkinField {
             xh = xh.clone() + dh.forward(self.to_unit(xh), pose, input.step);
         }
         let raw = hands.forward(self.to_unit(xh), input.frame.identity, identity, input.step);
-        let (sigma, rgb) = activate(&raw);
+        let (sigma, rgb) = activate(&raw, self.settings.density);
         Some((idx, sigma, rgb))
     }
 }

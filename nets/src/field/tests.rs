@@ -720,9 +720,9 @@ fn device_op_heads_match_the_composed_ops() {
     let run = |device_op: bool| {
         let raw = floats(values.clone(), [n, 9], &gpu).require_grad();
         let (sigma, rgb) = if device_op {
-            activate(&raw)
+            activate(&raw, Density::Softplus)
         } else {
-            activate_composed(&raw)
+            activate_composed(&raw, Density::Softplus)
         };
         let seg = if device_op {
             seg_logits_of(raw.clone())

@@ -19,7 +19,11 @@ use crate::util::{floats, ints};
 use burn::prelude::*;
 
 mod distortion;
+mod hard_surface;
+mod thickness;
 pub use distortion::distortion;
+pub use hard_surface::hard_surface;
+pub use thickness::{depth_columns, depth_spread};
 
 /// Per-sample optical depth cap (see the module docs).
 pub const MAX_OPTICAL_DEPTH: f32 = 50.0;

@@ -39,7 +39,8 @@ pub const MAX_RENDER_PIXELS: u64 = 4096 * 4096;
 /// One forward's rendered rays (its values still on the device), or the count of its
 /// rays where no ray met the body. The frame reads every piece back at once.
 enum Piece {
-    /// `[rays, 4 + classes]`: colour over the background, opacity, segmentation logits.
+    /// `[rays, 7 + classes]`: colour over the background, opacity, the depth moments
+    /// ([`talkin_nets::field::FieldOutput::depth_moments`]), segmentation logits.
     Rendered(Box<Tensor<2>>),
     /// This many rays without a sample: the background.
     Empty(usize),
@@ -54,6 +55,9 @@ pub struct RenderedFrame {
     pub rgb: Vec<f32>,
     /// Accumulated opacity. `[h * w]`
     pub opacity: Vec<f32>,
+    /// How thick the matter is along each pixel's ray: the weighted standard deviation
+    /// of its samples' depths, metres (0 where nothing was met). `[h * w]`
+    pub depth_spread: Vec<f32>,
     /// Argmax of the rendered segmentation logits (0 where the opacity is below 0.5).
     /// `[h * w]`
     pub labels: Vec<u8>,
@@ -218,12 +222,18 @@ impl RenderFrame for Avatar {
             pieces.extend(wave_pieces);
             forward_seconds += forwarding.elapsed().as_secs_f64();
         }
-        let (rgb, opacity, labels) = read_back(self, pieces, rays.len())?;
+        let Colours {
+            rgb,
+            opacity,
+            depth_spread,
+            labels,
+        } = read_back(self, pieces, rays.len())?;
         Ok(RenderedFrame {
             width: camera.width,
             height: camera.height,
             rgb,
             opacity,
+            depth_spread,
             labels,
             samples: total_samples,
             largest_forward,
@@ -267,6 +277,7 @@ fn render_forward(
         vec![
             rendered.rgb_over(avatar.background),
             rendered.opacity.clone().unsqueeze_dim(1),
+            output.depth_moments(&layout.view())?,
             rendered.seg_logits.clone(),
         ],
         1,
@@ -274,14 +285,20 @@ fn render_forward(
     Ok(Piece::Rendered(Box::new(values)))
 }
 
-/// The frame's colour, opacity and labels from its pieces (`n` rays in all), read back
-/// in one transfer (on a GPU, one wait for the frame's queued work).
-#[allow(clippy::type_complexity)]
-fn read_back(
-    avatar: &Avatar,
-    pieces: Vec<Piece>,
-    n: usize,
-) -> Result<(Vec<f32>, Vec<f32>, Vec<u8>), AvatarError> {
+/// What a frame's pieces hold, per pixel.
+struct Colours {
+    rgb: Vec<f32>,
+    opacity: Vec<f32>,
+    depth_spread: Vec<f32>,
+    labels: Vec<u8>,
+}
+
+/// Columns of a rendered piece before its segmentation logits.
+const VALUE_COLUMNS: usize = 7;
+
+/// The frame's colour, opacity, depth spread and labels from its pieces (`n` rays in
+/// all), read back in one transfer (on a GPU, one wait for the frame's queued work).
+fn read_back(avatar: &Avatar, pieces: Vec<Piece>, n: usize) -> Result<Colours, AvatarError> {
     let wrong = || AvatarError::BadInput {
         what: "render".into(),
         problem: "the field returned the wrong number of values".into(),
@@ -294,24 +311,31 @@ fn read_back(
         })
         .collect();
     let (values, width) = match rendered.first() {
-        None => (Vec::new(), 0),
+        None => (Vec::new(), VALUE_COLUMNS),
         Some(first) => {
             let width = first.dims()[1];
             let values = talkin_nets::read_floats(Tensor::cat(rendered, 0)).map_err(|_| wrong())?;
             (values, width)
         }
     };
-    let classes = width.saturating_sub(4);
-    let mut rgb = Vec::with_capacity(3 * n);
-    let mut opacity = Vec::with_capacity(n);
-    let mut labels = Vec::with_capacity(n);
-    let mut rows = values.chunks_exact(width.max(1));
+    if width < VALUE_COLUMNS {
+        return Err(wrong());
+    }
+    let classes = width - VALUE_COLUMNS;
+    let mut out = Colours {
+        rgb: Vec::with_capacity(3 * n),
+        opacity: Vec::with_capacity(n),
+        depth_spread: Vec::with_capacity(n),
+        labels: Vec::with_capacity(n),
+    };
+    let mut rows = values.chunks_exact(width);
     for piece in &pieces {
         let count = match piece {
             Piece::Empty(count) => {
-                rgb.extend((0..*count).flat_map(|_| avatar.background));
-                opacity.extend(std::iter::repeat_n(0.0, *count));
-                labels.extend(std::iter::repeat_n(0u8, *count));
+                out.rgb.extend((0..*count).flat_map(|_| avatar.background));
+                out.opacity.extend(std::iter::repeat_n(0.0, *count));
+                out.depth_spread.extend(std::iter::repeat_n(0.0, *count));
+                out.labels.extend(std::iter::repeat_n(0u8, *count));
                 continue;
             }
             Piece::Rendered(t) => t.dims()[0],
@@ -326,11 +350,13 @@ fn read_back(
                         .into(),
                 });
             }
-            rgb.extend_from_slice(&row[..3]);
-            opacity.push(row[3]);
-            let logits = &row[4..];
+            out.rgb.extend_from_slice(&row[..3]);
+            out.opacity.push(row[3]);
+            out.depth_spread
+                .push(talkin_nets::volume::depth_spread([row[4], row[5], row[6]]));
+            let logits = &row[VALUE_COLUMNS..];
             // Argmax among the person classes where the ray is mostly opaque.
-            labels.push(if row[3] < 0.5 || classes == 0 {
+            out.labels.push(if row[3] < 0.5 || classes == 0 {
                 0
             } else {
                 (1..classes)
@@ -339,8 +365,8 @@ fn read_back(
             });
         }
     }
-    if rgb.len() != 3 * n || rows.next().is_some() {
+    if out.rgb.len() != 3 * n || rows.next().is_some() {
         return Err(wrong());
     }
-    Ok((rgb, opacity, labels))
+    Ok(out)
 }

@@ -12,6 +12,7 @@ pub mod anchors;
 pub mod lpips;
 mod regions;
 mod report;
+mod thickness;
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -25,8 +26,9 @@ pub use lpips::LpipsScorer;
 pub use regions::{PersonRegions, RegionScore, outline_px, person_regions};
 pub use report::{
     AnchorMeans, CropScore, EvalReport, FrameScore, LPIPS_SCALE, PoseFitScore, RegionMeans,
-    SkippedCrop,
+    SkippedCrop, ThicknessMeans,
 };
+pub use thickness::{THICKNESS_MIN_OPACITY, Thickness, thickness_inside};
 
 use talkin_avatar::{Avatar, AvatarError};
 
@@ -207,6 +209,7 @@ fn score_shot(
     let mut skipped = Vec::new();
     let mut hand_rows = Vec::new();
     let mut regions = None;
+    let mut thickness = None;
     // The shot's pose: a training frame's refined fit, when the run refined it.
     for (kind, crop) in frame_crops(skeleton, &shot.params, &frame.camera) {
         match crop {
@@ -226,6 +229,12 @@ fn score_shot(
                         &images.mask,
                         rect,
                     ));
+                    thickness = thickness_inside(
+                        &images.mask,
+                        &rendered.depth_spread,
+                        &rendered.opacity,
+                        rect,
+                    );
                 }
                 let (p, s, l) = score_rect(rect);
                 crops.push(CropScore {
@@ -251,6 +260,7 @@ fn score_shot(
         anchors,
         crops,
         person_regions: regions,
+        thickness,
         skipped_crops: skipped,
         samples: rendered.samples,
         seconds: rendered.seconds,

@@ -9,6 +9,7 @@ use super::EvalError;
 use super::anchors::{ANCHOR_SSIM_RANGE, AnchorScore};
 use super::lpips::BACKBONE;
 use super::regions::{PersonRegions, RegionScore};
+use super::thickness::Thickness;
 use crate::crops::CropKind;
 use crate::metrics::{PSNR_CAP_DB, Rect};
 use talkin_data::dataset::Dataset;
@@ -68,6 +69,9 @@ pub struct FrameScore {
     pub crops: Vec<CropScore>,
     /// The person box split by the target's mask (`None` where the box was skipped).
     pub person_regions: Option<PersonRegions>,
+    /// How thick the person renders inside its mask (`None` where the box was skipped or
+    /// no ray inside it is opaque).
+    pub thickness: Option<Thickness>,
     pub skipped_crops: Vec<SkippedCrop>,
     /// Field samples evaluated for the render.
     pub samples: usize,
@@ -108,6 +112,9 @@ pub struct EvalReport {
     pub person_inside: Option<RegionMeans>,
     pub person_outline: Option<RegionMeans>,
     pub person_around: Option<RegionMeans>,
+    /// How thick the person renders inside its mask: means over frames of each frame's
+    /// median and 90th percentile depth spread.
+    pub thickness_inside: Option<ThicknessMeans>,
     /// Means over the face crops that were scored.
     pub psnr_face: Option<f64>,
     pub ssim_face: Option<f64>,
@@ -176,6 +183,25 @@ impl AnchorMeans {
             ssim_data_range: ANCHOR_SSIM_RANGE,
             lpips_vgg: mean_all(&scores.iter().map(|a| a.lpips_vgg).collect::<Vec<_>>()),
             frames: scores.len(),
+        })
+    }
+}
+
+/// Each frame's [`Thickness`], averaged over the frames that have one.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct ThicknessMeans {
+    pub median_mm: f64,
+    pub p90_mm: f64,
+    pub frames: usize,
+}
+
+impl ThicknessMeans {
+    fn over(frames: &[FrameScore]) -> Option<ThicknessMeans> {
+        let t: Vec<Thickness> = frames.iter().filter_map(|f| f.thickness).collect();
+        Some(ThicknessMeans {
+            median_mm: mean(t.iter().map(|t| t.median_mm))?,
+            p90_mm: mean(t.iter().map(|t| t.p90_mm))?,
+            frames: t.len(),
         })
     }
 }
@@ -288,6 +314,7 @@ impl EvalReport {
             person_inside,
             person_outline,
             person_around,
+            thickness_inside: ThicknessMeans::over(&frames),
             psnr_face,
             ssim_face,
             lpips_face,
@@ -402,6 +429,13 @@ impl EvalReport {
                     None => writeln!(s, "  {name:<12}{:>9}", "-"),
                 };
             }
+        }
+        if let Some(t) = &self.thickness_inside {
+            let _ = writeln!(
+                s,
+                "thickness inside the mask (depth spread of opaque rays): median {:.1} mm, 90th percentile {:.1} mm",
+                t.median_mm, t.p90_mm
+            );
         }
         if let Some(a) = &self.anchors {
             let _ = writeln!(

@@ -17,8 +17,8 @@ use clap::{Arg, ArgMatches, Args, FromArgMatches, ValueEnum};
 use serde::{Deserialize, Serialize};
 use talkin_data::dataset::{Dataset, Matting, mask_edge_px};
 use talkin_grids::SamplerKind;
-use talkin_nets::ComputeDevice;
 use talkin_nets::mlp::MlpPath;
+use talkin_nets::{ComputeDevice, Density};
 
 use crate::error::TrainError;
 use crate::plan::record::Plan;
@@ -89,6 +89,11 @@ pub struct TrainOptions {
     /// the field's configuration.
     #[arg(long = "mlp-slice-rows", value_name = "N", default_value_t = MlpPath::default().slice_rows, help_heading = "Model and device")]
     pub mlp_slice_rows: usize,
+    /// How the nets' output becomes density: `softplus` (grows linearly with the output)
+    /// or `exp` (instant-ngp's truncated exponential: a few units of output take a sample
+    /// from empty to opaque).
+    #[arg(long, value_name = "softplus|exp", default_value = "softplus", value_parser = PossibleValuesParser::new(["softplus", "exp"]).map(|s| if s == "exp" { Density::Exp } else { Density::Softplus }), help_heading = "Model and device")]
+    pub density: Density,
     #[command(flatten, next_help_heading = "Run")]
     pub budget: Budget,
     /// Seed of the initialisation, the frame and ray choice and the sample jitter.
@@ -122,6 +127,12 @@ pub struct TrainOptions {
     /// a cloud spread through the shells' depth; 0: off.
     #[arg(long, default_value_t = TrainOptions::default().distortion, help_heading = "Loss")]
     pub distortion: f32,
+    /// Weight of the hard-surface term (InstantAvatar's): `-ln(e^-x + e^(x-1))` of every
+    /// body sample's compositing weight and of every ray's opacity, which is least at 0
+    /// and 1, so that one sample takes a ray (a surface) instead of many sharing it (a
+    /// cloud); 0: off.
+    #[arg(long = "hard-surface", value_name = "W", default_value_t = TrainOptions::default().hard_surface, help_heading = "Loss")]
+    pub hard_surface: f32,
     /// Width of a per-frame latent code read by F_body beside the identity code (one
     /// code per training frame, with a Gaussian prior; every other frame renders with
     /// their mean); 0: no codes.
@@ -419,6 +430,7 @@ impl Default for TrainOptions {
             skin_fingers: FingerSkinning::Bones,
             mlp_fused: true,
             mlp_slice_rows: MlpPath::default().slice_rows,
+            density: Density::Softplus,
             budget: Budget::default(),
             seed: 0,
             identities: Identities::All,
@@ -428,6 +440,7 @@ impl Default for TrainOptions {
             bbox_fraction: 0.8,
             mask_weight: 1.0,
             distortion: 0.0,
+            hard_surface: 0.0,
             random_background: false,
             frame_code_dim: 0,
             frame_code_deform: false,
@@ -531,6 +544,9 @@ impl TrainOptions {
         }
         if !(self.distortion.is_finite() && self.distortion >= 0.0) {
             return bad("--distortion", "must be a finite number >= 0");
+        }
+        if !(self.hard_surface.is_finite() && self.hard_surface >= 0.0) {
+            return bad("--hard-surface", "must be a finite number >= 0");
         }
         if let Some(px) = self.mask_edge_px
             && px > MAX_MASK_EDGE_PX

@@ -15,7 +15,7 @@ use std::path::PathBuf;
 use serde::{Deserialize, Serialize};
 use serde_json::Value;
 use talkin_grids::SamplerKind;
-use talkin_nets::ComputeDevice;
+use talkin_nets::{ComputeDevice, Density};
 
 use crate::plan::record::Plan;
 use crate::preset::Preset;
@@ -81,6 +81,9 @@ struct TrainOptionsRecord {
     /// Absent: slices of 256 rows (the environment's default then).
     #[serde(default = "slices_of_256")]
     mlp_slice_rows: usize,
+    /// Absent: softplus.
+    #[serde(default)]
+    density: Density,
     budget: Budget,
     seed: u64,
     identities: Identities,
@@ -94,6 +97,9 @@ struct TrainOptionsRecord {
     mask_weight: f32,
     #[serde(default)]
     distortion: f32,
+    /// Absent: no hard-surface term.
+    #[serde(default)]
+    hard_surface: f32,
     #[serde(default)]
     frame_code_dim: usize,
     #[serde(default)]

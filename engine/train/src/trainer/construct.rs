@@ -87,6 +87,7 @@ impl<'a> Trainer<'a> {
         opts.apply_hash_grid(&mut config);
         config.skinning.finger_bones = Some(opts.skin_fingers.finger_bones());
         config.mlp_path = Some(opts.mlp_path());
+        config.density = Some(opts.density);
         config.frame_codes = (opts.frame_code_dim > 0).then_some(FrameCodes {
             count: frames.len(),
             dim: opts.frame_code_dim,

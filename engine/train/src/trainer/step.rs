@@ -378,6 +378,7 @@ impl Trainer<'_> {
                 background,
                 mask_weight: self.opts.mask_weight,
                 distortion: self.opts.distortion,
+                hard_surface: self.opts.hard_surface,
                 pose_grads,
             },
         )

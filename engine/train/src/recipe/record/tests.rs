@@ -70,7 +70,13 @@ fn the_record_round_trips_and_keeps_its_names() {
     let unversioned: Value = serde_json::from_str(UNVERSIONED).unwrap();
     // Every name a run before versions wrote, and the fields added since (absent from
     // older records, which read as those runs trained: the next test).
-    const ADDED: [&str; 3] = ["hash_levels", "hash_table_log2", "plan"];
+    const ADDED: [&str; 5] = [
+        "hash_levels",
+        "hash_table_log2",
+        "plan",
+        "density",
+        "hard_surface",
+    ];
     let mut names: Vec<&str> = json
         .as_object()
         .unwrap()
@@ -146,8 +152,13 @@ fn absent_fields_read_as_the_runs_before_them_trained() {
     assert_eq!(opts.ablation, Ablation::default());
     assert_eq!(opts.clip_seconds, None);
     assert_eq!(opts.refine.refine_poses, RefineMode::Off);
-    // Fields no version-0 record holds: the preset's grid, no plan, every part built.
+    // Fields no version-0 record holds: the preset's grid, no plan, every part built,
+    // softplus density and no hard-surface term.
     assert_eq!((opts.hash_levels, opts.hash_table_log2), (None, None));
+    assert_eq!(
+        (opts.density, opts.hard_surface),
+        (talkin_nets::Density::Softplus, 0.0)
+    );
     assert!(opts.plan.is_none());
     // Inside the refinement record, the jitter rate came last.
     let mut json: Value = serde_json::from_str(UNVERSIONED).unwrap();
