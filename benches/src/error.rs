@@ -25,3 +25,13 @@ pub enum BenchError {
         problem: String,
     },
 }
+
+impl BenchError {
+    /// A bad option, naming it.
+    pub fn bad(field: &'static str, problem: &str) -> BenchError {
+        BenchError::BadOption {
+            field,
+            problem: problem.into(),
+        }
+    }
+}

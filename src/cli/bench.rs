@@ -45,6 +45,42 @@ pub enum BenchCommand {
     /// fits, training with and without `--refine-poses` for the same budget, test_same
     /// scores and the fits' joint error before and after refinement.
     NoisyFits(NoisyFitsArgs),
+    /// Quality against budget: the plain recipe (as `talkin train` would build it on the
+    /// dataset, flags given here included) trained once per budget and seed, each run
+    /// scored on its held-out and training frames by the anchors' protocol and by how
+    /// thick the person renders; a table and a plot.
+    Convergence(ConvergenceArgs),
+}
+
+#[derive(clap::Args, Debug)]
+pub struct ConvergenceArgs {
+    /// Dataset directory.
+    #[arg(long)]
+    pub data: PathBuf,
+    /// Report directory: convergence.json, convergence.md, convergence.png, runs/.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Training steps of each run, comma-separated (each run has its own schedule).
+    #[arg(long, value_delimiter = ',', default_value = "3000,9000,36000")]
+    pub budgets: Vec<usize>,
+    /// Seeds, comma-separated: every budget trains once per seed.
+    #[arg(long, value_delimiter = ',', default_value = "0")]
+    pub seeds: Vec<u64>,
+    /// Training frames scored, evenly spaced (0: all); every held-out frame is scored.
+    #[arg(long = "train-frames", default_value_t = 18)]
+    pub train_frames: usize,
+    /// Score by the anchors' protocol too (LPIPS-VGG: about 10 s a 512x512 frame).
+    /// Default: on for a dataset composited by its masks (a capture), off otherwise.
+    #[arg(long, value_name = "on|off", value_parser = clap::builder::PossibleValuesParser::new(["on", "off"]).map(|s| s == "on"))]
+    pub anchors: Option<bool>,
+    /// The plan from the training frames' census, as `talkin train`'s `--plan`.
+    #[arg(long, value_name = "on|off", default_value = "on", value_parser = clap::builder::PossibleValuesParser::new(["on", "off"]).map(|s| s == "on"), action = clap::ArgAction::Set)]
+    pub plan: bool,
+    /// Read before `recipe`, whose parser takes its values out of the matches.
+    #[command(flatten)]
+    pub given: super::train::GivenFlags,
+    #[command(flatten)]
+    pub recipe: TrainOptions,
 }
 
 #[derive(clap::Args, Debug)]
@@ -269,6 +305,7 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         BenchCommand::Serve(a) => serve_bench(a),
         BenchCommand::Device(a) => device_bench(a),
         BenchCommand::NoisyFits(a) => noisy_fits_bench(a),
+        BenchCommand::Convergence(a) => convergence_bench(a),
     }
 }
 
@@ -463,6 +500,36 @@ fn noisy_fits_bench(args: NoisyFitsArgs) -> anyhow::Result<()> {
     .with_context(|| format!("noisy fits on {}", args.data.display()))?;
     println!("{}", table(&summary));
     println!("report: {}/noisy_fits.md", args.out.display());
+    Ok(())
+}
+
+fn convergence_bench(args: ConvergenceArgs) -> anyhow::Result<()> {
+    use talkin_benches::convergence::{ConvergenceOptions, convergence, table};
+    use talkin_data::dataset::Matting;
+    // The runs it trains are written under --out: one writer at a time.
+    let _lock = talkin_train::RunLock::take(&args.out)?;
+    let dataset = Dataset::load(&args.data)?;
+    let train =
+        super::train::plain_recipe(&dataset, &args.data, &args.recipe, &args.given, args.plan)?;
+    if let Some(plan) = &train.plan {
+        print!("{}", plan.describe());
+    }
+    let opts = ConvergenceOptions {
+        budgets: args.budgets.clone(),
+        seeds: args.seeds.clone(),
+        train_frames: args.train_frames,
+        lpips_dir: train.perceptual.clone(),
+        anchors: args.anchors.unwrap_or(dataset.matting == Matting::ByMask),
+        // Scored as `talkin eval` scores by default: a capture over black.
+        score_over: (dataset.matting == Matting::ByMask).then_some([0.0; 3]),
+        train,
+    };
+    let summary = convergence(&dataset, &args.out, &opts, &mut |msg| {
+        tracing::info!("{msg}")
+    })
+    .with_context(|| format!("convergence on {}", args.data.display()))?;
+    println!("{}", table(&summary));
+    println!("report: {}/convergence.md", args.out.display());
     Ok(())
 }
 

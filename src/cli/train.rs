@@ -148,12 +148,7 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
         }
         trainer
     } else {
-        let named = |id: &str| args.given.named.iter().any(|n| n == id);
-        let mut recipe = args.recipe.clone().for_dataset(&dataset, named);
-        if args.plan {
-            recipe = Plan::for_run(&dataset, recipe, named)
-                .with_context(|| format!("planning a run on {}", args.data.display()))?;
-        }
+        let recipe = plain_recipe(&dataset, &args.data, &args.recipe, &args.given, args.plan)?;
         if let Some(plan) = recipe.plan.as_ref().filter(|_| rank == 0) {
             print!("{}", plan.describe());
         }
@@ -167,6 +162,25 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
             .with_context(|| format!("joining the run's {size} peers"))?;
     }
     run_trainer(trainer, &args.data, &args.out, &signals)
+}
+
+/// The options a new run on `dataset` trains with: `recipe` as the command line gave it
+/// (`given` says which options it named), a camera capture's recipe for every option it
+/// did not name, and with `plan` the plan from the training frames' census.
+pub fn plain_recipe(
+    dataset: &talkin_data::dataset::Dataset,
+    data: &Path,
+    recipe: &TrainOptions,
+    given: &GivenFlags,
+    plan: bool,
+) -> anyhow::Result<TrainOptions> {
+    let named = |id: &str| given.named.iter().any(|n| n == id);
+    let recipe = recipe.clone().for_dataset(dataset, named);
+    if !plan {
+        return Ok(recipe);
+    }
+    Plan::for_run(dataset, recipe, named)
+        .with_context(|| format!("planning a run on {}", data.display()))
 }
 
 /// Refuses an `out` that holds a run unless `force`, which says that it starts over.

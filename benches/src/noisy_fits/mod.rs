@@ -72,7 +72,7 @@ pub fn noisy_fits(
     progress: &mut dyn FnMut(&str),
 ) -> Result<Summary, BenchError> {
     if !(opts.budget_s.is_finite() && opts.budget_s > 0.0) {
-        return Err(bad("minutes-each", "must be a positive number"));
+        return Err(BenchError::bad("minutes-each", "must be a positive number"));
     }
     if opts.levels_deg.is_empty()
         || opts
@@ -80,15 +80,21 @@ pub fn noisy_fits(
             .iter()
             .any(|d| !(d.is_finite() && *d >= 0.0))
     {
-        return Err(bad("noise-deg", "expected a list of degrees >= 0"));
+        return Err(BenchError::bad(
+            "noise-deg",
+            "expected a list of degrees >= 0",
+        ));
     }
     let train_frames = dataset.split_indices(Split::Train);
     if train_frames.is_empty() {
-        return Err(bad("data", "the dataset has no training frame"));
+        return Err(BenchError::bad("data", "the dataset has no training frame"));
     }
     let eval_frames = spread_frames(dataset, Split::TestSame, opts.eval_frames);
     if eval_frames.is_empty() {
-        return Err(bad("data", "the dataset has no test_same frame to score"));
+        return Err(BenchError::bad(
+            "data",
+            "the dataset has no test_same frame to score",
+        ));
     }
     let eval_opts = EvalOptions {
         renders_dir: None,
@@ -245,13 +251,6 @@ fn noisy_dataset(dataset: &Dataset, dir: &Path, deg: f64) -> Result<Dataset, Ben
     }
     copy.save_index().map_err(talkin_train::TrainError::from)?;
     Ok(copy)
-}
-
-fn bad(field: &'static str, problem: &str) -> BenchError {
-    BenchError::BadOption {
-        field,
-        problem: problem.into(),
-    }
 }
 
 /// The Markdown table.
