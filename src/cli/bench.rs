@@ -76,6 +76,11 @@ pub struct ConvergenceArgs {
     /// The plan from the training frames' census, as `talkin train`'s `--plan`.
     #[arg(long, value_name = "on|off", default_value = "on", value_parser = clap::builder::PossibleValuesParser::new(["on", "off"]).map(|s| s == "on"), action = clap::ArgAction::Set)]
     pub plan: bool,
+    /// The colour truth and render are composited over when scored, as `talkin eval`'s
+    /// `--background`: three numbers in [0, 1], or `declared`. Default: black for a
+    /// dataset composited by its masks (a capture), the declared background otherwise.
+    #[arg(long, value_name = "R,G,B|declared")]
+    pub background: Option<String>,
     /// Read before `recipe`, whose parser takes its values out of the matches.
     #[command(flatten)]
     pub given: super::train::GivenFlags,
@@ -521,7 +526,11 @@ fn convergence_bench(args: ConvergenceArgs) -> anyhow::Result<()> {
         lpips_dir: train.perceptual.clone(),
         anchors: args.anchors.unwrap_or(dataset.matting == Matting::ByMask),
         // Scored as `talkin eval` scores by default: a capture over black.
-        score_over: (dataset.matting == Matting::ByMask).then_some([0.0; 3]),
+        score_over: match args.background.as_deref() {
+            Some("declared") => None,
+            Some(text) => Some(super::parse_rgb(text)?),
+            None => (dataset.matting == Matting::ByMask).then_some([0.0; 3]),
+        },
         train,
     };
     let summary = convergence(&dataset, &args.out, &opts, &mut |msg| {
