@@ -135,3 +135,34 @@ fn a_single_frame_plans_and_trains() {
     assert!(!text.contains("NaN") && !text.contains("null"), "{text}");
     assert_eq!(decision(&r, "--face-expression")["used"], "off");
 }
+
+/// A dataset of camera frames composited by their masks (what `import` writes) is a
+/// capture: the census records it, and the grid's reason says its fits bound the finest
+/// cell; the same frames declared matted do not.
+#[test]
+fn a_capture_is_recorded_and_its_grid_says_why() {
+    let root = common::temp_dir("plan_capture");
+    let matted = root.join("matted");
+    ok(&[
+        "synth --out",
+        p(&matted),
+        "--identities 1 --frames 2 --size 48",
+    ]);
+    let captured = root.join("by_mask");
+    common::copy_dir(&matted, &captured);
+    let doc = captured.join("dataset.json");
+    let mut v: Value = serde_json::from_str(&std::fs::read_to_string(&doc).unwrap()).unwrap();
+    v["matting"] = "by_mask".into();
+    std::fs::write(&doc, v.to_string()).unwrap();
+    for (data, capture) in [(&matted, false), (&captured, true)] {
+        let run = root.join(format!("run_{capture}"));
+        train(data, &run, "--steps 1");
+        let r = recipe(&run);
+        assert_eq!(r["options"]["plan"]["census"]["capture"], capture);
+        let reason = decision(&r, "--hash-levels")["reason"]
+            .as_str()
+            .unwrap()
+            .to_string();
+        assert_eq!(reason.contains("capture"), capture, "{reason}");
+    }
+}

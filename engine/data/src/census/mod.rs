@@ -13,7 +13,7 @@ use serde::{Deserialize, Serialize};
 pub use articulation::Articulation;
 pub use pixels::{LabelSource, PartPixels};
 
-use crate::dataset::{Dataset, DatasetError};
+use crate::dataset::{Dataset, DatasetError, Matting};
 
 /// At most this many frames of a subject have their pixels counted (evenly spaced over
 /// its frames): label derivation costs about 0.1 s a 512x512 frame on one core, and the
@@ -24,6 +24,11 @@ pub const MAX_COUNTED_FRAMES: usize = 24;
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Census {
     pub subjects: Vec<SubjectCensus>,
+    /// The frames are a camera's (`"matting": "by_mask"`, what `import` writes): masks
+    /// from a segmenter and fits from a fitter, which place the body from frame to frame
+    /// within about a centimetre, not exactly as a synthetic scene's.
+    #[serde(default)]
+    pub capture: bool,
 }
 
 /// What one subject's frames hold.
@@ -96,7 +101,10 @@ impl Census {
                 subject_census(dataset, s, &own)
             })
             .collect::<Result<_, _>>()?;
-        Ok(Census { subjects })
+        Ok(Census {
+            subjects,
+            capture: dataset.matting == Matting::ByMask,
+        })
     }
 
     /// The subjects that have frames.

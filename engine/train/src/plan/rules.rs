@@ -25,6 +25,9 @@ pub struct Thresholds {
     pub expression_min: f64,
     /// The finest hash level's cell as a fraction of the pixel's footprint on the person.
     pub finest_cell_of_footprint: f64,
+    /// The same on a capture, whose fits misalign the frames by more than a pixel: a cell
+    /// finer than that is taught each frame's misalignment, and renders it as speckle.
+    pub finest_cell_of_footprint_capture: f64,
 }
 
 impl Thresholds {
@@ -35,6 +38,7 @@ impl Thresholds {
         jaw_min_deg: 0.5,
         expression_min: 0.01,
         finest_cell_of_footprint: 0.25,
+        finest_cell_of_footprint_capture: 1.5,
     };
 }
 
@@ -100,14 +104,23 @@ fn grid_need(census: &Census, opts: &TrainOptions, t: &Thresholds) -> Option<Opt
 }
 
 /// The finest cell the data can teach (metres): a fraction of the smallest footprint of
-/// any subject; `None` without a footprint.
+/// any subject, a larger one on a capture; `None` without a footprint.
 fn finest_cell_m(census: &Census, t: &Thresholds) -> Option<f64> {
     census
         .present()
         .filter_map(|s| s.footprint_mm)
         .filter(|f| f.is_finite() && *f > 0.0)
         .min_by(f64::total_cmp)
-        .map(|f| f * 1e-3 * t.finest_cell_of_footprint)
+        .map(|f| f * 1e-3 * cell_of_footprint(census, t))
+}
+
+/// The finest cell as a fraction of the footprint, for this census.
+fn cell_of_footprint(census: &Census, t: &Thresholds) -> f64 {
+    if census.capture {
+        t.finest_cell_of_footprint_capture
+    } else {
+        t.finest_cell_of_footprint
+    }
 }
 
 pub(super) const RULES: [Rule; 8] = [
@@ -313,8 +326,13 @@ pub(super) const RULES: [Rule; 8] = [
             Some((
                 Choice::Count(levels),
                 format!(
-                    "grid: a pixel spans {:.1} mm on the person, so the finest cell is {:.1} mm over a {side:.2} m box: {levels} levels{}",
-                    cell * 1e3 / t.finest_cell_of_footprint,
+                    "grid: a pixel spans {:.1} mm on the person{}, so the finest cell is {:.1} mm over a {side:.2} m box: {levels} levels{}",
+                    cell * 1e3 / cell_of_footprint(census, t),
+                    if census.capture {
+                        " and a capture's fits misalign frames by more"
+                    } else {
+                        ""
+                    },
                     cell * 1e3,
                     if levels == most && needed > most as f64 {
                         " (the preset's most)"

@@ -47,7 +47,10 @@ fn subject(still: bool, footprint_mm: Option<f64>) -> SubjectCensus {
 }
 
 fn census(subjects: Vec<SubjectCensus>) -> Census {
-    Census { subjects }
+    Census {
+        subjects,
+        capture: false,
+    }
 }
 
 fn decision<'a>(opts: &'a TrainOptions, flag: &str) -> &'a Decision {
@@ -100,6 +103,34 @@ fn still_fingers_and_a_still_face_drop_their_bones_and_inputs() {
     assert!(
         text.contains("--skin-fingers wrist") && text.contains("F_hands kept"),
         "{text}"
+    );
+}
+
+/// A capture's fits misalign its frames by more than a pixel: at 387's footprint the
+/// finest cell is 1.5 pixels (8 levels, about 7 mm), where the same frames with exact
+/// fits keep the preset's 12 (1.4 mm); the reason says why.
+#[test]
+fn a_capture_stops_its_grid_at_what_its_fits_can_align() {
+    let planned = |capture| {
+        Plan::apply(
+            Census {
+                subjects: vec![subject(true, Some(5.4))],
+                capture,
+            },
+            TrainOptions::default(),
+            |_| false,
+        )
+    };
+    let (exact, capture) = (planned(false), planned(true));
+    assert_eq!(exact.hash_levels, Some(12));
+    assert_eq!(capture.hash_levels, Some(8));
+    // 1.9 m2 in 8.1 mm cells: 29k cells a level.
+    assert_eq!(capture.hash_table_log2, Some(15));
+    assert!(capture.check().is_ok());
+    let reason = &decision(&capture, "--hash-levels").reason;
+    assert!(
+        reason.contains("5.4 mm") && reason.contains("capture") && reason.contains("8.1 mm"),
+        "{reason}"
     );
 }
 
