@@ -149,11 +149,7 @@ fn a_capture_is_recorded_and_its_grid_says_why() {
         "--identities 1 --frames 2 --size 48",
     ]);
     let captured = root.join("by_mask");
-    common::copy_dir(&matted, &captured);
-    let doc = captured.join("dataset.json");
-    let mut v: Value = serde_json::from_str(&std::fs::read_to_string(&doc).unwrap()).unwrap();
-    v["matting"] = "by_mask".into();
-    std::fs::write(&doc, v.to_string()).unwrap();
+    common::copy_as_capture(&matted, &captured);
     for (data, capture) in [(&matted, false), (&captured, true)] {
         let run = root.join(format!("run_{capture}"));
         train(data, &run, "--steps 1");

@@ -232,12 +232,7 @@ fn eval_over_black_composites_the_truth_and_the_render() {
     let out = common::temp_dir("render_eval_eval_black");
     // The scene's frames as camera frames composited by their masks (what `import` writes).
     let data = out.join("by_mask");
-    common::copy_dir(matted, &data);
-    let doc = data.join("dataset.json");
-    let mut v: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(&doc).unwrap()).unwrap();
-    v["matting"] = "by_mask".into();
-    std::fs::write(&doc, v.to_string()).unwrap();
+    common::copy_as_capture(matted, &data);
     let report = |name: &str, extra: &[&str]| {
         let json = out.join(format!("{name}.json"));
         let mut args = vec![

@@ -257,6 +257,17 @@ pub fn skin(
     x.chunks_exact(3).map(glam::Vec3::from_slice).collect()
 }
 
+/// Copies the dataset `matted` to `to`, declared `"matting": "by_mask"`: its frames as
+/// camera frames composited by their masks (what `import` writes).
+pub fn copy_as_capture(matted: &Path, to: &Path) {
+    copy_dir(matted, to);
+    let doc = to.join("dataset.json");
+    let mut v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&doc).unwrap()).unwrap();
+    v["matting"] = "by_mask".into();
+    std::fs::write(&doc, v.to_string()).unwrap();
+}
+
 /// Copies the directory `from` to `to` (removed first), recursively.
 pub fn copy_dir(from: &Path, to: &Path) {
     let _ = std::fs::remove_dir_all(to);
