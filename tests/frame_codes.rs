@@ -1,7 +1,9 @@
 //! Per-frame codes through a whole run: a run with frame codes (into F_body and D_nr)
 //! trains with occupancy updates, writes its codes with the checkpoint, learns the codes
 //! of the frames it visited and no other, resumes, and renders an unseen pose with the
-//! codes' mean. Its own test binary: one trainer per process (see `resume.rs`).
+//! codes' mean; with `--frame-code-dropout 1` every step trains with the codes' mean, so
+//! every code moves alike. Its own test binary: one trainer at a time in the process
+//! (see `resume.rs`).
 
 mod common;
 
@@ -60,4 +62,26 @@ fn a_run_with_frame_codes_trains_saves_resumes_and_renders() {
     assert_eq!(resumed.steps_taken(), 6);
     resumed.set_budget(Budget::Steps(8)).unwrap();
     resumed.run(&mut |_| {}).unwrap();
+
+    // Every step with the mean: each code takes the same gradient (a 1/frames share of
+    // the mean's), so all of them move, and alike; no frame's own code is ever read.
+    let dropout = TrainOptions {
+        frame_code_dropout: 1.0,
+        ..opts
+    };
+    let run = common::temp_dir("frame_codes_dropout_run");
+    let mut trainer = Trainer::new(&dataset, &run, &dropout).unwrap();
+    for _ in 0..4 {
+        trainer.step().unwrap();
+    }
+    let codes = trainer.inference_field().frame_codes.expect("codes").val();
+    let codes = read_floats(codes).unwrap();
+    let first = &codes[..8];
+    assert!(
+        first.iter().any(|&v| v != 0.0),
+        "the mean's gradient moves the codes"
+    );
+    for row in codes.chunks_exact(8) {
+        assert_eq!(row, first, "every code moves alike under the mean");
+    }
 }

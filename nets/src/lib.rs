@@ -37,6 +37,7 @@ pub mod init;
 pub mod kernels;
 pub mod loss;
 pub mod mlp;
+pub mod profile;
 mod rows;
 pub mod skinning;
 mod util;

@@ -50,6 +50,37 @@ pub enum BenchCommand {
     /// scored on its held-out and training frames by the anchors' protocol and by how
     /// thick the person renders; a table and a plot.
     Convergence(ConvergenceArgs),
+    /// The step's roofline: each stage of a training step timed (rays, sampling, the
+    /// field's forward and its parts, render, loss, backward, Adam, the grid update), the
+    /// fused kernels' FLOPs and bytes a sample, and how close each runs to this machine's
+    /// matrix-product, gather and memory ceilings, measured in the same run.
+    Step(StepBenchArgs),
+}
+
+#[derive(clap::Args, Debug)]
+pub struct StepBenchArgs {
+    /// Dataset directory.
+    #[arg(long)]
+    pub data: PathBuf,
+    /// Report directory: step.json and step.md (and a fresh field's scratch run).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// A trained run (on `--data`) to step on from its newest checkpoint, read and never
+    /// written: its grid and routing as trained, the samples a ray its steps take. Without
+    /// it, a fresh field as `talkin train` builds it (flags below).
+    #[arg(long, value_name = "RUN")]
+    pub run: Option<PathBuf>,
+    /// Untimed steps first.
+    #[arg(long, default_value_t = 10)]
+    pub warmup: usize,
+    /// Timed steps.
+    #[arg(long = "timed-steps", value_name = "N", default_value_t = 100)]
+    pub timed_steps: usize,
+    /// Read before `recipe`, whose parser takes its values out of the matches.
+    #[command(flatten)]
+    pub given: super::train::GivenFlags,
+    #[command(flatten)]
+    pub recipe: TrainOptions,
 }
 
 #[derive(clap::Args, Debug)]
@@ -311,6 +342,7 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         BenchCommand::Device(a) => device_bench(a),
         BenchCommand::NoisyFits(a) => noisy_fits_bench(a),
         BenchCommand::Convergence(a) => convergence_bench(a),
+        BenchCommand::Step(a) => step_bench(a),
     }
 }
 
@@ -539,6 +571,35 @@ fn convergence_bench(args: ConvergenceArgs) -> anyhow::Result<()> {
     .with_context(|| format!("convergence on {}", args.data.display()))?;
     println!("{}", table(&summary));
     println!("report: {}/convergence.md", args.out.display());
+    Ok(())
+}
+
+fn step_bench(args: StepBenchArgs) -> anyhow::Result<()> {
+    use talkin_benches::shared::write_report;
+    use talkin_benches::step::{StepBenchOptions, run, table};
+    // A fresh field's run is written under --out: one writer at a time.
+    let _lock = talkin_train::RunLock::take(&args.out)?;
+    let dataset = Dataset::load(&args.data)?;
+    // A run steps with its own recipe; a fresh field with the plain recipe and its plan.
+    let train = match &args.run {
+        Some(_) => args.recipe.clone(),
+        None => super::train::plain_recipe(&dataset, &args.data, &args.recipe, &args.given, true)?,
+    };
+    let opts = StepBenchOptions {
+        run: args.run.clone(),
+        warmup: args.warmup,
+        steps: args.timed_steps,
+        train,
+    };
+    let report = run(&dataset, &args.out, &opts, &mut |msg| {
+        tracing::info!("{msg}")
+    })
+    .with_context(|| format!("step bench on {}", args.data.display()))?;
+    let md = table(&report);
+    let json = serde_json::to_vec_pretty(&report)?;
+    write_report(&args.out, "step", &json, &md)?;
+    println!("{md}");
+    println!("report: {}/step.md", args.out.display());
     Ok(())
 }
 

@@ -22,6 +22,7 @@ use talkin_nets::{
 };
 
 use talkin_nets::kernels::grad_sum::sum_grads;
+use talkin_nets::profile;
 
 /// Weight of the segmentation cross-entropy.
 pub const SEG_WEIGHT: f32 = 0.05;
@@ -174,7 +175,7 @@ pub(crate) fn loss_and_grads(
     };
     Ok(StepLoss {
         values: LossValues::of(a.values + b.values),
-        grads: sum_grads(field, a.grads, b.grads),
+        grads: profile::timed("step: gradient sum", || sum_grads(field, a.grads, b.grads)),
         pose,
     })
 }
@@ -199,8 +200,12 @@ fn half(
         field
     };
     let rendered = render_rays(field, batch, range.clone(), samples)?;
-    let loss = rays_loss(field, perceptual, batch, range, &rendered);
-    Ok(backward(field, batch, loss, rendered.leaves.as_ref()))
+    let loss = profile::timed("step: loss", || {
+        rays_loss(field, perceptual, batch, range, &rendered)
+    });
+    Ok(profile::timed("step: backward", || {
+        backward(field, batch, loss, rendered.leaves.as_ref())
+    }))
 }
 
 /// What the field rendered of a range of rays.
@@ -239,12 +244,13 @@ fn render_rays(
     let leaves = batch
         .pose_grads
         .then(|| PoseLeaves::new(batch.frame, &device));
-    let out = match &leaves {
-        Some(l) => field.forward_with_leaves(&input, l)?,
-        None => field.forward(&input)?,
-    };
+    let out = profile::timed("step: field forward", || match &leaves {
+        Some(l) => field.forward_with_leaves(&input, l),
+        None => field.forward(&input),
+    })?;
     let view = layout.view();
-    let (rendered, weights) = out.render_with_weights(&view)?;
+    let (rendered, weights) =
+        profile::timed("step: volume render", || out.render_with_weights(&view))?;
     let mut weight_terms = Vec::new();
     if batch.distortion > 0.0 {
         weight_terms.push(

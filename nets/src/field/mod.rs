@@ -12,6 +12,7 @@ use burn::tensor::activation::sigmoid;
 use crate::encoding::{Encoding, FrequencyEncoding};
 use crate::error::{NetsError, check_len};
 use crate::mlp::Mlp;
+use crate::profile;
 use crate::rows::{add_rows, gather_rows};
 use crate::skinning::{BlendWeightVolume, N_SMPLX_JOINTS};
 use crate::util::{floats, ints, softplus};
@@ -428,14 +429,16 @@ impl TalkinField {
             ..Default::default()
         };
 
-        let warp = self.skinning.inverse_lbs_with(
-            input.points,
-            input.bone_masks,
-            &frame.canonical_from_posed,
-            &frame.bone_capsules,
-            &device,
-            leaves.map(|l| &l.canonical_from_posed),
-        )?;
+        let warp = profile::timed("field: skinning", || {
+            self.skinning.inverse_lbs_with(
+                input.points,
+                input.bone_masks,
+                &frame.canonical_from_posed,
+                &frame.bone_capsules,
+                &device,
+                leaves.map(|l| &l.canonical_from_posed),
+            )
+        })?;
         stats.skinning_pairs = warp.n_pairs;
         if n == 0 {
             return Ok(FieldOutput {
@@ -448,30 +451,40 @@ impl TalkinField {
             });
         }
         let code = self.frame_code(frame)?; // [1, code] or none
-        let x = self.deform(warp.x_canonical, input, code.as_ref(), leaves, &mut stats); // [n, 3]
+        let x = profile::timed("field: D_nr", || {
+            self.deform(warp.x_canonical, input, code.as_ref(), leaves, &mut stats)
+        }); // [n, 3]
         let identity = gather_rows(
             self.identity.val(),
             ints(vec![frame.identity as i32], &device),
         ); // [1, id]
         let body_condition = body_condition(code.as_ref(), &identity);
-        let raw = self.body.forward(
-            self.to_unit(x.clone()),
-            frame.identity,
-            body_condition,
-            step,
-        ); // [n, 9]
+        let raw = profile::timed("field: F_body", || {
+            self.body.forward(
+                self.to_unit(x.clone()),
+                frame.identity,
+                body_condition,
+                step,
+            )
+        }); // [n, 9]
         let (mut sigma, mut rgb) = activate(&raw, self.settings.density);
         let seg_logits = seg_logits_of(raw); // [n, 5]
 
         // Hard routing: candidates (the sampler's capsules) whose body label is the part.
         let route = Router::new(input.part_masks, &seg_logits, routing);
-        if let Some((head, s_face, c_face)) = self.face_pass(&route, &x, &identity, input, leaves) {
+        let face = profile::timed("field: F_face", || {
+            self.face_pass(&route, &x, &identity, input, leaves)
+        });
+        if let Some((head, s_face, c_face)) = face {
             stats.face_rows = head.rows.len();
             sigma = head.replace(sigma, s_face);
             rgb = head.replace(rgb, c_face);
         }
         let mut hands_out = None;
-        if let Some((idx, s_hand, c_hand)) = self.hands_pass(&route, &x, identity, input, leaves) {
+        let hands = profile::timed("field: D_hands, F_hands", || {
+            self.hands_pass(&route, &x, identity, input, leaves)
+        });
+        if let Some((idx, s_hand, c_hand)) = hands {
             stats.hand_rows = idx.rows.len();
             if self.settings.hand_background {
                 // A candidate whose label is not the hands gets no density: it

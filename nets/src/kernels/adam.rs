@@ -16,6 +16,8 @@ use burn::prelude::*;
 use burn::tensor::{DType, TensorData};
 use rayon::prelude::*;
 
+use crate::profile::{self, Work};
+
 /// Elements per parallel task.
 const CHUNK: usize = 1 << 16;
 
@@ -153,19 +155,27 @@ impl FusedAdam {
             m.storage_mut::<f32>(),
             v.storage_mut::<f32>(),
         );
-        p_s[..n]
-            .par_chunks_mut(CHUNK)
-            .zip(m_s[..n].par_chunks_mut(CHUNK))
-            .zip(v_s[..n].par_chunks_mut(CHUNK))
-            .zip(g.par_chunks(CHUNK))
-            .for_each(|(((p, m), v), g)| {
-                for (((p, m), v), &g) in p.iter_mut().zip(m).zip(v).zip(g) {
-                    *m = *m * b1 + g * f1;
-                    *v = *v * b2 + g * g * f2;
-                    let step = (*m * combined) / (v.sqrt() + eps);
-                    *p -= step * lr;
-                }
-            });
+        // Per element: the parameter, gradient and moments read, three of them written.
+        let work = Work {
+            flops: 12.0 * n as f64,
+            bytes: 28.0 * n as f64,
+            gathered: 0.0,
+        };
+        profile::timed_work("kernel: Adam", work, || {
+            p_s[..n]
+                .par_chunks_mut(CHUNK)
+                .zip(m_s[..n].par_chunks_mut(CHUNK))
+                .zip(v_s[..n].par_chunks_mut(CHUNK))
+                .zip(g.par_chunks(CHUNK))
+                .for_each(|(((p, m), v), g)| {
+                    for (((p, m), v), &g) in p.iter_mut().zip(m).zip(v).zip(g) {
+                        *m = *m * b1 + g * f1;
+                        *v = *v * b2 + g * g * f2;
+                        let step = (*m * combined) / (v.sqrt() + eps);
+                        *p -= step * lr;
+                    }
+                })
+        });
         let state = AdamState::new(AdaptiveMomentumState::new(
             time,
             Tensor::from_primitive::<Flex>(m),

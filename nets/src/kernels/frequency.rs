@@ -19,6 +19,7 @@ use burn::prelude::*;
 use rayon::prelude::*;
 
 use super::flex_data::{f32_data, flex_tensor};
+use crate::profile::{self, Work};
 
 /// Rows per parallel task.
 const CHUNK: usize = 512;
@@ -26,6 +27,18 @@ const CHUNK: usize = 512;
 /// `[n, d (1 + 2 L)]`: per row `[x, w_k sin(2^k x) (band-major), w_k cos(2^k x)
 /// (band-major)]` for the `[n, d]` row-major `x` and band weights `window` (`L` of them).
 fn forward_rows(x: &[f32], d: usize, window: &[f32]) -> Vec<f32> {
+    let (values, l) = (x.len() as f64, window.len() as f64);
+    let work = Work {
+        flops: values * (20.0 + 8.0 * l),
+        bytes: 4.0 * values * (2.0 + 2.0 * l),
+        gathered: 0.0,
+    };
+    profile::timed_work("kernel: frequency forward", work, || {
+        forward_bands(x, d, window)
+    })
+}
+
+fn forward_bands(x: &[f32], d: usize, window: &[f32]) -> Vec<f32> {
     let l = window.len();
     let width = d * (1 + 2 * l);
     let n = x.len() / d;
@@ -96,7 +109,15 @@ impl Backward<Flex, 1> for FrequencyBackward {
         let (out, [n, d], l) = ops.state;
         let grad = f32_data(&grad).expect("the encoding's gradient is f32 like its output");
         let out = f32_data(&out).expect("the forward output is f32");
-        let dx = input_grad(&grad, &out, d, l);
+        let values = (n * d) as f64;
+        let work = Work {
+            flops: values * (1.0 + 6.0 * l as f64),
+            bytes: 4.0 * values * (2.0 + 4.0 * l as f64),
+            gathered: 0.0,
+        };
+        let dx = profile::timed_work("kernel: frequency backward", work, || {
+            input_grad(&grad, &out, d, l)
+        });
         grads.register::<Flex>(node.id, flex_tensor(dx, [n, d]));
     }
 }

@@ -20,6 +20,7 @@ use burn::prelude::*;
 use rayon::prelude::*;
 
 use super::flex_data::{f32_data, flex_tensor};
+use crate::profile::{self, Work};
 
 /// Points per parallel task.
 const CHUNK: usize = 256;
@@ -89,6 +90,59 @@ impl Corners {
 
     fn levels(&self) -> usize {
         self.resolutions.len()
+    }
+
+    /// Point-levels: one trilinear blend of 8 table rows each.
+    fn lookups(&self) -> f64 {
+        (self.n * self.levels()) as f64
+    }
+
+    /// Point-levels on the hashed levels (those with the largest table: the fine levels,
+    /// whose rows are random in a table larger than the cache); the coarse levels' dense
+    /// tables stay in cache.
+    fn hashed_lookups(&self) -> f64 {
+        let rows: Vec<usize> = self.offsets.windows(2).map(|w| w[1] - w[0]).collect();
+        let largest = rows.iter().copied().max().unwrap_or(0);
+        (self.n * rows.iter().filter(|&&r| r == largest).count()) as f64
+    }
+
+    /// [`Corners::interpolate`]'s work: 8 rows a point-level (gathered on the hashed
+    /// levels), their weights and blend (and the Jacobian's three derivatives of each),
+    /// the corners read and the output written.
+    fn interpolate_work(&self, jacobian: bool) -> Work {
+        let (k, f) = (self.lookups(), self.n_features as f64);
+        let row = 4.0 * f;
+        let per = 8.0 * (2.0 + 2.0 * f) + if jacobian { 8.0 * (6.0 + 6.0 * f) } else { 0.0 };
+        let streamed = k * (8.0 * 4.0 + 3.0 * 4.0 + row * if jacobian { 4.0 } else { 1.0 });
+        Work {
+            flops: k * per,
+            bytes: streamed + k * 8.0 * row,
+            gathered: self.hashed_lookups() * 8.0 * row,
+        }
+    }
+
+    /// [`Corners::table_grad`]'s work: the table-sized gradient zeroed, then per
+    /// point-level 8 weights and 8 rows read, added to and written back (at random on
+    /// the hashed levels).
+    fn table_grad_work(&self) -> Work {
+        let (k, f) = (self.lookups(), self.n_features as f64);
+        let row = 4.0 * f;
+        let table = *self.offsets.last().unwrap_or(&0) as f64 * row;
+        Work {
+            flops: k * 8.0 * (2.0 + 2.0 * f),
+            bytes: table + k * (8.0 * 4.0 + 3.0 * 4.0 + row) + k * 8.0 * 2.0 * row,
+            gathered: self.hashed_lookups() * 8.0 * 2.0 * row,
+        }
+    }
+
+    /// [`Corners::point_grad`]'s work: the output gradient against the Jacobian.
+    fn point_grad_work(&self) -> Work {
+        let lf = self.lookups() * self.n_features as f64;
+        Work {
+            flops: lf * 6.0,
+            bytes: lf * 4.0 * 4.0 + self.n as f64 * 12.0,
+            gathered: 0.0,
+        }
     }
 
     /// `[n, L F]`: per point and level, the trilinear blend of its 8 rows of `table`; with
@@ -329,15 +383,42 @@ impl Backward<Flex, 2> for HashEncodeBackward {
         let (corners, jacobian) = ops.state;
         let grad = f32_data(&grad).expect("the encoding's gradient is f32 like its output");
         if let Some(node) = point_node {
-            let d = corners.point_grad(&grad, &jacobian);
+            let work = corners.point_grad_work();
+            let d = profile::timed_work("kernel: hash backward (points)", work, || {
+                corners.point_grad(&grad, &jacobian)
+            });
             grads.register::<Flex>(node.id, flex_tensor(d, [corners.n, 3]));
         }
         if let Some(node) = table_node {
-            let d = corners.table_grad(&grad);
+            let work = corners.table_grad_work();
+            let d = profile::timed_work("kernel: hash backward (table)", work, || {
+                corners.table_grad(&grad)
+            });
             let rows = *corners.offsets.last().unwrap_or(&0);
             grads.register::<Flex>(node.id, flex_tensor(d, [rows, corners.n_features]));
         }
     }
+}
+
+/// The corners of `points` and their interpolation of `table` (with the Jacobian when
+/// `jacobian`), timed as the encoding's forward.
+fn encode_timed(
+    points: &[f32],
+    table: &[f32],
+    jacobian: bool,
+    corners: impl FnOnce(&[f32]) -> Corners,
+) -> (Corners, (Vec<f32>, Vec<f32>)) {
+    if !profile::enabled() {
+        let c = corners(points);
+        let out = c.interpolate(table, jacobian);
+        return (c, out);
+    }
+    let c = profile::timed("kernel: hash forward (corners)", || corners(points));
+    let work = c.interpolate_work(jacobian);
+    let out = profile::timed_work("kernel: hash forward (lookup)", work, || {
+        c.interpolate(table, jacobian)
+    });
+    (c, out)
 }
 
 /// The encoding of `unit_points` `[n, 3]` with `table` `[entries, F]` as one op, when both
@@ -355,8 +436,9 @@ pub(crate) fn encode(
         let (t_node, x_node) = (t.node(), x.node());
         let points_tracked = x.is_tracked();
         let (t, x) = (t.into_primitive(), x.into_primitive());
-        let corners = Arc::new(corners(&f32_data(&x)?));
-        let (out, jacobian) = corners.interpolate(&f32_data(&t)?, points_tracked);
+        let (corners, (out, jacobian)) =
+            encode_timed(&f32_data(&x)?, &f32_data(&t)?, points_tracked, corners);
+        let corners = Arc::new(corners);
         let out = flex_tensor(out, [corners.n, corners.levels() * corners.n_features]);
         let out = match HashEncodeBackward
             .prepare::<NoCheckpointing>([t_node, x_node])
@@ -370,8 +452,7 @@ pub(crate) fn encode(
     }
     let t = table.clone().try_into_primitive::<Flex>().ok()?;
     let x = unit_points.clone().try_into_primitive::<Flex>().ok()?;
-    let corners = corners(&f32_data(&x)?);
-    let (out, _) = corners.interpolate(&f32_data(&t)?, false);
+    let (corners, (out, _)) = encode_timed(&f32_data(&x)?, &f32_data(&t)?, false, corners);
     let out = flex_tensor(out, [corners.n, corners.levels() * corners.n_features]);
     Some(Tensor::from_primitive::<Flex>(out))
 }

@@ -22,6 +22,7 @@ use burn::prelude::*;
 use rayon::prelude::*;
 
 use super::flex_data::{f32_data, flex_tensor};
+use crate::profile::{self, Work};
 
 /// Rows per parallel task: a chunk's activations (512 x 64 floats a layer) stay in L2.
 const CHUNK: usize = 512;
@@ -185,6 +186,11 @@ impl Layers {
     fn param_len(&self) -> usize {
         *self.param_offsets().last().unwrap_or(&0)
     }
+
+    /// Multiply-adds of one row through every layer.
+    fn macs_per_row(&self) -> usize {
+        self.dims.windows(2).map(|d| d[0] * d[1]).sum()
+    }
 }
 
 /// `out = a b` (or `out += a b` with `accumulate`) for row-major `a` (`[m, k]`, or its
@@ -269,6 +275,18 @@ struct Saved {
 /// Forward over all rows: the output `[n, d_out]` and, with `keep`, the hidden
 /// activations (chunk-major, see [`Saved::hidden`]).
 fn forward_all(layers: &Layers, x: &[f32], n: usize, keep: bool) -> (Vec<f32>, Vec<f32>) {
+    let kept = if keep { layers.hidden_len(n) } else { 0 };
+    let work = Work {
+        flops: 2.0 * n as f64 * layers.macs_per_row() as f64,
+        bytes: 4.0 * (n * (layers.dims[0] + layers.d_out()) + kept + layers.param_len()) as f64,
+        gathered: 0.0,
+    };
+    profile::timed_work("kernel: MLP forward", work, || {
+        forward_rows(layers, x, n, keep)
+    })
+}
+
+fn forward_rows(layers: &Layers, x: &[f32], n: usize, keep: bool) -> (Vec<f32>, Vec<f32>) {
     let (d_in, d_out) = (layers.dims[0], layers.d_out());
     let mut out = vec![0f32; n * d_out];
     if keep {
@@ -304,28 +322,22 @@ impl<const N: usize> Backward<Flex, N> for MlpBackward {
         let [x_node, rest @ ..] = ops.parents.as_slice() else {
             unreachable!("an MLP op has at least its input as a parent")
         };
-        let mut grad_x = vec![0f32; if x_node.is_some() { n * d_in } else { 0 }];
-        let hidden_chunk = layers.hidden_len(CHUNK);
-        let chunks: Vec<usize> = (0..n.div_ceil(CHUNK)).collect();
-        let partials: Vec<Vec<f32>> = if x_node.is_some() {
-            grad_x
-                .par_chunks_mut(CHUNK * d_in)
-                .zip(chunks.par_iter())
-                .map(|(gx, &c)| chunk_backward(&saved, c, hidden_chunk, &grad, Some(gx)))
-                .collect()
-        } else {
-            chunks
-                .par_iter()
-                .map(|&c| chunk_backward(&saved, c, hidden_chunk, &grad, None))
-                .collect()
+        // Weight gradients and, where the input is tracked, the input's: two products a
+        // layer (the first layer's input gradient only when asked for).
+        let macs = layers.macs_per_row() as f64;
+        let first = (layers.dims[0] * layers.dims[1]) as f64;
+        let input_macs = if x_node.is_some() { macs } else { macs - first };
+        let work = Work {
+            flops: 2.0 * n as f64 * (macs + input_macs),
+            bytes: 4.0
+                * (n * (2 * d_in + layers.d_out())
+                    + layers.hidden_len(n)
+                    + layers.param_len() * n.div_ceil(CHUNK)) as f64,
+            gathered: 0.0,
         };
-        // Summed in chunk order: the same bits whatever thread ran which chunk.
-        let mut total = vec![0f32; layers.param_len()];
-        for p in &partials {
-            for (t, v) in total.iter_mut().zip(p) {
-                *t += v;
-            }
-        }
+        let (grad_x, total) = profile::timed_work("kernel: MLP backward", work, || {
+            chain_back(&saved, &grad, x_node.is_some())
+        });
         if let Some(node) = x_node {
             grads.register::<Flex>(node.id, flex_tensor(grad_x, [n, d_in]));
         }
@@ -344,6 +356,36 @@ impl<const N: usize> Backward<Flex, N> for MlpBackward {
             grads.register::<Flex>(node.id, flex_tensor(values, shape));
         }
     }
+}
+
+/// The input's gradient `[n, d_in]` (empty without `with_input`) and the parameters'
+/// gradients, flat in [`Layers::param_offsets`]'s layout, for the output gradient `grad`.
+fn chain_back(saved: &Saved, grad: &[f32], with_input: bool) -> (Vec<f32>, Vec<f32>) {
+    let layers = &saved.layers;
+    let (d_in, n) = (layers.dims[0], saved.n);
+    let mut grad_x = vec![0f32; if with_input { n * d_in } else { 0 }];
+    let hidden_chunk = layers.hidden_len(CHUNK);
+    let chunks: Vec<usize> = (0..n.div_ceil(CHUNK)).collect();
+    let partials: Vec<Vec<f32>> = if with_input {
+        grad_x
+            .par_chunks_mut(CHUNK * d_in)
+            .zip(chunks.par_iter())
+            .map(|(gx, &c)| chunk_backward(saved, c, hidden_chunk, grad, Some(gx)))
+            .collect()
+    } else {
+        chunks
+            .par_iter()
+            .map(|&c| chunk_backward(saved, c, hidden_chunk, grad, None))
+            .collect()
+    };
+    // Summed in chunk order: the same bits whatever thread ran which chunk.
+    let mut total = vec![0f32; layers.param_len()];
+    for p in &partials {
+        for (t, v) in total.iter_mut().zip(p) {
+            *t += v;
+        }
+    }
+    (grad_x, total)
 }
 
 /// Backward of chunk `c`.

@@ -138,6 +138,12 @@ pub struct TrainOptions {
     /// their mean); 0: no codes.
     #[arg(long = "frame-codes", value_name = "DIM", default_value_t = TrainOptions::default().frame_code_dim, help_heading = "Model and device")]
     pub frame_code_dim: usize,
+    /// Fraction of steps that train with the codes' mean instead of the frame's own code
+    /// (a seeded draw each step), so the field renders well as renders are made, with
+    /// the mean, and cannot come to need a frame's own code over a long run; 0: every
+    /// step its frame's code.
+    #[arg(long = "frame-code-dropout", value_name = "P", default_value_t = TrainOptions::default().frame_code_dropout, help_heading = "Model and device")]
+    pub frame_code_dropout: f32,
     /// D_nr reads the frame code too (a deformation code): `on` or `off`.
     #[arg(long = "frame-code-deform", value_name = "on|off", default_value = "off", value_parser = PossibleValuesParser::new(["on", "off"]).map(|s| s == "on"), action = clap::ArgAction::Set, help_heading = "Model and device")]
     pub frame_code_deform: bool,
@@ -444,6 +450,7 @@ impl Default for TrainOptions {
             random_background: false,
             frame_code_dim: 0,
             frame_code_deform: false,
+            frame_code_dropout: 0.0,
             mask_edge_px: None,
             non_rigid_lr_scale: 0.1,
             occ_every: 64,
@@ -542,6 +549,15 @@ impl TrainOptions {
                 "needs codes: give --frame-codes DIM > 0",
             );
         }
+        if !(0.0..=1.0).contains(&self.frame_code_dropout) {
+            return bad("--frame-code-dropout", "must be a fraction in [0, 1]");
+        }
+        if self.frame_code_dropout > 0.0 && self.frame_code_dim == 0 {
+            return bad(
+                "--frame-code-dropout",
+                "needs codes: give --frame-codes DIM > 0",
+            );
+        }
         if !(self.distortion.is_finite() && self.distortion >= 0.0) {
             return bad("--distortion", "must be a finite number >= 0");
         }
@@ -636,6 +652,15 @@ mod tests {
             ..TrainOptions::default()
         };
         assert_eq!(flag_of(opts), "--frame-code-deform");
+        // A fraction, and only of codes there are.
+        for (p, dim) in [(-0.1, 8), (1.5, 8), (f32::NAN, 8), (0.5, 0)] {
+            let opts = TrainOptions {
+                frame_code_dropout: p,
+                frame_code_dim: dim,
+                ..TrainOptions::default()
+            };
+            assert_eq!(flag_of(opts), "--frame-code-dropout");
+        }
         let opts = TrainOptions {
             frame_code_dim: MAX_FRAME_CODE_DIM + 1,
             ..TrainOptions::default()

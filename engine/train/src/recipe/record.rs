@@ -104,6 +104,9 @@ struct TrainOptionsRecord {
     frame_code_dim: usize,
     #[serde(default)]
     frame_code_deform: bool,
+    /// Absent: every step its frame's own code.
+    #[serde(default)]
+    frame_code_dropout: f32,
     /// Absent: over the dataset's background.
     #[serde(default)]
     random_background: bool,

@@ -2,11 +2,14 @@
 //! optimizer -> grid update. Each stage is a method below [`Trainer::step`], which reads
 //! as the list of them.
 
+use std::borrow::Cow;
 use std::time::Instant;
 
 use burn::module::Module;
 use burn::optim::GradientsParams;
 use talkin_grids::{GridError, PackedSamples, SamplerKind};
+use talkin_nets::field::FrameConditions;
+use talkin_nets::profile;
 
 use super::{StepMode, Trainer};
 use crate::error::TrainError;
@@ -43,7 +46,8 @@ impl Trainer<'_> {
             .refiner
             .as_ref()
             .is_some_and(|r| r.learning_at(self.progress.step));
-        let mut batch = self.draw_rays(frame, vstep)?;
+        let mean_code = self.draws_mean_code();
+        let mut batch = profile::timed("step (wall): rays", || self.draw_rays(frame, vstep))?;
         let background = self.step_background();
         if background != self.dataset.background {
             batch.recomposite(self.dataset.background, background);
@@ -52,6 +56,7 @@ impl Trainer<'_> {
         // Samples along each ray, by the run's sampler (timed for the log).
         let sampling_start = Instant::now();
         let samples = self.draw_samples(frame, &batch)?;
+        profile::record("step (wall): sampling", sampling_start.elapsed());
         let sampling_s = sampling_start.elapsed().as_secs_f64();
         let (n_rays, n_samples) = (batch.rays.len(), samples.num_samples());
         let bones_per_sample =
@@ -60,11 +65,24 @@ impl Trainer<'_> {
         // Field and loss: forward, render, loss and backward (of this peer's share of the
         // rays, among peers), then the peers' sum: the whole batch's.
         let share = self.share_of(&batch);
+        let field_start = Instant::now();
         let StepLoss {
             values,
             grads,
             pose,
-        } = self.field_loss(frame, &batch, share, background, samples, vstep, refining)?;
+        } = self.field_loss(
+            &self.step_conditions(frame, mean_code),
+            &batch,
+            share,
+            background,
+            samples,
+            vstep,
+            refining,
+        )?;
+        profile::record(
+            "step (wall): field, loss and gradients",
+            field_start.elapsed(),
+        );
         let (values, grads, pose) = self.exchange(frame, values, grads, pose, t0)?;
         if let LossValues::Read { loss, .. } = values
             && !loss.is_finite()
@@ -79,12 +97,14 @@ impl Trainer<'_> {
         // pose fit moves the correction alone.
         let update_start = Instant::now();
         if self.mode == StepMode::Train {
-            self.optimize(lr, grads);
+            profile::timed("step (wall): Adam", || self.optimize(lr, grads));
         }
         self.refine_pose(frame, pose.as_ref());
         self.progress.step += 1;
         if self.mode == StepMode::Train {
-            self.update_grids_if_due()?;
+            profile::timed("step (wall): occupancy grid update", || {
+                self.update_grids_if_due()
+            })?;
         }
         if let Some(link) = &mut self.peers {
             // What every peer repeats whatever its share: Adam and the grid updates.
@@ -103,6 +123,7 @@ impl Trainer<'_> {
             })?;
         }
 
+        profile::record("step (wall): whole step", t0.elapsed());
         let secs = t0.elapsed().as_secs_f64().max(1e-9);
         self.spend(secs);
         // A queued step's loss, MSE and PSNR are filled in when they are read.
@@ -171,6 +192,31 @@ impl Trainer<'_> {
             )
         })?;
         Ok(i)
+    }
+
+    /// Whether this step trains with the codes' mean instead of its frame's own code
+    /// (`--frame-code-dropout`); the draw is taken only where the option is on, so runs
+    /// without it keep their seeded stream.
+    fn draws_mean_code(&mut self) -> bool {
+        let p = self.opts.frame_code_dropout;
+        self.mode == StepMode::Train
+            && p > 0.0
+            && self.field().n_frame_codes() > 0
+            && self.progress.rng.next_f32() < p
+    }
+
+    /// The frame's conditions for this step: its own, or with `mean_code` the codes' mean
+    /// in place of its code.
+    fn step_conditions(&self, frame: usize, mean_code: bool) -> Cow<'_, FrameConditions> {
+        let own = &self.frame_caches.get(frame).conditions;
+        if mean_code {
+            Cow::Owned(FrameConditions {
+                frame_code: None,
+                ..own.clone()
+            })
+        } else {
+            Cow::Borrowed(own)
+        }
     }
 
     /// The colour this step's targets and render are composited over: with
@@ -353,7 +399,7 @@ impl Trainer<'_> {
     /// too. `share`: the rays of the batch this process computes.
     fn field_loss(
         &self,
-        frame: usize,
+        conditions: &FrameConditions,
         batch: &Batch,
         share: std::ops::Range<usize>,
         background: [f32; 3],
@@ -373,7 +419,7 @@ impl Trainer<'_> {
                 silhouette: &batch.silhouette,
                 patches: batch.patches,
                 patch_side: PATCH as usize,
-                frame: &self.frame_caches.get(frame).conditions,
+                frame: conditions,
                 step: vstep,
                 background,
                 mask_weight: self.opts.mask_weight,

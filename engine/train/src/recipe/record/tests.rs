@@ -70,12 +70,13 @@ fn the_record_round_trips_and_keeps_its_names() {
     let unversioned: Value = serde_json::from_str(UNVERSIONED).unwrap();
     // Every name a run before versions wrote, and the fields added since (absent from
     // older records, which read as those runs trained: the next test).
-    const ADDED: [&str; 5] = [
+    const ADDED: [&str; 6] = [
         "hash_levels",
         "hash_table_log2",
         "plan",
         "density",
         "hard_surface",
+        "frame_code_dropout",
     ];
     let mut names: Vec<&str> = json
         .as_object()
@@ -145,6 +146,7 @@ fn absent_fields_read_as_the_runs_before_them_trained() {
     assert_eq!(opts.lr, None);
     assert_eq!((opts.mask_weight, opts.distortion), (0.0, 0.0));
     assert_eq!((opts.frame_code_dim, opts.frame_code_deform), (0, false));
+    assert_eq!(opts.frame_code_dropout, 0.0);
     assert!(!opts.random_background);
     assert_eq!(opts.mask_edge_px, Some(0));
     assert_eq!(opts.non_rigid_lr_scale, 1.0);
