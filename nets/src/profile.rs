@@ -4,7 +4,7 @@
 //! `talkin bench step` turns it on around the steps it measures.
 //!
 //! A stage's seconds are its calling thread's wall time, summed over calls: where two
-//! half-batches run at once on two threads, their stages add up to about twice the wall.
+//! chunks of a batch run at once on two threads, their stages add up to about twice the wall.
 
 use std::collections::BTreeMap;
 use std::sync::Mutex;

@@ -7,8 +7,8 @@
 //! writing to it (its occupancy grid and routing as trained: the samples a ray a user's
 //! step takes), or of a fresh field after a warm-up. Stages are timed by
 //! `talkin_nets::profile`: the stages of the whole step on the thread that runs it
-//! ("wall"), and the field's work inside the two half-batches that run at once on two
-//! threads ("thread" seconds: they add up to about twice the field's wall). A kernel's
+//! ("wall"), and the field's work inside the batch's chunks that run at once as rayon
+//! tasks ("thread" seconds: they add up to about twice the field's wall). A kernel's
 //! ideal time is its work at the machine's ceilings (the slowest of compute, streamed
 //! bytes and gathered rows); its efficiency is that against its time, its thread seconds
 //! divided by how many threads ran field work at once.
@@ -92,7 +92,7 @@ pub struct StepReport {
     pub step_ms: f64,
     pub steps_per_s: f64,
     pub samples_per_s: f64,
-    /// Threads at field work at once: the halves' thread seconds over the field's wall.
+    /// Threads at field work at once: the chunks' thread seconds over the field's wall.
     pub field_threads: f64,
     pub peaks: Peaks,
     pub wall: Vec<WallRow>,

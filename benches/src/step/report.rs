@@ -10,11 +10,11 @@ use super::{Peaks, StepReport, WallRow, WorkRow};
 const WALL: &str = "step (wall): ";
 /// The whole step's own stage (the denominator of the wall rows).
 const WHOLE: &str = "step (wall): whole step";
-/// The field's stretch of the step (the two halves, joined).
+/// The field's stretch of the step (its chunks, joined).
 const FIELD_WALL: &str = "step (wall): field, loss and gradients";
 /// Kernels: counted work.
 const KERNEL: &str = "kernel: ";
-/// The kernel that runs on the step's thread alone, not inside the halves.
+/// The kernel that runs on the step's thread alone, not inside the chunks.
 const ADAM: &str = "kernel: Adam";
 
 /// What the timed steps gave besides the stage totals.
@@ -51,7 +51,7 @@ pub(super) fn build(m: Measured, totals: &BTreeMap<&str, StageTotal>, peaks: Pea
         share: ((whole_ms - listed) / whole_ms.max(1e-12)).max(0.0),
     });
 
-    // The halves' field work: every `step:` stage.
+    // The chunks' field work: every `step:` stage.
     let field_thread_s: f64 = totals
         .iter()
         .filter(|(name, _)| name.starts_with("step: "))
@@ -97,7 +97,7 @@ pub(super) fn build(m: Measured, totals: &BTreeMap<&str, StageTotal>, peaks: Pea
             bound: bound.to_string(),
         }
     };
-    // The halves' stages, then what the forward is made of, then the kernels.
+    // The chunks' stages, then what the forward is made of, then the kernels.
     let mut work = Vec::new();
     for prefix in ["step: ", "field: ", KERNEL] {
         let mut rows: Vec<WorkRow> = totals
@@ -154,7 +154,7 @@ mod tests {
             gather_table_mib: 4.0,
             stream_gbs: 10.0,
         };
-        // Two halves at once: 2 thread seconds of field work in 1 s of the field's wall.
+        // Two chunks at once: 2 thread seconds of field work in 1 s of the field's wall.
         // The MLP's 1e11 FLOP in its 2 thread seconds (1 s at two threads) is the
         // ceiling; the lookup's 0.5 GB gathered takes 0.5 s at best, against its 1 s.
         let mlp = Work {

@@ -1,6 +1,6 @@
 //! train: one training step and the run around it. The modules read in the order a step
 //! runs: a frame's [`rays`] (its scene, conditions and samplers come from `talkin-avatar`),
-//! the [`loss`] (whose two halves' gradients nets' fused `grad_sum` adds), Adam (nets'
+//! the [`loss`] (whose chunks' gradients nets' fused `grad_sum` adds), Adam (nets'
 //! fused kernel), the [`grid_update`]; the [`trainer`]'s step strings them together and
 //! it runs steps until the budget is spent, writing the [`step_log`] (through its
 //! `journal`: on a GPU a few steps' losses at a time, read in one transfer by `pending`)

@@ -1,14 +1,15 @@
 //! The field, its render and the loss of a step (`LPIPS + 0.2 MSE + 0.05 CE(seg)`, or
-//! without patches `MSE + 0.05 CE`), and the loss's gradients: on the CPU from two
-//! half-batches on two threads, on a GPU from the whole batch.
+//! without patches `MSE + 0.05 CE`), and the loss's gradients: on the CPU from chunks of
+//! the batch run as rayon tasks, on a GPU from the whole batch.
 //!
-//! burn's Flex backend runs most ops on one core, so a step left the second core idle.
-//! The batch's rays are split in two; each half runs forward and backward on its own
-//! fork of the field (`TalkinField::fork_leaves`: fresh autodiff leaves, the same
-//! parameter ids, so the two graphs never merge), and the halves' gradients are summed.
-//! Each half's loss is weighted by its share of the rays, so the sum is the whole batch's
-//! loss and the summed gradient the whole batch's gradient. The split does not depend on the machine: one core runs
-//! the same two halves in turn.
+//! burn's Flex backend runs many ops on one core, so a step on one graph leaves the other
+//! cores idle. The batch's rays are cut into chunks of [`CHUNK_RAYS`]; each chunk runs
+//! forward and backward on its own fork of the field (`TalkinField::fork_leaves`: fresh
+//! autodiff leaves, the same parameter ids, so the graphs never merge) as a rayon task,
+//! whose fused kernels share rayon's threads, and the chunks' gradients are summed in
+//! chunk order. Each chunk's loss is weighted by its share of the rays, so the sum is the
+//! whole batch's loss and the summed gradient the whole batch's gradient. The cut depends
+//! on the batch alone, not on the machine: any number of cores gives the same bits.
 
 use burn::optim::GradientsParams;
 use burn::prelude::*;
@@ -21,6 +22,7 @@ use talkin_nets::{
     FieldInput, FrameConditions, NetsError, PoseGrads, PoseLeaves, TalkinField, is_cpu,
 };
 
+use rayon::prelude::*;
 use talkin_nets::kernels::grad_sum::sum_grads;
 use talkin_nets::profile;
 
@@ -110,19 +112,36 @@ impl LossValues {
     }
 }
 
-/// Where the batch is split: halfway, but never inside the LPIPS patches (they stay in
-/// the first half, which scores them). `None`: too few rays to split.
-pub(crate) fn split_point(rays: usize, patch_rays: usize) -> Option<usize> {
-    let k = (rays / 2).max(patch_rays);
-    (k > 0 && k < rays).then_some(k)
+/// Rays a chunk of the batch holds on the CPU (a 512-ray step: two chunks).
+pub(crate) const CHUNK_RAYS: usize = 256;
+
+/// Where a batch of `rays` is cut into chunks of about `chunk_rays`: the cuts, from 0 to
+/// `rays`, never inside the LPIPS patches (the first `patch_rays`, scored whole by the
+/// first chunk).
+pub(crate) fn chunk_bounds(rays: usize, patch_rays: usize, chunk_rays: usize) -> Vec<usize> {
+    let chunks = (rays / chunk_rays.max(1)).max(1);
+    let mut bounds: Vec<usize> = (0..=chunks).map(|i| i * rays / chunks).collect();
+    bounds.retain(|&b| b == 0 || b == rays || b >= patch_rays);
+    bounds.dedup();
+    bounds
 }
 
 /// The batch's loss (seg CE + MSE, or with patches LPIPS + 0.2 MSE + seg CE) and its
-/// gradients w.r.t. `field`'s parameters, from two half-batches in parallel.
+/// gradients w.r.t. `field`'s parameters, from chunks of [`CHUNK_RAYS`] in parallel.
 pub(crate) fn loss_and_grads(
     field: &TalkinField,
     perceptual: Option<&PerceptualLoss>,
     batch: StepBatch,
+) -> Result<StepLoss, NetsError> {
+    loss_and_grads_in_chunks(field, perceptual, batch, CHUNK_RAYS)
+}
+
+/// [`loss_and_grads`] with chunks of `chunk_rays`.
+fn loss_and_grads_in_chunks(
+    field: &TalkinField,
+    perceptual: Option<&PerceptualLoss>,
+    batch: StepBatch,
+    chunk_rays: usize,
 ) -> Result<StepLoss, NetsError> {
     let share = batch.share.clone();
     let n = share.len();
@@ -148,43 +167,54 @@ pub(crate) fn loss_and_grads(
         .min(n);
     // A GPU takes the batch whole: its work is queued, not run on this thread.
     let on_cpu = is_cpu(&field.identity.val().device());
-    let Some(k) = split_point(n, patch_rays).filter(|_| on_cpu) else {
-        let whole = half(field, false, perceptual, &batch, share, samples)?;
+    let bounds = chunk_bounds(n, patch_rays, chunk_rays);
+    if !on_cpu || bounds.len() <= 2 {
+        let whole = chunk_loss(field, false, perceptual, &batch, share, samples)?;
         return Ok(StepLoss {
             values: LossValues::of(whole.values),
             grads: whole.grads,
             pose: whole.pose,
         });
-    };
-    let (head, tail) = samples.split_at_ray(k);
-    let cut = share.start + k;
-    let (a, b) = std::thread::scope(|scope| {
-        let first = scope.spawn(|| half(field, true, perceptual, &batch, share.start..cut, &head));
-        let second = half(field, true, perceptual, &batch, cut..share.end, &tail);
-        (first.join(), second)
-    });
-    // A panic in the other thread is a bug; pass it on as one.
-    let a = a.unwrap_or_else(|p| std::panic::resume_unwind(p))?;
-    let b = b?;
-    let pose = match (a.pose, b.pose) {
-        (Some(mut a), Some(b)) => {
-            a.accumulate(&b);
-            Some(a)
-        }
-        (a, b) => a.or(b),
-    };
+    }
+    // Each chunk's samples, cut off the rest in turn.
+    let mut chunks = Vec::with_capacity(bounds.len() - 1);
+    let mut rest = samples.clone();
+    for w in bounds.windows(2) {
+        let (head, tail) = rest.split_at_ray(w[1] - w[0]);
+        chunks.push((share.start + w[0]..share.start + w[1], head));
+        rest = tail;
+    }
+    let parts: Vec<Result<StepLoss<Tensor<1>>, NetsError>> = chunks
+        .par_iter()
+        .map(|(range, samples)| chunk_loss(field, true, perceptual, &batch, range.clone(), samples))
+        .collect();
+    // Summed in chunk order: the same bits whichever thread ran which chunk.
+    let mut parts = parts.into_iter();
+    let first = parts.next().expect("at least two chunks")?;
+    let (mut values, mut grads, mut pose) = (first.values, first.grads, first.pose);
+    for part in parts {
+        let part = part?;
+        values = values + part.values;
+        grads = profile::timed("step: gradient sum", || sum_grads(field, grads, part.grads));
+        pose = match (pose, part.pose) {
+            (Some(mut a), Some(b)) => {
+                a.accumulate(&b);
+                Some(a)
+            }
+            (a, b) => a.or(b),
+        };
+    }
     Ok(StepLoss {
-        values: LossValues::of(a.values + b.values),
-        grads: profile::timed("step: gradient sum", || sum_grads(field, a.grads, b.grads)),
+        values: LossValues::of(values),
+        grads,
         pose,
     })
 }
 
 /// Rays `range` of the batch (sampled as `samples`), in three stages: the field's render
 /// of them, their loss (weighted by their share of the rays) and its backward. `fork`:
-/// run on a fork of the field (needed when another thread runs the other half at the
-/// same time).
-fn half(
+/// run on a fork of the field (needed when other chunks run at the same time).
+fn chunk_loss(
     field: &TalkinField,
     fork: bool,
     perceptual: Option<&PerceptualLoss>,
@@ -300,8 +330,8 @@ fn rays_loss(
         TensorData::new(batch.labels[range.clone()].to_vec(), [n_rays]),
         &device,
     );
-    // Patches sit at the start of the first half (see `split_point`); with them, the
-    // MSE is the minor term in both halves.
+    // Patches sit at the start of the first chunk (see `chunk_bounds`); with them, the
+    // MSE is the minor term in every chunk.
     let with_patches = perceptual.is_some() && batch.patches > 0;
     let mse_weight = if with_patches { MSE_WEIGHT } else { 1.0 };
     let sure = (batch.mask_weight > 0.0).then(|| {
@@ -429,9 +459,9 @@ mod tests {
         }
     }
 
-    /// The summed halves' loss and gradients are the whole batch's.
+    /// The summed chunks' loss and gradients are the whole batch's.
     #[test]
-    fn two_halves_give_the_whole_batch_gradient() {
+    fn the_chunks_give_the_whole_batch_gradient() {
         let device = Device::flex().autodiff();
         let mut config = FieldConfig::fast(1);
         config.encoding = EncodingConfig::HashGrid(
@@ -486,7 +516,7 @@ mod tests {
                 seed: 0,
             };
             let samples = sample_dense(&rays, lo, hi, &dense).unwrap();
-            assert_eq!(split_point(9, 0), Some(4));
+            assert_eq!(chunk_bounds(9, 0, 4), vec![0, 4, 9]);
             assert_eq!(samples.ray_offsets[4] == 0, first_half_empty);
             let rgb: Vec<f32> = (0..27).map(|i| (i * 7 % 10) as f32 / 10.0).collect();
             let labels: Vec<i32> = (0..9).map(|i| i % 5).collect();
@@ -510,7 +540,7 @@ mod tests {
                 pose_grads: false,
             };
             let whole_batch = batch();
-            let whole = half(&field, false, None, &whole_batch, 0..9, &samples).unwrap();
+            let whole = chunk_loss(&field, false, None, &whole_batch, 0..9, &samples).unwrap();
             // On the mask's cut the silhouette term has no target: a batch all on it
             // scores as without the term, and off it the term counts.
             let cut = vec![0.0f32; 9];
@@ -521,7 +551,7 @@ mod tests {
                     ..batch()
                 };
                 LossValues::of(
-                    half(&field, false, None, &b, 0..9, &samples)
+                    chunk_loss(&field, false, None, &b, 0..9, &samples)
                         .unwrap()
                         .values,
                 )
@@ -530,38 +560,45 @@ mod tests {
             };
             assert_eq!(loss_with(&cut, 1.0), loss_with(&cut, 0.0));
             assert!(loss_with(&silhouette, 1.0) > loss_with(&silhouette, 0.0));
-            let split = loss_and_grads(&field, None, batch()).unwrap();
-            let ((whole_loss, whole_mse), (split_loss, split_mse)) =
-                (LossValues::of(whole.values).read(), split.values.read());
-            assert!(
-                (whole_loss - split_loss).abs() <= 1e-5 * whole_loss.abs(),
-                "{whole_loss} vs {split_loss}"
-            );
-            assert!((whole_mse - split_mse).abs() <= 1e-5 * whole_mse.abs());
-            let mut same = SameGrads {
-                a: &whole.grads,
-                b: &split.grads,
-                compared: 0,
-            };
-            field.visit(&mut same);
-            assert!(
-                same.compared >= 5,
-                "only {} parameters had gradients",
-                same.compared
-            );
+            // In two chunks (the first with no samples) and in three.
+            for chunk_rays in [4, 3] {
+                let split = loss_and_grads_in_chunks(&field, None, batch(), chunk_rays).unwrap();
+                let ((whole_loss, whole_mse), (split_loss, split_mse)) = (
+                    LossValues::of(whole.values.clone()).read(),
+                    split.values.read(),
+                );
+                assert!(
+                    (whole_loss - split_loss).abs() <= 1e-5 * whole_loss.abs(),
+                    "{whole_loss} vs {split_loss}"
+                );
+                assert!((whole_mse - split_mse).abs() <= 1e-5 * whole_mse.abs());
+                let mut same = SameGrads {
+                    a: &whole.grads,
+                    b: &split.grads,
+                    compared: 0,
+                };
+                field.visit(&mut same);
+                assert!(
+                    same.compared >= 5,
+                    "only {} parameters had gradients",
+                    same.compared
+                );
+            }
+            let whole_loss = LossValues::of(whole.values.clone()).read().0;
             // Peers: each share's loss and gradients, summed, are the whole batch's
-            // (three peers of nine rays: shares of three, each split again in two).
+            // (three peers of nine rays: shares of three, each cut again in chunks).
             for size in [2, 3] {
                 let mut loss = 0.0;
                 let mut grads = GradientsParams::new();
                 for rank in 0..size {
-                    let part = loss_and_grads(
+                    let part = loss_and_grads_in_chunks(
                         &field,
                         None,
                         StepBatch {
                             share: crate::peers::share_of(rank, size, 9, 0),
                             ..batch()
                         },
+                        2,
                     )
                     .unwrap();
                     loss += part.values.read().0;
@@ -583,12 +620,17 @@ mod tests {
     }
 
     #[test]
-    fn the_split_keeps_patches_in_the_first_half() {
-        assert_eq!(split_point(512, 0), Some(256));
-        assert_eq!(split_point(513, 0), Some(256));
-        assert_eq!(split_point(1024 + 512, 1024), Some(1024));
-        assert_eq!(split_point(1024, 1024), None);
-        assert_eq!(split_point(1, 0), None);
-        assert_eq!(split_point(0, 0), None);
+    fn the_chunks_keep_patches_in_the_first() {
+        assert_eq!(chunk_bounds(512, 0, 256), vec![0, 256, 512]);
+        assert_eq!(chunk_bounds(513, 0, 256), vec![0, 256, 513]);
+        assert_eq!(chunk_bounds(1024, 0, 256), vec![0, 256, 512, 768, 1024]);
+        assert_eq!(
+            chunk_bounds(1024 + 512, 1024, 256),
+            vec![0, 1024, 1280, 1536]
+        );
+        assert_eq!(chunk_bounds(1024, 1024, 256), vec![0, 1024]);
+        assert_eq!(chunk_bounds(100, 0, 256), vec![0, 100]);
+        assert_eq!(chunk_bounds(1, 0, 256), vec![0, 1]);
+        assert_eq!(chunk_bounds(0, 0, 256), vec![0]);
     }
 }

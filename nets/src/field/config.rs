@@ -22,7 +22,7 @@ use crate::skinning::{BoneSegment, SkinningConfig};
 /// Entries per level (log2) of the `fast` preset's F_face and F_hands tables. The head
 /// and hands fill a few percent of the canonical cube, so a table a quarter of F_body's
 /// holds their fine levels; every table row costs a training step its gradient, its sum
-/// over the two half-batches and Adam's pass, whether a sample touched it or not.
+/// over the batch's chunks and Adam's pass, whether a sample touched it or not.
 pub const PART_LOG2_ENTRIES: usize = 15;
 
 /// Everything that decides the field's architecture; saved as JSON beside checkpoints.

@@ -1,5 +1,5 @@
 //! A field whose parameters are fresh autodiff leaves: the same ids, values and device,
-//! for one half-batch's forward and backward beside another's.
+//! for one chunk of a batch's forward and backward beside another's.
 //!
 //! burn's `Module::fork` moves every parameter with `to_device`, which autodiff records as
 //! an op on the original leaf even when the device does not change. A parameter with no

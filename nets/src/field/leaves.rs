@@ -45,7 +45,7 @@ pub struct PoseGrads {
 }
 
 impl PoseGrads {
-    /// Adds `other` in place (the two halves of a batch).
+    /// Adds `other` in place (two chunks of a batch).
     pub fn accumulate(&mut self, other: &PoseGrads) {
         fn add(a: &mut Vec<f32>, b: &[f32]) {
             if a.is_empty() {
@@ -126,7 +126,7 @@ impl PoseLeaves {
     }
 }
 
-/// Zero gradients of a frame's leaves (a half-batch with no samples).
+/// Zero gradients of a frame's leaves (a chunk of a batch with no samples).
 pub fn zero_grads(pose_dim: usize) -> PoseGrads {
     PoseGrads {
         canonical_from_posed: vec![[0.0; TRANSFORM_ROWS]; N_SMPLX_JOINTS],

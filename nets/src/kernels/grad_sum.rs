@@ -1,9 +1,9 @@
-//! The two half-batches' gradients summed, in place where both are plain f32 tensors on
+//! Two chunks' gradients summed, in place where both are plain f32 tensors on
 //! the CPU backend.
 //!
 //! burn's `GradientsAccumulator` adds two gradients into a fresh tensor: for the three
-//! hash tables, three table-sized passes and allocations a step. Here the first half's
-//! buffer takes the sum, and blocks where the second half's gradient is zero (the rows of
+//! hash tables, three table-sized passes and allocations a step. Here the first chunk's
+//! buffer takes the sum, and blocks where the second chunk's gradient is zero (the rows of
 //! a table its samples never touched: most of the face and hand tables) are skipped. The
 //! sum is the same f32 addition, so the same bits.
 

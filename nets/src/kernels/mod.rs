@@ -8,7 +8,7 @@
 //! - `frequency`: the windowed sinusoidal encoding.
 //! - `mlp`: an MLP's forward and backward.
 //! - [`adam`]: Adam in one pass per parameter.
-//! - [`grad_sum`]: two half-batches' gradients summed in place.
+//! - [`grad_sum`]: two chunks' gradients summed in place.
 
 pub mod adam;
 #[cfg(feature = "wgpu")]
