@@ -127,6 +127,8 @@ struct TrainOptionsRecord {
     /// The LPIPS weights' directory (a path that is not UTF-8 round-trips).
     #[serde(default, with = "lpips_dir")]
     perceptual: Option<PathBuf>,
+    /// `null`: never (JSON has no infinity; the benches' runs checkpoint only at the end).
+    #[serde(with = "seconds_or_never")]
     checkpoint_every_s: f64,
     /// Absent: the full method.
     #[serde(default, with = "AblationRecord")]
@@ -200,6 +202,19 @@ mod lpips_dir {
                 .map(Some)
                 .map_err(|e| serde::de::Error::custom(format!("`perceptual`: {e}"))),
         }
+    }
+}
+
+/// A period in seconds, where an infinite one (never) is `null`.
+mod seconds_or_never {
+    use serde::{Deserialize, Deserializer, Serialize, Serializer};
+
+    pub fn serialize<S: Serializer>(seconds: &f64, s: S) -> Result<S::Ok, S::Error> {
+        seconds.is_finite().then_some(*seconds).serialize(s)
+    }
+
+    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
+        Ok(Option::<f64>::deserialize(d)?.unwrap_or(f64::INFINITY))
     }
 }
 

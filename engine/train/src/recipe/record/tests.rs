@@ -184,3 +184,26 @@ fn a_newer_builds_record_is_refused_naming_its_version() {
     json.as_object_mut().unwrap().remove("preset");
     assert!(read(json).unwrap_err().contains("preset"));
 }
+
+/// A run that never checkpoints on a clock (the benches' runs) records `null`, and reads
+/// back as never: its checkpoint can be resumed and stepped on.
+#[test]
+fn a_period_of_never_round_trips_as_null() {
+    let opts = TrainOptions {
+        checkpoint_every_s: f64::INFINITY,
+        ..TrainOptions::default()
+    };
+    let json = to_json(&opts).unwrap();
+    assert!(json["checkpoint_every_s"].is_null(), "{json}");
+    assert_eq!(from_json(json).unwrap().checkpoint_every_s, f64::INFINITY);
+    let opts = TrainOptions {
+        checkpoint_every_s: 90.0,
+        ..TrainOptions::default()
+    };
+    assert_eq!(
+        from_json(to_json(&opts).unwrap())
+            .unwrap()
+            .checkpoint_every_s,
+        90.0
+    );
+}
