@@ -605,6 +605,8 @@ fn camera_frames_train_within_1_db_of_the_clean_scene() {
         "16",
         "--frame-code-deform",
         "on",
+        "--frame-code-dropout",
+        "0.5",
     ]
     .map(String::from)
     .to_vec();

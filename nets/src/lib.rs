@@ -2,7 +2,8 @@
 //! window, multiresolution hash grid), the TalkinNeRF field (inverse LBS with a learned
 //! weight volume, D_nr, F_body with segmentation, F_face, D_hands + F_hands with hard
 //! routing, optional per-frame codes), volume rendering of packed samples, and the losses
-//! (the distortion of a ray's weights among them).
+//! (the distortion of a ray's weights among them), and the stage timer ([`profile`]) a
+//! bench reads to see where a step's time goes.
 //!
 //! It must not know about the acceleration structures (`grids`) or the pipeline
 //! (`engine`): samples, candidate masks and per-frame transforms come in as plain slices.

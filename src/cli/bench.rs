@@ -70,8 +70,9 @@ pub struct StepBenchArgs {
     /// it, a fresh field as `talkin train` builds it (flags below).
     #[arg(long, value_name = "RUN")]
     pub run: Option<PathBuf>,
-    /// Untimed steps first.
-    #[arg(long, default_value_t = 10)]
+    /// Untimed steps first. A frame's first visit decodes its images and builds its
+    /// sampler: give enough for the run's frames to be visited (a few times their count).
+    #[arg(long, default_value_t = 100)]
     pub warmup: usize,
     /// Timed steps.
     #[arg(long = "timed-steps", value_name = "N", default_value_t = 100)]

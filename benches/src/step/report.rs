@@ -46,7 +46,7 @@ pub(super) fn build(m: Measured, totals: &BTreeMap<&str, StageTotal>, peaks: Pea
     let listed: f64 = wall.iter().map(|r| r.ms_per_step).sum();
     let whole_ms = per_step_ms(whole_s);
     wall.push(WallRow {
-        stage: "the rest (the log, pose refinement, copies)".into(),
+        stage: "the rest (the log, pose refinement, the step's own copies)".into(),
         ms_per_step: (whole_ms - listed).max(0.0),
         share: ((whole_ms - listed) / whole_ms.max(1e-12)).max(0.0),
     });

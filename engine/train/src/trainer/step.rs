@@ -40,7 +40,10 @@ impl Trainer<'_> {
 
         // Rays: a seeded training frame (posed as its refined pose, when refining), its
         // LPIPS patches and part-aware pixels.
-        let frame = self.pick_frame()?;
+        let frame = profile::timed(
+            "step (wall): the frame (a first visit builds its cache)",
+            || self.pick_frame(),
+        )?;
         self.follow_refined_pose(frame)?;
         let refining = self
             .refiner
