@@ -3,7 +3,7 @@
 //! the batch run as rayon tasks, on a GPU from the whole batch.
 //!
 //! burn's Flex backend runs many ops on one core, so a step on one graph leaves the other
-//! cores idle. The batch's rays are cut into chunks of [`CHUNK_RAYS`]; each chunk runs
+//! cores idle. The batch's rays are cut into chunks of `CHUNK_RAYS` (256); each chunk runs
 //! forward and backward on its own fork of the field (`TalkinField::fork_leaves`: fresh
 //! autodiff leaves, the same parameter ids, so the graphs never merge) as a rayon task,
 //! whose fused kernels share rayon's threads, and the chunks' gradients are summed in
