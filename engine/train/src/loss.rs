@@ -178,11 +178,11 @@ fn loss_and_grads_in_chunks(
     }
     // Each chunk's samples, cut off the rest in turn.
     let mut chunks = Vec::with_capacity(bounds.len() - 1);
-    let mut rest = samples.clone();
+    let mut rest: Option<PackedSamples> = None;
     for w in bounds.windows(2) {
-        let (head, tail) = rest.split_at_ray(w[1] - w[0]);
+        let (head, tail) = rest.as_ref().unwrap_or(samples).split_at_ray(w[1] - w[0]);
         chunks.push((share.start + w[0]..share.start + w[1], head));
-        rest = tail;
+        rest = Some(tail);
     }
     let parts: Vec<Result<StepLoss<Tensor<1>>, NetsError>> = chunks
         .par_iter()

@@ -59,8 +59,9 @@ impl Trainer<'_> {
         // Samples along each ray, by the run's sampler (timed for the log).
         let sampling_start = Instant::now();
         let samples = self.draw_samples(frame, &batch)?;
-        profile::record("step (wall): sampling", sampling_start.elapsed());
-        let sampling_s = sampling_start.elapsed().as_secs_f64();
+        let sampling_took = sampling_start.elapsed();
+        profile::record("step (wall): sampling", sampling_took);
+        let sampling_s = sampling_took.as_secs_f64();
         let (n_rays, n_samples) = (batch.rays.len(), samples.num_samples());
         let bones_per_sample =
             mean_candidate_bones(&samples.bone_mask, self.config.skinning.skins_fingers());
