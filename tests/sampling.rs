@@ -11,9 +11,12 @@ use talkin::avatar::scene::{
 };
 use talkin::benches::sampling::bench_sampling;
 use talkin::data::dataset::{Dataset, Split};
-use talkin::grids::{MarginFitOpts, OccupancyGrid, PackedSamples, Part, SamplerKind};
+use talkin::grids::{
+    MarginFitOpts, OccupancyGrid, PackedSamples, Part, Ray, SURFACE_SLACK_M, SamplerKind,
+    sample_in_capsules, sample_in_front_of_cores,
+};
 use talkin::human::body::canonical_params;
-use talkin::synth::{SynthConfig, generate};
+use talkin::synth::{CaptureConfig, SynthConfig, generate};
 
 /// The capsule shells the training masks and depth fit for subject 0.
 fn first_subject_shells(dataset: &Dataset) -> CapsuleShells {
@@ -106,6 +109,82 @@ fn frames_without_depth_give_no_surface_points() {
         canonical_surface_points(&dataset, &train, &shells)
             .unwrap()
             .is_none()
+    );
+}
+
+/// Without depth rays stop at no core (the skinning prior keeps them). The masks cannot
+/// see a fit that sits nearer the camera than the person, and a core of such a fit lies
+/// in front of the visible surface: the rays would stop there (on ZJU-MoCap 387 an outstretched arm rendered as a black
+/// band). A capture-like scene whose fits are 4 cm off, its shells fitted without its
+/// depth: every training pixel's true surface point that the grown capsules hold is
+/// still sampled once the rays stop at their first core.
+#[test]
+fn fits_off_toward_the_camera_hide_no_surface_behind_a_core_without_depth() {
+    let dir = common::temp_dir("sampling_biased_fits");
+    let cfg = SynthConfig {
+        identities: 1,
+        frames: 6,
+        size: 96,
+        seed: 3,
+        motion: None,
+        capture: Some(CaptureConfig {
+            smooth_skin_m: 0.0,
+            fit_bias_deg: 0.0,
+            fit_bias_m: 0.04,
+            masks_only: false,
+        }),
+        framing: None,
+    };
+    generate(&cfg, &dir, &mut |_, _| {}).unwrap();
+    let with_depth = Dataset::load(&dir).unwrap();
+    let mut masks_only = with_depth.clone();
+    for frame in &mut masks_only.frames {
+        frame.depth = None;
+    }
+    let shells = first_subject_shells(&masks_only);
+    assert!(!shells.from_depth);
+    let skeleton = &with_depth.subjects[0].skeleton;
+    let canonical = skeleton.pose(&canonical_params());
+    let bare = shell_capsules(skeleton, &canonical);
+    assert!(
+        !shells.cores(&bare).is_empty(),
+        "the skinning prior keeps its cores"
+    );
+    let (mut held, mut behind_a_core) = (0usize, 0usize);
+    for i in with_depth.split_indices(Split::Train) {
+        let frame = &with_depth.frames[i];
+        let scene = FrameScene::new(skeleton, &canonical, &frame.params);
+        let images = with_depth.images(i).unwrap();
+        let depth = with_depth
+            .depth(i)
+            .unwrap()
+            .expect("the scene writes depth");
+        let (labelled, pixels) = foreground_rays(&frame.camera, &images).unwrap();
+        let rays: Vec<Ray> = labelled.iter().map(|l| l.ray).collect();
+        let sampler = FrameSampler::new(scene, &shells, &rays, true).unwrap();
+        let opts = sampler.accelerated_opts(Some(i as u64));
+        let (capsules, cores) = sampler.bvhs().unwrap();
+        let in_capsules = sample_in_capsules(capsules, &rays, &opts).unwrap();
+        let in_front =
+            sample_in_front_of_cores(capsules, cores, &rays, sampler.step, &opts).unwrap();
+        let forward = frame.camera.forward_in_world().as_vec3();
+        for (r, ray) in rays.iter().enumerate() {
+            let Some(z) = depth[pixels[r] as usize] else {
+                continue;
+            };
+            let t = z / ray.direction.dot(forward);
+            if in_capsules.holds(r, t, SURFACE_SLACK_M) {
+                held += 1;
+                if !in_front.holds(r, t, SURFACE_SLACK_M) {
+                    behind_a_core += 1;
+                }
+            }
+        }
+    }
+    assert!(held > 1000, "{held}");
+    assert_eq!(
+        behind_a_core, 0,
+        "{behind_a_core} of {held} surface points behind a core"
     );
 }
 

@@ -72,7 +72,7 @@ impl FrameSampler {
         finger_bones: bool,
     ) -> Result<FrameSampler, GridError> {
         let grown = shells.inflate(&scene.capsules);
-        let cores = shells.cores(&scene.capsules);
+        let cores = shells.stopping_cores(&scene.capsules);
         validate_capsules(&grown)?;
         validate_capsules(&cores)?;
         let (box_min, box_max) = capsule_bounds(&grown, 0.02);

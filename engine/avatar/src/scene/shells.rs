@@ -8,6 +8,9 @@
 //!   clear of every surface point.
 //! - With masks only (real data), each part's capsules grow until every foreground ray of
 //!   that part hits one (grids' ray-coverage fit), and cores follow the skeleton prior.
+//!   The skinning prior weighs bones by them, but rays do not stop at them
+//!   ([`CapsuleShells::stopping_cores`]): nothing says how deep the surface lies, and a
+//!   fit nearer the camera than the person puts a core in front of the visible surface.
 
 use glam::Vec3;
 use rayon::prelude::*;
@@ -30,13 +33,14 @@ pub const MARGIN_SAFETY_M: f32 = 0.008;
 /// surfaces up to 17.6 mm past the training need on the default scene's held-out
 /// splits (wider curls, spread fingers), so hands get 20 mm.
 pub const HAND_MARGIN_SAFETY_M: f32 = 0.02;
+/// Without surface points, a core is this fraction of the bare capsule radius (the
+/// inner part of a limb is flesh on any human): the skinning prior's, never a place rays
+/// stop ([`CapsuleShells::stopping_cores`]).
+pub const CORE_PRIOR: f32 = 0.6;
 /// Taken off every depth-fitted core radius, metres, after [`CORE_SAFETY`]: held-out
 /// camera-to-surface segments came up to 3.4 mm inside the training-fitted cores on the
 /// default scene (a wider pose brings another limb's surface closer to an axis).
 pub const CORE_MARGIN_M: f32 = 0.005;
-/// Without surface points, a core is this fraction of the bare capsule radius (the
-/// inner part of a limb is flesh on any human).
-pub const CORE_PRIOR: f32 = 0.6;
 /// With surface points, a core keeps this fraction of the closest distance at which any
 /// training surface point came to the capsule's axis: nothing seen was ever inside it.
 pub const CORE_SAFETY: f32 = 0.85;
@@ -69,7 +73,21 @@ impl CapsuleShells {
             .collect()
     }
 
-    /// The solid cores (capsules with their core radius; zero-radius cores dropped).
+    /// The cores the samplers stop rays at: the solid cores where depth proved them, none
+    /// without depth. A fit's error toward the camera is invisible to the masks, and on
+    /// ZJU-MoCap 387 a prior core (0.6 of the bare radius) of a fit nearer the camera lay
+    /// in front of an outstretched arm: the rays stopped there and the arm rendered as a
+    /// black band (docs/results.md, "Frames that disagree").
+    pub fn stopping_cores(&self, bare: &[Capsule]) -> Vec<Capsule> {
+        if self.from_depth {
+            self.cores(bare)
+        } else {
+            Vec::new()
+        }
+    }
+
+    /// The solid cores (capsules with their core radius; zero-radius cores dropped): the
+    /// skinning prior's geometry, and with depth where rays stop.
     pub fn cores(&self, bare: &[Capsule]) -> Vec<Capsule> {
         bare.iter()
             .zip(self.core.iter().zip(&self.core_shrink))
