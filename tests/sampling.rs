@@ -25,19 +25,23 @@ fn first_subject_shells(dataset: &Dataset) -> CapsuleShells {
         .shells
 }
 
-#[test]
-fn accelerated_sampling_keeps_every_training_surface_point() {
-    let dir = common::temp_dir("sampling_scene");
-    let cfg = SynthConfig {
+/// One identity, six 96 px frames, seed 3; `capture` adds the capture-like flaws.
+fn small_scene(capture: Option<CaptureConfig>) -> SynthConfig {
+    SynthConfig {
         identities: 1,
         frames: 6,
         size: 96,
         seed: 3,
         motion: None,
-        capture: None,
+        capture,
         framing: None,
-    };
-    generate(&cfg, &dir, &mut |_, _| {}).unwrap();
+    }
+}
+
+#[test]
+fn accelerated_sampling_keeps_every_training_surface_point() {
+    let dir = common::temp_dir("sampling_scene");
+    generate(&small_scene(None), &dir, &mut |_, _| {}).unwrap();
     let dataset = Dataset::load(&dir).unwrap();
     let report = bench_sampling(&dataset, None, &mut |_, _| {}).unwrap();
     assert!(report.foreground_rays > 1000, "{report:?}");
@@ -114,28 +118,20 @@ fn frames_without_depth_give_no_surface_points() {
 
 /// Without depth rays stop at no core (the skinning prior keeps them). The masks cannot
 /// see a fit that sits nearer the camera than the person, and a core of such a fit lies
-/// in front of the visible surface: the rays would stop there (on ZJU-MoCap 387 an outstretched arm rendered as a black
-/// band). A capture-like scene whose fits are 4 cm off, its shells fitted without its
+/// in front of the visible surface: the rays would stop there (on ZJU-MoCap 387 an
+/// outstretched arm rendered as a black band). A capture-like scene whose fits are 4 cm off, its shells fitted without its
 /// depth: every training pixel's true surface point that the grown capsules hold is
 /// still sampled once the rays stop at their first core.
 #[test]
 fn fits_off_toward_the_camera_hide_no_surface_behind_a_core_without_depth() {
     let dir = common::temp_dir("sampling_biased_fits");
-    let cfg = SynthConfig {
-        identities: 1,
-        frames: 6,
-        size: 96,
-        seed: 3,
-        motion: None,
-        capture: Some(CaptureConfig {
-            smooth_skin_m: 0.0,
-            fit_bias_deg: 0.0,
-            fit_bias_m: 0.04,
-            masks_only: false,
-        }),
-        framing: None,
+    let biased = CaptureConfig {
+        smooth_skin_m: 0.0,
+        fit_bias_deg: 0.0,
+        fit_bias_m: 0.04,
+        masks_only: false,
     };
-    generate(&cfg, &dir, &mut |_, _| {}).unwrap();
+    generate(&small_scene(Some(biased)), &dir, &mut |_, _| {}).unwrap();
     let with_depth = Dataset::load(&dir).unwrap();
     let mut masks_only = with_depth.clone();
     for frame in &mut masks_only.frames {
