@@ -3,11 +3,16 @@
 //! each bone's rigid posed-to-canonical map. Conservative by construction: a bin is
 //! dropped only if every candidate bone maps its midpoint farther than the dilation
 //! from every occupied cell.
+//!
+//! Beside the bits, the optical depth the field gave each cell
+//! ([`OccupancyGrid::depth_code`]), undilated: the sampler adds it up along a ray and
+//! stops the ray the dilation's reach past the point where its light is spent.
 
 use std::sync::Arc;
 
 use glam::{Affine3A, UVec3, Vec3};
 
+use crate::occupancy::DEPTH_CODES_PER_UNIT;
 use crate::{Capsule, GridError, OccupancyGrid};
 
 /// The canonical side of the accelerated sampler's cull: the subject's occupancy grid,
@@ -18,6 +23,9 @@ pub struct CanonicalCull {
     /// Indexed by bone; must be rigid (rotation + translation) and cover every bone of
     /// the capsules.
     pub canonical_from_posed: Vec<Affine3A>,
+    /// Whether rays also stop where the grid's densities spend them (see
+    /// [`crate::sampler_accelerated`]); the grid's bits cull either way.
+    pub stop_where_spent: bool,
 }
 
 /// An occupancy grid's bitfield grown by `cells` cells along every axis; points up to
@@ -30,6 +38,12 @@ pub struct DilatedOccupancy {
     /// One bit per cell (cell `i` is bit `i % 64` of word `i / 64`): a 128^3 grid is
     /// 256 KiB, small enough to stay in a core's cache while rays look it up.
     occupied: Vec<u64>,
+    /// Per cell, [`OccupancyGrid::depth_code`] (same indexing as the grid's cells).
+    depth: Vec<u8>,
+    /// Optical depth per metre of one depth code: 1 / (16 x the smallest cell side).
+    depth_per_code_m: f32,
+    /// Whether any cell has a depth code above 0.
+    any_depth: bool,
     source_fingerprint: u64,
 }
 
@@ -83,12 +97,17 @@ impl DilatedOccupancy {
         for (i, &o) in a.iter().enumerate() {
             occupied[i / 64] |= ((o != 0) as u64) << (i % 64);
         }
+        let depth: Vec<u8> = (0..grid.num_cells()).map(|i| grid.depth_code(i)).collect();
+        let any_depth = depth.iter().any(|&d| d > 0);
         Ok(DilatedOccupancy {
             min,
             inv_cell: res.as_vec3() / (max - min),
             res,
             cells,
             occupied,
+            depth,
+            depth_per_code_m: 1.0 / (DEPTH_CODES_PER_UNIT * size.min_element()),
+            any_depth,
             source_fingerprint: grid.fingerprint(),
         })
     }
@@ -133,6 +152,25 @@ impl DilatedOccupancy {
         let i = (c.x as usize * self.res.y as usize + c.y as usize) * self.res.z as usize
             + c.z as usize;
         self.occupied[i / 64] >> (i % 64) & 1 != 0
+    }
+
+    /// The field's density (optical depth per metre, rounded down to a code) in the
+    /// undilated cell holding `f` (cell units, as [`DilatedOccupancy::is_occupied_cell`]);
+    /// 0 outside the box, in an unoccupied cell, or where the grid holds only marks.
+    #[inline]
+    pub fn density_cell(&self, f: Vec3) -> f32 {
+        if !(f.cmpge(Vec3::ZERO).all() && f.cmplt(self.res.as_vec3()).all()) {
+            return 0.0;
+        }
+        let c = f.as_uvec3().min(self.res - 1);
+        let i = (c.x as usize * self.res.y as usize + c.y as usize) * self.res.z as usize
+            + c.z as usize;
+        f32::from(self.depth[i]) * self.depth_per_code_m
+    }
+
+    /// Whether any cell holds a density ([`DilatedOccupancy::density_cell`] can be > 0).
+    pub fn has_density(&self) -> bool {
+        self.any_depth
     }
 }
 

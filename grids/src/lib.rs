@@ -97,7 +97,7 @@ pub use occupancy::{OccUpdateOpts, OccUpdateReport, OccupancyGrid};
 pub use ray::Ray;
 pub use rng::SplitMix64;
 pub use sampler::SamplerKind;
-pub use sampler_accelerated::AcceleratedSampler;
+pub use sampler_accelerated::{AcceleratedSampler, SPENT_OPTICAL_DEPTH};
 pub use sampler_dense::{DenseOpts, sample_dense};
 pub use sampler_reference::{
     AcceleratedOpts, cull_with_grid, sample_in_capsules, sample_in_capsules_before,

@@ -24,6 +24,19 @@ pub use update::{OccUpdateOpts, OccUpdateReport};
 /// 0.95 and threshold 0.01, about 90 evaluations).
 pub const MARKED_OCCUPANCY: f32 = 1.0;
 
+/// Sixteenths of optical depth in a unit of [`OccupancyGrid::depth_code`]: an occupancy
+/// (density times the smallest cell side, what an update stores) of 1 is code 16.
+pub const DEPTH_CODES_PER_UNIT: f32 = 16.0;
+
+/// An evaluated optical depth (density times the smallest cell side) as a depth code.
+pub(crate) fn depth_code_of(value: f32) -> u8 {
+    if value > 0.0 {
+        (value * DEPTH_CODES_PER_UNIT).floor().min(255.0) as u8
+    } else {
+        0
+    }
+}
+
 /// Occupancy of a cell outside the grid's support (see
 /// [`OccupancyGrid::restrict_to_marked`]): never evaluated, never occupied.
 pub const OUTSIDE_SUPPORT: f32 = -1.0;
@@ -37,6 +50,10 @@ pub struct OccupancyGrid {
     resolution: [u32; 3],
     occupancy: Vec<f32>,
     bitfield: Vec<u64>,
+    /// Per cell, the field's optical depth at the cell's last evaluation, coded
+    /// ([`OccupancyGrid::depth_code`]); empty in a grid saved without it.
+    #[serde(default)]
+    depth: Vec<u8>,
 }
 
 impl OccupancyGrid {
@@ -62,6 +79,7 @@ impl OccupancyGrid {
             resolution,
             occupancy: vec![0.0; cells],
             bitfield: vec![0; cells.div_ceil(64)],
+            depth: vec![0; cells],
         })
     }
 
@@ -136,9 +154,42 @@ impl OccupancyGrid {
         &self.occupancy
     }
 
-    /// A 64-bit hash of the box, resolution and occupied bits: equal grids have equal
-    /// fingerprints, so per-frame structures derived from the bits can be cached by it
-    /// (the grid changes only at occupancy updates).
+    /// The optical depth the field gave cell `index` across its smallest side when the
+    /// cell was last evaluated by an update, as the accelerated sampler reads it to stop
+    /// a ray whose light is spent: in sixteenths ([`DEPTH_CODES_PER_UNIT`]), rounded down
+    /// and capped at 255 (15.9, a transmittance of 1e-7); 0 for an unoccupied cell or one
+    /// no update has evaluated. Marks ([`OccupancyGrid::mark`]) are a prior on where the
+    /// person may be, not a density, and set no depth.
+    #[inline]
+    pub fn depth_code(&self, index: usize) -> u8 {
+        if !self.is_cell_occupied(index) {
+            return 0;
+        }
+        self.depth.get(index).copied().unwrap_or(0)
+    }
+
+    /// Every cell's stored depth code, as saved (see [`OccupancyGrid::depth_code`]).
+    pub fn depth_codes(&self) -> &[u8] {
+        &self.depth
+    }
+
+    /// Restores the depth codes saved with [`OccupancyGrid::depth_codes`]: one per cell.
+    pub fn set_depth_codes(&mut self, depth: Vec<u8>) -> Result<(), GridError> {
+        if depth.len() != self.occupancy.len() {
+            return Err(GridError::LengthMismatch {
+                what: "depth codes",
+                expected: self.occupancy.len(),
+                got: depth.len(),
+            });
+        }
+        self.depth = depth;
+        Ok(())
+    }
+
+    /// A 64-bit hash of the box, resolution, occupied bits and the occupied cells'
+    /// [`OccupancyGrid::depth_code`]s: equal grids have equal fingerprints, so per-frame
+    /// structures derived from them can be cached by it (the grid changes only at
+    /// occupancy updates).
     pub fn fingerprint(&self) -> u64 {
         let mut h = crate::rng::mix64(0x6F63_6367_7269_6431);
         let head = self
@@ -152,8 +203,23 @@ impl OccupancyGrid {
         {
             h = crate::rng::mix64(h ^ v);
         }
-        for &w in &self.bitfield {
+        for (k, &w) in self.bitfield.iter().enumerate() {
             h = crate::rng::mix64(h ^ w);
+            // The depth codes of the word's occupied cells, eight to a hash.
+            let (mut bits, mut packed, mut n) = (w, 0u64, 0);
+            while bits != 0 {
+                let i = k * 64 + bits.trailing_zeros() as usize;
+                bits &= bits - 1;
+                packed = packed << 8 | u64::from(self.depth_code(i));
+                n += 1;
+                if n == 8 {
+                    h = crate::rng::mix64(h ^ packed);
+                    (packed, n) = (0, 0);
+                }
+            }
+            if n > 0 {
+                h = crate::rng::mix64(h ^ packed);
+            }
         }
         h
     }

@@ -140,6 +140,9 @@ impl OccupancyGrid {
         for (batch, density) in batches.iter().zip(&densities) {
             for (&i, &d) in batch.iter().zip(density) {
                 self.occupancy[i] = (self.occupancy[i] * opts.ema_decay).max(d);
+                if let Some(code) = self.depth.get_mut(i) {
+                    *code = super::depth_code_of(d);
+                }
             }
         }
         let (sum, supported) = self

@@ -4,6 +4,11 @@
 //! The same samples as [`crate::sample_in_front_of_cores`] followed by a conservative
 //! [`crate::cull_with_grid`], with nothing built per frame.
 //!
+//! Where the grid holds the field's densities (after an occupancy update), a ray also
+//! stops where its light is spent: the kept bins' optical depth, read from the grid
+//! through the bone that gives the least, is added up along the ray, and once it passes
+//! [`SPENT_OPTICAL_DEPTH`] the ray takes bins only as far again as the cull's reach.
+//!
 //! What makes it fast: a frame's pixel rays share one origin (the camera centre) and
 //! neighbouring rays look the same way, so per chunk of rays a `ChunkView` keeps the
 //! few capsules they may meet, prepared for that origin (chunks whose rays do not share
@@ -22,6 +27,10 @@ use crate::ray::validate_rays;
 use crate::rng::SplitMix64;
 use crate::samples::{Sample, stratified_bins};
 use crate::{AcceleratedOpts, Capsule, GridError, PackedSamples, Ray};
+
+/// Optical depth after which a ray's light is spent: a transmittance of 1e-4. What lies
+/// behind adds at most that share of the colour.
+pub const SPENT_OPTICAL_DEPTH: f32 = 9.21;
 
 /// A capsule a ray crosses, with what the bins need of it.
 #[derive(Clone, Copy)]
@@ -198,8 +207,14 @@ impl AcceleratedSampler {
             return;
         }
         let mut rng = SplitMix64::for_stream(opts.seed, index as u64);
+        // The grid's densities, where it holds any: the ray stops once they spend it.
+        let densities = self
+            .cull
+            .as_ref()
+            .filter(|c| c.stop_where_spent && c.grid.has_density());
+        let (mut depth, mut spent_at) = (0.0f32, f32::INFINITY);
         let mut first = 0;
-        while first < hits.len() {
+        while first < hits.len() && hits[first].t_in <= spent_at {
             // One merged interval: hits[first..last] overlap or touch.
             let mut t_out = hits[first].t_out;
             let mut last = first + 1;
@@ -219,8 +234,19 @@ impl AcceleratedSampler {
             let rng = opts.jitter.then_some(&mut rng);
             let mut sweep = Sweep::new(group, exits);
             stratified_bins(t_in, t_end, n, rng, |a, b| {
+                if a > spent_at {
+                    return;
+                }
                 if let Some(s) = sweep.bin(self.cull.as_ref(), a, b) {
                     out.push(s);
+                    if let Some(cull) = densities
+                        && spent_at.is_infinite()
+                    {
+                        depth += sweep.least_density(cull, a, b) * (b - a);
+                        if depth >= SPENT_OPTICAL_DEPTH {
+                            spent_at = b + cull.grid.reach();
+                        }
+                    }
                 }
             });
         }
@@ -319,6 +345,24 @@ impl<'a> Sweep<'a> {
             part_mask: parts,
             bone_mask: bones,
         })
+    }
+
+    /// The least density (per metre) the grid gives the midpoint of `[a, b]` through the
+    /// bones of the capsules overlapping it: the sample is dense only if every bone that
+    /// may skin it says so.
+    #[inline]
+    fn least_density(&self, cull: &CanonicalCull, a: f32, b: f32) -> f32 {
+        let mid = 0.5 * (a + b);
+        let mut least = f32::INFINITY;
+        for h in self.group {
+            if h.t_in <= b && a <= h.t_out {
+                least = least.min(cull.grid.density_cell(h.q0 + mid * h.dq));
+                if least == 0.0 {
+                    break;
+                }
+            }
+        }
+        if least.is_finite() { least } else { 0.0 }
     }
 
     /// Whether some bone of a capsule overlapping `[a, b]` maps `mid` into an occupied

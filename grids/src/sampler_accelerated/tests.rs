@@ -177,6 +177,7 @@ fn cull_never_drops_a_point_the_exact_map_keeps() {
             DilatedOccupancy::new(&canonical, AcceleratedSampler::cull_reach(step)).unwrap(),
         ),
         canonical_from_posed: maps.clone(),
+        stop_where_spent: true,
     };
     let sampler = AcceleratedSampler::new(&capsules, &cores, Some(cull), step).unwrap();
     let unculled = AcceleratedSampler::new(&capsules, &cores, None, step).unwrap();
@@ -292,9 +293,119 @@ fn bad_input_is_an_error() {
     let cull = || CanonicalCull {
         grid: Arc::new(DilatedOccupancy::new(&grid, 0.0).unwrap()),
         canonical_from_posed: maps.clone(),
+        stop_where_spent: true,
     };
     assert!(AcceleratedSampler::new(&capsules, &cores, Some(cull()), 0.005).is_err());
     // Empty input is fine.
     let empty = sampler.sample(&[], &opts(0.005, 0)).unwrap();
     assert_eq!(empty.num_rays(), 0);
+}
+
+/// A torso of bone 3 whose canonical field is a solid slab behind `z = 0` (identity map),
+/// and rays along +z through it: the grid, once updated with the slab's density, stops
+/// each ray within the cull's reach of where its light is spent, never before the
+/// surface; a grid of marks alone, a cull asked not to stop, or a second bone that maps
+/// the same bins to empty space stops nothing.
+#[test]
+fn rays_stop_where_the_grids_density_spends_them() {
+    let torso = Capsule {
+        a: vec3(0.0, -0.2, 0.0),
+        b: vec3(0.0, 0.2, 0.0),
+        radius: 0.15,
+        part: Part::Body,
+        bone: 3,
+    };
+    let step = 0.005;
+    let mut maps = vec![Affine3A::IDENTITY; 64];
+    // Bone 4 maps everything 2 m away, outside the grid.
+    maps[4] = Affine3A::from_translation(vec3(0.0, 0.0, 2.0));
+    let mut grid = OccupancyGrid::new(Vec3::splat(-0.5), Vec3::splat(0.5), [64; 3]).unwrap();
+    let cull = |grid: &OccupancyGrid, maps: &[Affine3A]| CanonicalCull {
+        grid: Arc::new(DilatedOccupancy::new(grid, AcceleratedSampler::cull_reach(step)).unwrap()),
+        canonical_from_posed: maps.to_vec(),
+        stop_where_spent: true,
+    };
+    let rays: Vec<Ray> = (0..40)
+        .map(|k| {
+            let x = -0.12 + 0.006 * k as f32;
+            Ray::new(vec3(x, 0.05, -2.0), Vec3::Z, 0.0, f32::INFINITY).unwrap()
+        })
+        .collect();
+    let last_z = |samples: &PackedSamples, i: usize| {
+        let r = samples.range(i);
+        let last = r.end - 1;
+        rays[i].origin.z + samples.t_start[last]
+    };
+    let holds_surface = |samples: &PackedSamples, i: usize| {
+        let t = -rays[i].origin.z;
+        samples
+            .range(i)
+            .any(|s| samples.t_start[s] <= t && t <= samples.t_end[s])
+    };
+
+    // Marks only: a prior, not a density. Every ray runs to the torso's far side.
+    grid.mark_capsules(&[torso], 0.02).unwrap();
+    let sampler = AcceleratedSampler::new(&[torso], &[], Some(cull(&grid, &maps)), step).unwrap();
+    let marked = sampler.sample(&rays, &opts(step, 7)).unwrap();
+    for i in 0..rays.len() {
+        assert!(last_z(&marked, i) > 0.05, "ray {i}: {}", last_z(&marked, i));
+    }
+
+    // The field's slab: optical depth 100 a cell behind z = 0, none in front.
+    let slab = |points: &[Vec3]| {
+        points
+            .iter()
+            .map(|p| if p.z >= 0.0 { 100.0 } else { 0.0 })
+            .collect::<Vec<f32>>()
+    };
+    grid.update(0, slab, &crate::OccUpdateOpts::default())
+        .unwrap();
+    let dilated = cull(&grid, &maps);
+    let reach = dilated.grid.reach();
+    let sampler = AcceleratedSampler::new(&[torso], &[], Some(dilated), step).unwrap();
+    for seed in 0..4 {
+        let stopped = sampler.sample(&rays, &opts(step, seed)).unwrap();
+        for i in 0..rays.len() {
+            assert!(holds_surface(&stopped, i), "ray {i} misses the surface");
+            // Spent once the dense bins (from the surface on: its cell is the first
+            // dense one) hold the spent depth at the cap's density, the last of them at
+            // most 1.9 steps long; then the reach.
+            let cell = 1.0 / 64.0;
+            let density = 255.0 / crate::occupancy::DEPTH_CODES_PER_UNIT / cell;
+            let spent = SPENT_OPTICAL_DEPTH / density + 1.9 * step;
+            let z = last_z(&stopped, i);
+            assert!(z <= spent + reach + 1e-4, "ray {i}: last sample at z = {z}");
+        }
+        // Each ray's far side, at least 9 cm past the surface, is gone but for the
+        // spent depth and the reach (about 3.4 cm): at least ten steps a ray.
+        assert!(
+            stopped.num_samples() + 10 * rays.len() < marked.num_samples(),
+            "{} of {}",
+            stopped.num_samples(),
+            marked.num_samples()
+        );
+    }
+
+    // Asked not to stop, the same grid only culls.
+    let culling = CanonicalCull {
+        stop_where_spent: false,
+        ..cull(&grid, &maps)
+    };
+    let sampler = AcceleratedSampler::new(&[torso], &[], Some(culling), step).unwrap();
+    let unstopped = sampler.sample(&rays, &opts(step, 7)).unwrap();
+    for i in 0..rays.len() {
+        assert!(
+            last_z(&unstopped, i) > 0.05,
+            "ray {i}: {}",
+            last_z(&unstopped, i)
+        );
+    }
+
+    // Two bones hold every bin and bone 4 finds no density: nothing is spent.
+    let both = [torso, Capsule { bone: 4, ..torso }];
+    let sampler = AcceleratedSampler::new(&both, &[], Some(cull(&grid, &maps)), step).unwrap();
+    let unsure = sampler.sample(&rays, &opts(step, 7)).unwrap();
+    for i in 0..rays.len() {
+        assert!(last_z(&unsure, i) > 0.05, "ray {i}: {}", last_z(&unsure, i));
+    }
 }

@@ -1,8 +1,10 @@
 //! The occupancy grid's file: safetensors, so any tool that reads safetensors (Python's
 //! `safetensors`, numpy) can open it. Tensors: `aabb` (F32 [2, 3]: min, max),
 //! `resolution` (U32 [3]), `occupancy` (F32 [rx * ry * rz], every cell's value) and
-//! `bitfield` (U64 [ceil(cells / 64)], cell `i` is bit `i % 64` of word `i / 64`); the
-//! header's metadata says `format: talkin occupancy grid v1`. Reading checks every dtype
+//! `bitfield` (U64 [ceil(cells / 64)], cell `i` is bit `i % 64` of word `i / 64`) and
+//! `depth` (U8 [rx * ry * rz], the field's optical depth per cell in sixteenths, what
+//! stops a ray whose light is spent; a file without it reads as zeros and stops none);
+//! the header's metadata says `format: talkin occupancy grid v1`. Reading checks every dtype
 //! and shape against the resolution; the grid itself refuses non-finite values.
 
 use std::collections::HashMap;
@@ -41,6 +43,7 @@ pub fn grid_to_bytes(grid: &OccupancyGrid) -> Result<Vec<u8>, CheckpointError> {
         .iter()
         .flat_map(|w| w.to_le_bytes())
         .collect();
+    let depth = grid.depth_codes();
     let internal = |e: safetensors::SafeTensorError| CheckpointError::Format {
         file: "grid".into(),
         field: "grid".into(),
@@ -59,6 +62,10 @@ pub fn grid_to_bytes(grid: &OccupancyGrid) -> Result<Vec<u8>, CheckpointError> {
         (
             "bitfield",
             TensorView::new(Dtype::U64, vec![grid.bitfield().len()], &bitfield),
+        ),
+        (
+            "depth",
+            TensorView::new(Dtype::U8, vec![depth.len()], depth),
         ),
     ];
     let mut tensors = Vec::with_capacity(views.len());
@@ -130,10 +137,19 @@ pub fn grid_from_bytes(bytes: &[u8], file: &Path) -> Result<OccupancyGrid, Check
         .chunks_exact(8)
         .map(|c| u64::from_le_bytes([c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7]]))
         .collect();
+    let depth = match st.tensor("depth") {
+        Err(_) => None,
+        Ok(_) => Some(tensor("depth", Dtype::U8, &[cells])?),
+    };
     let lo = Vec3::new(aabb[0], aabb[1], aabb[2]);
     let hi = Vec3::new(aabb[3], aabb[4], aabb[5]);
-    OccupancyGrid::from_parts(lo, hi, resolution, occupancy, bitfield)
-        .map_err(|e| bad("grid", e.to_string()))
+    let mut grid = OccupancyGrid::from_parts(lo, hi, resolution, occupancy, bitfield)
+        .map_err(|e| bad("grid", e.to_string()))?;
+    if let Some(depth) = depth {
+        grid.set_depth_codes(depth)
+            .map_err(|e| bad("depth", e.to_string()))?;
+    }
+    Ok(grid)
 }
 
 #[cfg(test)]
@@ -152,6 +168,16 @@ mod tests {
         let st = SafeTensors::deserialize(&bytes).unwrap();
         assert_eq!(st.tensor("occupancy").unwrap().shape(), &[5 * 7 * 3]);
         assert_eq!(st.tensor("bitfield").unwrap().dtype(), Dtype::U64);
+        // The field's depth codes travel with the grid.
+        grid.update(
+            0,
+            |p: &[Vec3]| p.iter().map(|q| q.x.max(0.0) * 3.0).collect(),
+            &talkin_grids::OccUpdateOpts::default(),
+        )
+        .unwrap();
+        assert!(grid.depth_codes().iter().any(|&d| d > 0));
+        let bytes = grid_to_bytes(&grid).unwrap();
+        assert_eq!(grid_from_bytes(&bytes, file).unwrap(), grid);
         // Truncated, not safetensors, a wrong shape, NaN occupancy: named errors.
         // A 5x7x3 grid file whose occupancy holds `cells` copies of `value`.
         let file_with = |cells: usize, value: f32| {
@@ -178,6 +204,9 @@ mod tests {
             )
             .unwrap()
         };
+        // A file written before the depth codes reads as none.
+        let old = grid_from_bytes(&file_with(105, 0.5), file).unwrap();
+        assert!(old.depth_codes().iter().all(|&d| d == 0));
         let (nan, wrong_shape) = (file_with(105, f32::NAN), file_with(104, 0.0));
         for (damaged, needle) in [
             (bytes[..bytes.len() - 1].to_vec(), "grid"),

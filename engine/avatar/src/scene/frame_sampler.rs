@@ -2,7 +2,8 @@
 //! the dense baseline in HumanNeRF's box (the posed joints +- 0.3 m in the body's frame)
 //! and the accelerated pipeline (per ray, the exact grown-capsule intervals up to the
 //! first core, culled per bin by the canonical occupancy grid through the bones' rigid
-//! maps: [`AcceleratedSampler`]).
+//! maps, and without cores stopped where the grid's densities spend the ray:
+//! [`AcceleratedSampler`]).
 
 use std::sync::{Arc, Mutex, OnceLock};
 
@@ -130,6 +131,9 @@ impl FrameSampler {
         let cull = CanonicalCull {
             grid: dilated.get(grid, reach)?,
             canonical_from_posed: self.canonical_from_posed.clone(),
+            // Where cores end the rays (data with depth) they stop them; a stop where the
+            // grid's densities spend a ray is for the rays no core can end.
+            stop_where_spent: self.cores.is_empty(),
         };
         let sampler = Arc::new(AcceleratedSampler::new(
             &self.grown,
