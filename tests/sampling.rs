@@ -119,9 +119,9 @@ fn frames_without_depth_give_no_surface_points() {
 /// Without depth rays stop at no core (the skinning prior keeps them). The masks cannot
 /// see a fit that sits nearer the camera than the person, and a core of such a fit lies
 /// in front of the visible surface: the rays would stop there (on ZJU-MoCap 387 an
-/// outstretched arm rendered as a black band). A capture-like scene whose fits are 4 cm off, its shells fitted without its
-/// depth: every training pixel's true surface point that the grown capsules hold is
-/// still sampled once the rays stop at their first core.
+/// outstretched arm rendered as a black band). A capture-like scene whose fits are 4 cm
+/// off, its shells fitted without its depth: every training pixel's true surface point
+/// that the grown capsules hold is still sampled once the rays stop at their first core.
 #[test]
 fn fits_off_toward_the_camera_hide_no_surface_behind_a_core_without_depth() {
     let dir = common::temp_dir("sampling_biased_fits");

@@ -4,8 +4,8 @@
 //! `bitfield` (U64 [ceil(cells / 64)], cell `i` is bit `i % 64` of word `i / 64`) and
 //! `depth` (U8 [rx * ry * rz], the field's optical depth per cell in sixteenths, what
 //! stops a ray whose light is spent; a file without it reads as zeros and stops none);
-//! the header's metadata says `format: talkin occupancy grid v1`. Reading checks every dtype
-//! and shape against the resolution; the grid itself refuses non-finite values.
+//! the header's metadata says `format: talkin occupancy grid v1`. Reading checks every
+//! dtype and shape against the resolution; the grid itself refuses non-finite values.
 
 use std::collections::HashMap;
 use std::path::Path;
