@@ -66,27 +66,41 @@ impl CanonicalGrid {
             .to_array();
         let mut grid = OccupancyGrid::new(lo, hi, res)?;
         let grow = cell * 3f32.sqrt();
-        for set in capsule_sets.iter().chain(std::iter::once(&reach)) {
-            grid.mark_capsules(set, grow)?;
-        }
+        // Marking is a union, so each capsule once: the frames change only the fingers,
+        // jaw and eyes, and every frame's set repeats the body's capsules.
+        let marked = distinct(&all);
+        grid.mark_capsules(&marked, grow)?;
         if let Some(points) = surface {
             let mut carved = OccupancyGrid::new(lo, hi, res)?;
             carved.mark(points);
             carved.dilate((SURFACE_REACH_M / cell).ceil() as u32);
-            for set in capsule_sets.iter().chain(std::iter::once(&reach)) {
-                let kept: Vec<Capsule> = set
-                    .iter()
-                    .filter(|c| !super::CARVED_PARTS.contains(&c.part))
-                    .copied()
-                    .collect();
-                carved.mark_capsules(&kept, grow)?;
-            }
+            let kept: Vec<Capsule> = marked
+                .iter()
+                .filter(|c| !super::CARVED_PARTS.contains(&c.part))
+                .copied()
+                .collect();
+            carved.mark_capsules(&kept, grow)?;
             grid.intersect(&carved)?;
         }
         // No sample can land outside these capsules: updates need not look there.
         grid.restrict_to_marked();
         Ok(grid)
     }
+}
+
+/// `capsules` without repeats (bit for bit), in their first order.
+fn distinct(capsules: &[Capsule]) -> Vec<Capsule> {
+    let key = |c: &Capsule| {
+        let [ax, ay, az] = c.a.to_array().map(f32::to_bits);
+        let [bx, by, bz] = c.b.to_array().map(f32::to_bits);
+        (ax, ay, az, bx, by, bz, c.radius.to_bits(), c.part, c.bone)
+    };
+    let mut seen = std::collections::HashSet::with_capacity(capsules.len());
+    capsules
+        .iter()
+        .filter(|c| seen.insert(key(c)))
+        .copied()
+        .collect()
 }
 
 fn canonical_capsules(
@@ -117,4 +131,40 @@ fn wrist_reach(capsules: &[Capsule]) -> Vec<Capsule> {
             })
         })
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn distinct_drops_only_exact_repeats_and_keeps_the_first_order() {
+        let c = |x: f32, radius: f32, bone: u16| Capsule {
+            a: Vec3::new(x, 0.0, 0.0),
+            b: Vec3::new(x, 1.0, 0.0),
+            radius,
+            part: Part::Body,
+            bone,
+        };
+        let nudged = f32::from_bits(0.1f32.to_bits() + 1);
+        let hand = Capsule {
+            part: Part::Hands,
+            ..c(0.0, 0.1, 3)
+        };
+        let given = [
+            c(0.0, 0.1, 3),
+            c(1.0, 0.1, 3),
+            c(0.0, 0.1, 3),
+            c(0.0, nudged, 3),
+            c(0.0, 0.1, 4),
+            hand,
+            c(1.0, 0.1, 3),
+        ];
+        let kept = distinct(&given);
+        assert_eq!(
+            kept,
+            vec![given[0], given[1], given[3], given[4], given[5]],
+            "{kept:?}"
+        );
+    }
 }
