@@ -91,7 +91,8 @@ pub use error::GridError;
 pub use intersect::{CapsuleHit, brute_force_hits, ray_capsule};
 pub use intervals::{Interval, RayIntervals};
 pub use margins::{
-    LabelledRay, MarginFitOpts, MarginReport, PartFit, PartMargins, fit_part_margins,
+    LabelledRay, MarginFitOpts, MarginReport, PartFit, PartMargins, RayCoverage, count_covered,
+    fit_part_margins,
 };
 pub use occupancy::{OccUpdateOpts, OccUpdateReport, OccupancyGrid};
 pub use ray::Ray;

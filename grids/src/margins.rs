@@ -167,15 +167,7 @@ pub fn fit_part_margins(
 ) -> Result<MarginReport, GridError> {
     check_opts(opts)?;
     validate_capsules(capsules)?;
-    for (index, r) in rays.iter().enumerate() {
-        r.ray.validate(index)?;
-        if Part::from_label(r.label).is_none() {
-            return Err(GridError::BadLabel {
-                index,
-                label: r.label,
-            });
-        }
-    }
+    validate_rays(rays)?;
     let needs: Vec<f32> = rays
         .par_iter()
         .map(|r| {
@@ -254,6 +246,52 @@ pub fn fit_part_margins(
         uncovered: uncovered(false),
         uncovered_any: uncovered(true),
     })
+}
+
+/// How many rays capsules already grown cover: [`fit_part_margins`]'s check alone, without
+/// the margins each ray needs.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct RayCoverage {
+    /// Rays hitting a capsule of their own part, in [`Part::ALL`] order.
+    pub own_part: [usize; 4],
+    /// Rays hitting any capsule.
+    pub any_part: usize,
+    /// All rays.
+    pub rays: usize,
+}
+
+/// Counts the rays that hit a capsule of their own part and those that hit any, by real
+/// intersection. Fails on invalid rays or capsules and on labels outside 1..=4, as
+/// [`fit_part_margins`] does.
+pub fn count_covered(capsules: &[Capsule], rays: &[LabelledRay]) -> Result<RayCoverage, GridError> {
+    validate_capsules(capsules)?;
+    validate_rays(rays)?;
+    let covered = coverage(capsules, rays)?;
+    let own_part = std::array::from_fn(|k| {
+        let label = Part::ALL[k].label();
+        rays.iter()
+            .zip(&covered)
+            .filter(|(r, c)| r.label == label && c.0)
+            .count()
+    });
+    Ok(RayCoverage {
+        own_part,
+        any_part: covered.iter().filter(|c| c.1).count(),
+        rays: rays.len(),
+    })
+}
+
+fn validate_rays(rays: &[LabelledRay]) -> Result<(), GridError> {
+    for (index, r) in rays.iter().enumerate() {
+        r.ray.validate(index)?;
+        if Part::from_label(r.label).is_none() {
+            return Err(GridError::BadLabel {
+                index,
+                label: r.label,
+            });
+        }
+    }
+    Ok(())
 }
 
 /// Per ray: (hits a capsule of its own part, hits any capsule), by real intersection.

@@ -2,7 +2,9 @@
 
 use glam::{Vec2, Vec3, vec2, vec3};
 use talkin_grids::intersect::ray_capsule;
-use talkin_grids::{Capsule, GridError, LabelledRay, MarginFitOpts, Part, Ray, fit_part_margins};
+use talkin_grids::{
+    Capsule, GridError, LabelledRay, MarginFitOpts, Part, Ray, count_covered, fit_part_margins,
+};
 
 fn figure() -> Vec<Capsule> {
     let c = |a: Vec3, b: Vec3, radius, part, bone| Capsule {
@@ -250,6 +252,28 @@ fn any_part_coverage_counts_a_pixel_seen_through_another_part() {
     // Parts without rays keep a zero margin.
     assert_eq!(report.parts[3].margin, 0.0);
     assert_eq!(report.parts[3].coverage_after(), 1.0);
+}
+
+/// The check alone counts what the fit's report counts, before and after the margins.
+#[test]
+fn count_covered_agrees_with_the_fits_report() {
+    let capsules = figure();
+    let rays = grazing_rays();
+    let report = fit_part_margins(&capsules, &rays, &MarginFitOpts::default()).unwrap();
+    let before = count_covered(&capsules, &rays).unwrap();
+    let after = count_covered(&report.margins.inflate(&capsules), &rays).unwrap();
+    assert_eq!(before.rays, rays.len());
+    assert_eq!(before.own_part, report.parts.map(|p| p.covered_before));
+    assert_eq!(after.own_part, report.parts.map(|p| p.covered_after));
+    assert_eq!(before.any_part, report.any_part_before);
+    assert_eq!(after.any_part, report.any_part_after);
+    assert!(before.own_part.iter().sum::<usize>() < after.own_part.iter().sum::<usize>());
+    for label in [0, 5] {
+        assert_eq!(
+            count_covered(&capsules, &[camera_ray(Vec2::ZERO, label)]),
+            Err(GridError::BadLabel { index: 0, label })
+        );
+    }
 }
 
 #[test]

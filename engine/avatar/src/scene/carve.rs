@@ -16,6 +16,10 @@ use talkin_data::dataset::{Dataset, DatasetError};
 use talkin_human::body::canonical_params;
 use talkin_human::body::skeleton::body_ancestor;
 
+/// How far past a capsule's box (metres) a point must lie to be skipped without its
+/// exact distance: far above the rounding of either.
+const BOX_SLACK_M: f32 = 1e-3;
+
 /// Parts whose grid cells are carved to the training surfaces.
 pub const CARVED_PARTS: [Part; 2] = [Part::Body, Part::Arms];
 
@@ -55,6 +59,13 @@ fn frame_surface_points(
     };
     let (scene, rays, pixels) = frame_scene_and_rays(dataset, &canonical, i)?;
     let grown = shells.inflate(&scene.capsules);
+    let boxes: Vec<(Vec3, Vec3)> = grown
+        .iter()
+        .map(|c| {
+            let reach = Vec3::splat(c.radius + BOX_SLACK_M);
+            (c.a.min(c.b) - reach, c.a.max(c.b) + reach)
+        })
+        .collect();
     let forward = frame.camera.forward_in_world().as_vec3();
     let mut out = Vec::new();
     for (l, &px) in rays.iter().zip(&pixels) {
@@ -64,9 +75,13 @@ fn frame_surface_points(
         };
         let p_posed = l.ray.at(z / l.ray.direction.dot(forward));
         let mut done = 0u64;
-        for c in &grown {
+        for (c, (lo, hi)) in grown.iter().zip(&boxes) {
             let bone = body_ancestor(c.bone as usize);
+            // Outside the capsule's box by a millimetre is outside the capsule, whatever
+            // the rounding: the exact distance is only taken near it.
             if done & (1 << bone) != 0
+                || p_posed.cmplt(*lo).any()
+                || p_posed.cmpgt(*hi).any()
                 || talkin_grids::intersect::distance_to_segment(p_posed, c.a, c.b) > c.radius
             {
                 continue;

@@ -16,8 +16,8 @@ use glam::Vec3;
 use rayon::prelude::*;
 use talkin_grids::intersect::distance_to_segment;
 use talkin_grids::{
-    Capsule, GridError, LabelledRay, MarginFitOpts, MarginReport, Part, PartMargins,
-    fit_part_margins,
+    Capsule, GridError, LabelledRay, MarginFitOpts, MarginReport, Part, PartMargins, RayCoverage,
+    count_covered, fit_part_margins,
 };
 
 use super::frame::{FrameScene, foreground_rays};
@@ -267,24 +267,20 @@ fn coverage_after(
     shells: &CapsuleShells,
     coverage: &mut [(usize, usize, usize); 4],
 ) -> Result<usize, DatasetError> {
-    let check_opts = MarginFitOpts {
-        coverage_target: 1.0,
-        max_margin: 0.0,
-    };
-    let checks: Vec<MarginReport> = frames
+    let checks: Vec<RayCoverage> = frames
         .par_iter()
         .map(|&i| {
             let (scene, rays, _) = frame_scene_and_rays(dataset, canonical, i)?;
-            fit_part_margins(&shells.inflate(&scene.capsules), &rays, &check_opts)
+            count_covered(&shells.inflate(&scene.capsules), &rays)
                 .map_err(|e| grid_error(dataset, i, e))
         })
         .collect::<Result<_, _>>()?;
     let mut uncovered_any = 0;
     for check in &checks {
         for k in 0..4 {
-            coverage[k].2 += check.parts[k].covered_before;
+            coverage[k].2 += check.own_part[k];
         }
-        uncovered_any += check.rays - check.any_part_before;
+        uncovered_any += check.rays - check.any_part;
     }
     Ok(uncovered_any)
 }
@@ -311,7 +307,6 @@ fn fit_frame(
             let p: Vec3 = l.ray.at(z / l.ray.direction.dot(forward));
             let mut nearest = (f32::INFINITY, usize::MAX);
             for (c, cap) in caps.iter().enumerate() {
-                let d = distance_to_segment(p, cap.a, cap.b);
                 let axis = cap.b - cap.a;
                 // The ray is free space up to its surface point: a core may not reach
                 // the segment camera -> surface (this also keeps the surface point out).
@@ -320,8 +315,11 @@ fn fit_frame(
                         segment_distance(l.ray.origin, p, cap.a + axis * *f, cap.b - axis * *f);
                     closest[c][k] = closest[c][k].min(free);
                 }
-                if cap.part.label() == l.label && d - cap.radius < nearest.0 {
-                    nearest = (d - cap.radius, c);
+                if cap.part.label() == l.label {
+                    let d = distance_to_segment(p, cap.a, cap.b) - cap.radius;
+                    if d < nearest.0 {
+                        nearest = (d, c);
+                    }
                 }
             }
             if nearest.1 != usize::MAX {
