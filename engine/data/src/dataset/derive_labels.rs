@@ -25,40 +25,80 @@ pub fn derived_segmentation(
 ) -> GrayImage {
     let posed = skeleton.pose(params);
     let capsules = limb_capsules(skeleton, &posed);
+    let spheres: Vec<Sphere> = capsules.iter().map(Sphere::around).collect();
     let mut labels = GrayImage::new(mask.width(), mask.height());
     for (x, y, m) in mask.enumerate_pixels() {
         if m.0[0] < 128 {
             continue;
         }
         let (origin, direction) = camera.pixel_ray(x, y);
-        let label = first_hit(&capsules, origin, direction)
-            .unwrap_or_else(|| nearest(&capsules, origin, direction));
+        let label = first_hit(&capsules, &spheres, origin, direction)
+            .unwrap_or_else(|| nearest(&capsules, &spheres, origin, direction));
         labels.put_pixel(x, y, image::Luma([label]));
     }
     labels
 }
 
+/// How far (metres) a ray must pass outside a capsule's bounding sphere for the exact
+/// tests to be skipped: far above the rounding of either, so the labels are those of
+/// the exact tests over every capsule.
+const SPHERE_SLACK_M: f64 = 1e-3;
+
+/// A sphere holding a capsule: its segment's midpoint, half its length plus its radius.
+struct Sphere {
+    centre: DVec3,
+    reach: f64,
+}
+
+impl Sphere {
+    fn around(c: &Capsule) -> Sphere {
+        let (a, b) = (c.a.as_dvec3(), c.b.as_dvec3());
+        Sphere {
+            centre: 0.5 * (a + b),
+            reach: 0.5 * a.distance(b) + f64::from(c.radius),
+        }
+    }
+
+    /// A lower bound on how far the ray `origin + t direction` (t >= 0, unit
+    /// `direction`) passes outside the sphere's capsule.
+    fn gap_at_least(&self, origin: DVec3, direction: DVec3) -> f64 {
+        let t = (self.centre - origin).dot(direction).max(0.0);
+        (origin + direction * t).distance(self.centre) - self.reach - SPHERE_SLACK_M
+    }
+}
+
 /// The label of the first capsule the ray enters, if any.
-fn first_hit(capsules: &[Capsule], origin: DVec3, direction: DVec3) -> Option<u8> {
+fn first_hit(
+    capsules: &[Capsule],
+    spheres: &[Sphere],
+    origin: DVec3,
+    direction: DVec3,
+) -> Option<u8> {
     let ray = Ray::new(origin.as_vec3(), direction.as_vec3(), 0.0, f32::INFINITY).ok()?;
     capsules
         .iter()
-        .filter_map(|c| ray_capsule(&ray, c).map(|(t_in, _)| (t_in, c.part.label())))
+        .zip(spheres)
+        .filter(|(_, s)| s.gap_at_least(origin, direction) <= 0.0)
+        .filter_map(|(c, _)| ray_capsule(&ray, c).map(|(t_in, _)| (t_in, c.part.label())))
         .min_by(|a, b| a.0.total_cmp(&b.0))
         .map(|(_, label)| label)
 }
 
-/// The label of the capsule whose surface the ray passes nearest.
-fn nearest(capsules: &[Capsule], origin: DVec3, direction: DVec3) -> u8 {
-    capsules
-        .iter()
-        .map(|c| {
-            let gap = ray_segment_distance(origin, direction, c.a.as_dvec3(), c.b.as_dvec3())
-                - f64::from(c.radius);
-            (gap, c.part.label())
-        })
-        .min_by(|a, b| a.0.total_cmp(&b.0))
-        .map_or(1, |(_, label)| label)
+/// The label of the capsule whose surface the ray passes nearest (the first of equals).
+fn nearest(capsules: &[Capsule], spheres: &[Sphere], origin: DVec3, direction: DVec3) -> u8 {
+    let mut best: Option<(f64, u8)> = None;
+    for (c, s) in capsules.iter().zip(spheres) {
+        // A capsule that cannot come nearer than the best so far is not measured.
+        if best.is_some_and(|(gap, _)| s.gap_at_least(origin, direction) > gap) {
+            continue;
+        }
+        let gap = ray_segment_distance(origin, direction, c.a.as_dvec3(), c.b.as_dvec3())
+            - f64::from(c.radius);
+        if best.is_none_or(|(g, _)| gap.total_cmp(&g).is_lt()) {
+            best = Some((gap, c.part.label()));
+        }
+    }
+    best.map_or(1, |(_, label)| label)
 }
 
 /// Distance between the ray `origin + t direction` (t >= 0, unit `direction`) and the
@@ -103,5 +143,83 @@ mod tests {
         // Degenerate segment (a point).
         let p = DVec3::new(0.5, 0.0, 2.0);
         assert!((ray_segment_distance(o, d, p, p) - 0.5).abs() < 1e-9);
+    }
+
+    /// The exhaustive tests the bounding spheres stand in front of.
+    fn first_hit_of_all(capsules: &[Capsule], origin: DVec3, direction: DVec3) -> Option<u8> {
+        let ray = Ray::new(origin.as_vec3(), direction.as_vec3(), 0.0, f32::INFINITY).ok()?;
+        capsules
+            .iter()
+            .filter_map(|c| ray_capsule(&ray, c).map(|(t_in, _)| (t_in, c.part.label())))
+            .min_by(|a, b| a.0.total_cmp(&b.0))
+            .map(|(_, label)| label)
+    }
+
+    fn nearest_of_all(capsules: &[Capsule], origin: DVec3, direction: DVec3) -> u8 {
+        capsules
+            .iter()
+            .map(|c| {
+                let gap = ray_segment_distance(origin, direction, c.a.as_dvec3(), c.b.as_dvec3())
+                    - f64::from(c.radius);
+                (gap, c.part.label())
+            })
+            .min_by(|a, b| a.0.total_cmp(&b.0))
+            .map_or(1, |(_, label)| label)
+    }
+
+    /// Rays from a camera in front of the rest pose, over a fan that crosses every part,
+    /// grazes the limbs and misses the body: the spheres change no label, and the fan
+    /// holds both hits and misses of every part.
+    #[test]
+    fn the_bounding_spheres_change_no_label() {
+        use talkin_human::body::joint::*;
+        use talkin_human::body::{N_JOINTS, PARENTS};
+        // A T-pose: every joint a small step up and out from its parent.
+        let mut rest = [DVec3::ZERO; N_JOINTS];
+        rest[0] = DVec3::new(0.0, 0.95, 0.0);
+        for j in 1..N_JOINTS {
+            let side = match j {
+                LEFT_COLLAR | LEFT_SHOULDER | LEFT_ELBOW | LEFT_WRIST => 0.15,
+                RIGHT_COLLAR | RIGHT_SHOULDER | RIGHT_ELBOW | RIGHT_WRIST => -0.15,
+                j if (LEFT_HAND_FIRST..RIGHT_HAND_FIRST).contains(&j) => 0.03,
+                j if j >= RIGHT_HAND_FIRST => -0.03,
+                _ => 0.0,
+            };
+            let up = if side == 0.0 { 0.12 } else { 0.0 };
+            rest[j] = rest[PARENTS[j] as usize] + DVec3::new(side, up, 0.0);
+        }
+        let skeleton = Skeleton { rest_joints: rest };
+        let posed = skeleton.pose(&talkin_human::body::canonical_params());
+        let capsules = limb_capsules(&skeleton, &posed);
+        let spheres: Vec<Sphere> = capsules.iter().map(Sphere::around).collect();
+        let origin = DVec3::new(0.05, 0.3, 3.0);
+        let (mut hits, mut misses) = ([0usize; 5], [0usize; 5]);
+        for i in 0..200 {
+            for j in 0..200 {
+                let target = DVec3::new(-1.2 + 0.012 * i as f64, -1.4 + 0.015 * j as f64, 0.0);
+                let direction = (target - origin).normalize();
+                let hit = first_hit(&capsules, &spheres, origin, direction);
+                assert_eq!(
+                    hit,
+                    first_hit_of_all(&capsules, origin, direction),
+                    "{i} {j}"
+                );
+                match hit {
+                    Some(label) => hits[label as usize] += 1,
+                    None => {
+                        let label = nearest(&capsules, &spheres, origin, direction);
+                        assert_eq!(
+                            label,
+                            nearest_of_all(&capsules, origin, direction),
+                            "{i} {j}"
+                        );
+                        misses[label as usize] += 1;
+                    }
+                }
+            }
+        }
+        for label in 1..5 {
+            assert!(hits[label] > 0 && misses[label] > 0, "{hits:?} {misses:?}");
+        }
     }
 }
