@@ -1,5 +1,6 @@
 //! The per-frame BVH over posed capsules.
 
+use std::ops::ControlFlow;
 use std::time::Duration;
 
 use glam::{Vec3, Vec3A};
@@ -90,15 +91,28 @@ impl CapsuleBvh {
     /// Calls `f` for every capsule the ray crosses, in traversal order (not sorted).
     /// The ray must be valid ([`Ray::validate`]); an invalid one may report nothing.
     pub fn for_each_hit(&self, ray: &Ray, mut f: impl FnMut(CapsuleHit)) {
+        let _ = self.try_for_each_hit(ray, |h| {
+            f(h);
+            ControlFlow::Continue(())
+        });
+    }
+
+    /// [`CapsuleBvh::for_each_hit`] until `f` breaks: what is still to visit is not
+    /// visited.
+    pub fn try_for_each_hit(
+        &self,
+        ray: &Ray,
+        mut f: impl FnMut(CapsuleHit) -> ControlFlow<()>,
+    ) -> ControlFlow<()> {
         if self.bvh.nodes.is_empty() {
-            return;
+            return ControlFlow::Continue(());
         }
         let slab = Slab::new(ray);
         let mut stack = NodeStack::default();
         let mut visit = |node: u32, stack: &mut NodeStack| {
             let node = &self.bvh.nodes[node as usize];
             if !slab.hits(node.aabb()) {
-                return;
+                return ControlFlow::Continue(());
             }
             if node.is_leaf() {
                 let prims = node.first_index..node.first_index + node.prim_count;
@@ -108,18 +122,20 @@ impl CapsuleBvh {
                             t_in,
                             t_out,
                             capsule: prim,
-                        });
+                        })?;
                     }
                 }
             } else {
                 stack.push(node.first_index);
                 stack.push(node.first_index + 1);
             }
+            ControlFlow::Continue(())
         };
-        visit(0, &mut stack);
+        visit(0, &mut stack)?;
         while let Some(node) = stack.pop() {
-            visit(node, &mut stack);
+            visit(node, &mut stack)?;
         }
+        ControlFlow::Continue(())
     }
 
     /// All capsules the ray crosses, sorted by `t_in` (then capsule index), into `out`

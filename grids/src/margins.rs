@@ -10,6 +10,7 @@
 //! many rays each part covers before and after.
 
 use std::fmt;
+use std::ops::ControlFlow;
 
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -300,10 +301,16 @@ fn coverage(capsules: &[Capsule], rays: &[LabelledRay]) -> Result<Vec<(bool, boo
     Ok(rays
         .par_iter()
         .map(|r| {
+            // A hit of its own part answers both: the rest of the tree is not visited.
             let (mut own, mut any) = (false, false);
-            bvh.for_each_hit(&r.ray, |h| {
+            let _ = bvh.try_for_each_hit(&r.ray, |h| {
                 any = true;
-                own |= capsules[h.capsule as usize].part.label() == r.label;
+                own = capsules[h.capsule as usize].part.label() == r.label;
+                if own {
+                    ControlFlow::Break(())
+                } else {
+                    ControlFlow::Continue(())
+                }
             });
             (own, any)
         })

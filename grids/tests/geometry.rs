@@ -175,6 +175,33 @@ fn far_away_origin_keeps_precision() {
     assert!(t1 > t0);
 }
 
+/// Breaking stops the visit where it is: the hits reported are the plain visit's first
+/// ones, in its order, and a visit never broken reports them all.
+#[test]
+fn a_broken_visit_reports_the_plain_visits_first_hits() {
+    use std::ops::ControlFlow;
+    let scene = random_scene(7, 60);
+    let bvh = CapsuleBvh::build(&scene).unwrap();
+    let mut several = 0;
+    for r in random_rays(107, 300, &scene) {
+        let mut all = Vec::new();
+        bvh.for_each_hit(&r, |h| all.push(h.capsule));
+        let mut kept = Vec::new();
+        let flow = bvh.try_for_each_hit(&r, |h| {
+            kept.push(h.capsule);
+            if kept.len() == 2 {
+                ControlFlow::Break(())
+            } else {
+                ControlFlow::Continue(())
+            }
+        });
+        assert_eq!(kept, all[..all.len().min(2)]);
+        assert_eq!(flow.is_break(), all.len() >= 2);
+        several += usize::from(all.len() > 2);
+    }
+    assert!(several > 10, "{several} rays cross more than two capsules");
+}
+
 #[test]
 fn bvh_intervals_equal_brute_force_on_random_scenes() {
     for seed in 0..6u64 {
