@@ -245,21 +245,7 @@ mod tests {
 
     /// A T-pose-ish skeleton: every joint a small step up and out from its parent.
     fn skeleton() -> Skeleton {
-        let mut rest = [DVec3::ZERO; talkin_human::body::N_JOINTS];
-        rest[0] = DVec3::new(0.0, 0.95, 0.0);
-        for j in 1..talkin_human::body::N_JOINTS {
-            let p = talkin_human::body::PARENTS[j] as usize;
-            let side = match j {
-                LEFT_COLLAR | LEFT_SHOULDER | LEFT_ELBOW | LEFT_WRIST => 0.15,
-                RIGHT_COLLAR | RIGHT_SHOULDER | RIGHT_ELBOW | RIGHT_WRIST => -0.15,
-                j if (LEFT_HAND_FIRST..RIGHT_HAND_FIRST).contains(&j) => 0.03,
-                j if j >= RIGHT_HAND_FIRST => -0.03,
-                _ => 0.0,
-            };
-            let up = if side == 0.0 { 0.12 } else { 0.0 };
-            rest[j] = rest[p] + DVec3::new(side, up, 0.0);
-        }
-        Skeleton { rest_joints: rest }
+        Skeleton::stick_figure()
     }
 
     #[test]

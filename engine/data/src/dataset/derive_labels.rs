@@ -172,23 +172,7 @@ mod tests {
     /// holds both hits and misses of every part.
     #[test]
     fn the_bounding_spheres_change_no_label() {
-        use talkin_human::body::joint::*;
-        use talkin_human::body::{N_JOINTS, PARENTS};
-        // A T-pose: every joint a small step up and out from its parent.
-        let mut rest = [DVec3::ZERO; N_JOINTS];
-        rest[0] = DVec3::new(0.0, 0.95, 0.0);
-        for j in 1..N_JOINTS {
-            let side = match j {
-                LEFT_COLLAR | LEFT_SHOULDER | LEFT_ELBOW | LEFT_WRIST => 0.15,
-                RIGHT_COLLAR | RIGHT_SHOULDER | RIGHT_ELBOW | RIGHT_WRIST => -0.15,
-                j if (LEFT_HAND_FIRST..RIGHT_HAND_FIRST).contains(&j) => 0.03,
-                j if j >= RIGHT_HAND_FIRST => -0.03,
-                _ => 0.0,
-            };
-            let up = if side == 0.0 { 0.12 } else { 0.0 };
-            rest[j] = rest[PARENTS[j] as usize] + DVec3::new(side, up, 0.0);
-        }
-        let skeleton = Skeleton { rest_joints: rest };
+        let skeleton = Skeleton::stick_figure();
         let posed = skeleton.pose(&talkin_human::body::canonical_params());
         let capsules = limb_capsules(&skeleton, &posed);
         let spheres: Vec<Sphere> = capsules.iter().map(Sphere::around).collect();

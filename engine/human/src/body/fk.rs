@@ -12,6 +12,30 @@ pub struct Skeleton {
     pub rest_joints: [DVec3; N_JOINTS],
 }
 
+impl Skeleton {
+    /// A stick figure in a T-pose, pelvis 0.95 m up: each joint a step from its parent,
+    /// 12 cm up along the spine, neck, head and legs, 15 cm out along each arm, 3 cm out
+    /// along each finger. For tests and examples that need a plausible body, not a
+    /// person's.
+    pub fn stick_figure() -> Skeleton {
+        use joint::*;
+        let mut rest = [DVec3::ZERO; N_JOINTS];
+        rest[0] = DVec3::new(0.0, 0.95, 0.0);
+        for j in 1..N_JOINTS {
+            let side = match j {
+                LEFT_COLLAR | LEFT_SHOULDER | LEFT_ELBOW | LEFT_WRIST => 0.15,
+                RIGHT_COLLAR | RIGHT_SHOULDER | RIGHT_ELBOW | RIGHT_WRIST => -0.15,
+                j if (LEFT_HAND_FIRST..RIGHT_HAND_FIRST).contains(&j) => 0.03,
+                j if j >= RIGHT_HAND_FIRST => -0.03,
+                _ => 0.0,
+            };
+            let up = if side == 0.0 { 0.12 } else { 0.0 };
+            rest[j] = rest[PARENTS[j] as usize] + DVec3::new(side, up, 0.0);
+        }
+        Skeleton { rest_joints: rest }
+    }
+}
+
 /// A skeleton in one pose.
 #[derive(Clone, Debug)]
 pub struct PosedSkeleton {
