@@ -497,9 +497,8 @@ mod tests {
     #[test]
     fn the_midpoint_bound_never_exceeds_the_exact_distance() {
         let mut rng = talkin_grids::SplitMix64::new(11);
-        let mut point = || {
-            Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) * 4.0 - Vec3::splat(2.0)
-        };
+        let mut point =
+            || Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) * 4.0 - Vec3::splat(2.0);
         let mut tight = 0;
         for _ in 0..20_000 {
             let (p0, p1, a, b) = (point(), point(), point(), point());
@@ -508,7 +507,10 @@ mod tests {
             for f in CORE_SHRINK {
                 let axis = b - a;
                 let exact = segment_distance(p0, p1, a + axis * f, b - axis * f);
-                assert!(bound <= exact + 1e-5, "{p0} {p1} {a} {b}: {bound} > {exact}");
+                assert!(
+                    bound <= exact + 1e-5,
+                    "{p0} {p1} {a} {b}: {bound} > {exact}"
+                );
                 tight += usize::from(f == 0.0 && exact - bound < 0.05);
             }
         }
