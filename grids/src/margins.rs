@@ -210,25 +210,16 @@ pub fn fit_part_margins(
         }
     }
 
-    let before = coverage(capsules, rays)?;
     let after = coverage(&margins.inflate(capsules), rays)?;
-    let parts = std::array::from_fn(|k| {
-        let part = Part::ALL[k];
-        let own = |cov: &[(bool, bool)]| {
-            rays.iter()
-                .zip(cov)
-                .filter(|(r, c)| r.label == part.label() && c.0)
-                .count()
-        };
-        PartFit {
-            part,
-            rays: counts[k],
-            margin: margins.0[k],
-            largest_need: largest_need[k],
-            covered_before: own(&before),
-            covered_after: own(&after),
-            capped: capped[k],
-        }
+    let (before, tally_after) = (tally(rays, &coverage(capsules, rays)?), tally(rays, &after));
+    let parts = std::array::from_fn(|k| PartFit {
+        part: Part::ALL[k],
+        rays: counts[k],
+        margin: margins.0[k],
+        largest_need: largest_need[k],
+        covered_before: before.own_part[k],
+        covered_after: tally_after.own_part[k],
+        capped: capped[k],
     });
     let uncovered = |any: bool| {
         after
@@ -242,8 +233,8 @@ pub fn fit_part_margins(
         margins,
         parts,
         rays: rays.len(),
-        any_part_before: before.iter().filter(|c| c.1).count(),
-        any_part_after: after.iter().filter(|c| c.1).count(),
+        any_part_before: before.any_part,
+        any_part_after: tally_after.any_part,
         uncovered: uncovered(false),
         uncovered_any: uncovered(true),
     })
@@ -267,19 +258,23 @@ pub struct RayCoverage {
 pub fn count_covered(capsules: &[Capsule], rays: &[LabelledRay]) -> Result<RayCoverage, GridError> {
     validate_capsules(capsules)?;
     validate_rays(rays)?;
-    let covered = coverage(capsules, rays)?;
+    Ok(tally(rays, &coverage(capsules, rays)?))
+}
+
+/// [`coverage`]'s answers counted per part and in all.
+fn tally(rays: &[LabelledRay], covered: &[(bool, bool)]) -> RayCoverage {
     let own_part = std::array::from_fn(|k| {
         let label = Part::ALL[k].label();
         rays.iter()
-            .zip(&covered)
+            .zip(covered)
             .filter(|(r, c)| r.label == label && c.0)
             .count()
     });
-    Ok(RayCoverage {
+    RayCoverage {
         own_part,
         any_part: covered.iter().filter(|c| c.1).count(),
         rays: rays.len(),
-    })
+    }
 }
 
 fn validate_rays(rays: &[LabelledRay]) -> Result<(), GridError> {

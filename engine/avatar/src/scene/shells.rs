@@ -320,7 +320,7 @@ fn fit_frame(
                 // changes none of them: the exact distances are skipped.
                 let (middle, half) = middles[c];
                 let farthest = closest[c].iter().fold(f32::NEG_INFINITY, |m, &v| m.max(v));
-                let at_least = point_segment_distance(middle, l.ray.origin, p) - half;
+                let at_least = segment_distance(middle, middle, l.ray.origin, p) - half;
                 if at_least - BOUND_SLACK_M <= farthest {
                     for (k, f) in CORE_SHRINK.iter().enumerate() {
                         let free =
@@ -351,18 +351,6 @@ fn fit_frame(
 /// How far (metres) a lower bound must clear the nearest distance so far before the
 /// exact distances are skipped: far above the rounding of either.
 const BOUND_SLACK_M: f32 = 1e-4;
-
-/// Distance from `q` to the segment `a-b` (robust to a zero-length segment).
-fn point_segment_distance(q: Vec3, a: Vec3, b: Vec3) -> f32 {
-    let ab = b - a;
-    let len2 = ab.length_squared();
-    let t = if len2 > 0.0 {
-        ((q - a).dot(ab) / len2).clamp(0.0, 1.0)
-    } else {
-        0.0
-    };
-    (a + ab * t).distance(q)
-}
 
 /// Distance between segments `p0-p1` and `q0-q1` (closest points, clamped; robust to
 /// zero-length segments).
@@ -503,7 +491,7 @@ mod tests {
         for _ in 0..20_000 {
             let (p0, p1, a, b) = (point(), point(), point(), point());
             let (middle, half) = (0.5 * (a + b), 0.5 * a.distance(b));
-            let bound = point_segment_distance(middle, p0, p1) - half;
+            let bound = segment_distance(middle, middle, p0, p1) - half;
             for f in CORE_SHRINK {
                 let axis = b - a;
                 let exact = segment_distance(p0, p1, a + axis * f, b - axis * f);
