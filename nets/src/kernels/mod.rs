@@ -7,7 +7,6 @@
 //! - `hash`: the multiresolution hash encoding, all levels at once.
 //! - `frequency`: the windowed sinusoidal encoding.
 //! - `mlp`: an MLP's forward and backward.
-//! - `skin_blend`: inverse skinning's softmax blend of each sample's candidate bones.
 //! - [`adam`]: Adam in one pass per parameter.
 //! - [`grad_sum`]: two chunks' gradients summed in place.
 
@@ -19,4 +18,3 @@ pub(crate) mod frequency;
 pub mod grad_sum;
 pub(crate) mod hash;
 pub(crate) mod mlp;
-pub(crate) mod skin_blend;

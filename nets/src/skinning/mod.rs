@@ -45,7 +45,6 @@ use burn::tensor::IndexingUpdateOp;
 #[cfg(feature = "wgpu")]
 use crate::device::is_cpu;
 use crate::error::{NetsError, check_len};
-use crate::kernels::skin_blend::{BlendPairs, blend};
 use crate::rows::gather_rows;
 use crate::util::{floats, ints};
 
@@ -54,7 +53,6 @@ mod device;
 mod pairs;
 mod prior;
 
-use pairs::Pairs;
 use prior::canonical_prior_logits;
 pub use prior::{BoneCapsule, BoneSegment, ladder_prior};
 
@@ -373,39 +371,16 @@ impl BlendWeightVolume {
                 (mats * xh).sum_dim(2).reshape([m, 3])
             }
         };
-        Ok(RigidWarp {
-            x_canonical: self.blend(p, n, xb, device),
-            n_pairs: m,
-        })
-    }
-
-    /// The pairs' logits read from the volume and their softmax blend of `xb` `[m, 3]`
-    /// into `[n, 3]`: one fused op on the CPU (Flex), composed ops elsewhere.
-    fn blend(&self, p: Pairs, n: usize, xb: Tensor<2>, device: &Device) -> Tensor<2> {
-        let pairs = BlendPairs::new(&p.sample, n, p.rows, p.weights, p.posed);
-        match blend(&self.logits.val(), &xb, pairs) {
-            Ok(x) => x,
-            Err(pairs) => self.blend_composed(p.sample, pairs, xb, device),
-        }
-    }
-
-    /// [`Self::blend`] composed of burn ops: the reference of the fused op, and the path
-    /// of a tensor off Flex. `sample`: `[m]` each pair's sample, ascending.
-    pub(crate) fn blend_composed(
-        &self,
-        sample: Vec<i32>,
-        pairs: BlendPairs,
-        xb: Tensor<2>,
-        device: &Device,
-    ) -> Tensor<2> {
-        let (m, n) = (sample.len(), pairs.start.len() - 1);
-        let corner_w = floats(pairs.weights, [m, 8], device);
-        let logits = (gather_rows(self.logits.val(), ints(pairs.rows, device)).reshape([m, 8])
+        let corner_w = floats(p.weights, [m, 8], device);
+        let logits = (gather_rows(self.logits.val(), ints(p.rows, device)).reshape([m, 8])
             * corner_w)
             .sum_dim(1)
             .reshape([m])
-            + floats(pairs.posed, [m], device); // [m]
-        blend_scattered(sample, n, logits, xb)
+            + floats(p.posed, [m], device); // [m]
+        Ok(RigidWarp {
+            x_canonical: blend_scattered(p.sample, n, logits, xb),
+            n_pairs: m,
+        })
     }
 }
 
@@ -461,9 +436,8 @@ impl BlendWeightVolume {
 }
 
 /// The softmax blend `x_canonical = sum_b w_b x_b` over each sample's candidates, as sums
-/// of the pairs into their samples' rows (`select_assign`): the fused CPU op's reference
-/// (`kernels::skin_blend`), one GPU thread for the batch (a GPU takes the device kernel,
-/// `device.rs`).
+/// of the pairs into their samples' rows (`select_assign`): parallel on the CPU, one GPU
+/// thread for the batch (a GPU takes the device kernel, `device.rs`).
 ///
 /// # Shapes
 /// - `sample`: `[m]` each pair's sample, ascending; every sample has at least one pair

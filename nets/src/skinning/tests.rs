@@ -60,23 +60,6 @@ fn rigid_transforms() -> Vec<[f32; 16]> {
         .collect()
 }
 
-/// A seeded stream of 53-bit numbers (an LCG's high bits): the tests' random inputs.
-fn lcg(mut seed: u64) -> impl FnMut() -> u64 {
-    move || {
-        seed = seed
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        seed >> 11
-    }
-}
-
-/// `n` points in the box [-1, 1]^3 on a millimetre lattice, drawn from `next`.
-fn random_points(n: usize, next: &mut impl FnMut() -> u64) -> Vec<[f32; 3]> {
-    (0..n)
-        .map(|_| std::array::from_fn(|_| (next() % 2000) as f32 / 1000.0 - 1.0))
-        .collect()
-}
-
 #[test]
 fn ancestors_and_candidates() {
     assert_eq!(body_ancestor(22), HEAD_JOINT);
@@ -510,9 +493,17 @@ fn pairs_are_the_same_on_any_number_of_threads() {
     let t = identity_transforms();
     // Several tasks' worth of samples (2048 a task) and a ragged last one.
     let n = 3 * 2048 + 17;
-    let mut next = lcg(7);
+    let mut seed = 7u64;
+    let mut next = move || {
+        seed = seed
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        seed >> 11
+    };
     let all = (1u64 << N_SMPLX_JOINTS) - 1;
-    let pts = random_points(n, &mut next);
+    let pts: Vec<[f32; 3]> = (0..n)
+        .map(|_| std::array::from_fn(|_| (next() % 2000) as f32 / 1000.0 - 1.0))
+        .collect();
     // Empty masks (the body fallback), every joint (a dense sample), fingers and a few
     // body joints.
     let masks: Vec<u64> = (0..n)
@@ -630,104 +621,4 @@ fn blend_weights_reproduce_the_warp() {
     }
     // A sample with several candidates gets more than one non-zero weight.
     assert!(weights[0].iter().filter(|p| p.1 > 1e-3).count() > 1);
-}
-
-/// The CPU's fused blend (`kernels::skin_blend`) gives the composed ops' warp and
-/// gradients, the volume's and the pairs' points', over several tasks of samples with a
-/// ragged last one: finger bones, the posed prior's logits far apart (a candidate with no
-/// core), one-candidate samples and the body fallback; and the same bits on 1 and 3
-/// threads.
-#[test]
-fn the_fused_blend_matches_the_composed_ops() {
-    let device = Device::flex().autodiff();
-    let mut vol = SkinningConfig::new()
-        .with_resolution(8)
-        .with_posed_tau(Some(0.02))
-        .with_finger_bones(Some(true))
-        .init([-1.0; 3], [1.0; 3], &ladder_prior(), &device)
-        .unwrap();
-    let len = vol.logits.val().dims()[0];
-    let v: Vec<f32> = (0..len)
-        .map(|i| ((i * 37 % 101) as f32 / 25.0) - 2.0)
-        .collect();
-    vol.logits = Param::from_tensor(floats(v, [len], &device));
-    let t = identity_transforms();
-    let n = 2 * 1024 + 5;
-    let mut next = lcg(11);
-    let all = (1u64 << N_SMPLX_JOINTS) - 1;
-    let pts = random_points(n, &mut next);
-    let masks: Vec<u64> = (0..n)
-        .map(|i| match i % 5 {
-            0 => 0,
-            1 => 1 << (next() % N_SMPLX_JOINTS as u64),
-            _ => (next() & next()) & all,
-        })
-        .collect();
-    // Every other bone has a core; the rest give their pairs the no-core logit.
-    let capsules: Vec<BoneCapsule> = (0..N_SMPLX_JOINTS)
-        .step_by(2)
-        .map(|bone| {
-            let o = bone as f32 / N_SMPLX_JOINTS as f32 - 0.5;
-            BoneCapsule {
-                bone,
-                a: [o, -0.3, 0.1],
-                b: [o + 0.1, 0.4, -0.1],
-                radius: 0.04,
-            }
-        })
-        .collect();
-    let p = vol.pairs(&pts, &masks, &t, &capsules);
-    let m = p.sample.len();
-    assert!(p.posed.iter().any(|&l| l < -1e3) && p.posed.iter().any(|&l| l > -1e3));
-    let c: Vec<f32> = (0..3 * n)
-        .map(|_| (next() % 200) as f32 / 100.0 - 1.0)
-        .collect();
-    let run = |fused: bool| {
-        let xb = floats(p.x.clone(), [m, 3], &device).require_grad();
-        let pairs = BlendPairs::new(
-            &p.sample,
-            n,
-            p.rows.clone(),
-            p.weights.clone(),
-            p.posed.clone(),
-        );
-        let x = if fused {
-            blend(&vol.logits.val(), &xb, pairs).expect("Flex tensors take the fused op")
-        } else {
-            vol.blend_composed(p.sample.clone(), pairs, xb.clone(), &device)
-        };
-        let grads = (x.clone() * floats(c.clone(), [n, 3], &device))
-            .sum()
-            .backward();
-        let d_volume = host(&vol.logits.grad(&grads).unwrap());
-        let d_points = host(&xb.grad(&grads).unwrap());
-        (host(&x), d_volume, d_points)
-    };
-    let close = |what: &str, a: &[f32], b: &[f32], tol: f32| {
-        assert_eq!(a.len(), b.len(), "{what}");
-        for (i, (x, y)) in a.iter().zip(b).enumerate() {
-            assert!(
-                (x - y).abs() <= tol * (1.0 + y.abs()),
-                "{what}[{i}]: {x} against {y}"
-            );
-        }
-    };
-    let (fused, composed) = (run(true), run(false));
-    close("x_canonical", &fused.0, &composed.0, 1e-6);
-    close("volume gradient", &fused.1, &composed.1, 1e-5);
-    close("points' gradient", &fused.2, &composed.2, 1e-6);
-    assert!(fused.1.iter().filter(|g| g.abs() > 1e-6).count() > 100);
-
-    let on = |threads: usize| {
-        rayon::ThreadPoolBuilder::new()
-            .num_threads(threads)
-            .build()
-            .unwrap()
-            .install(|| run(true))
-    };
-    let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
-    let (one, three) = (on(1), on(3));
-    assert_eq!(bits(&one.0), bits(&three.0));
-    assert_eq!(bits(&one.1), bits(&three.1));
-    assert_eq!(bits(&one.2), bits(&three.2));
 }
