@@ -210,19 +210,20 @@ pub fn fit_part_margins(
         }
     }
 
-    let after = coverage(&margins.inflate(capsules), rays)?;
-    let (before, tally_after) = (tally(rays, &coverage(capsules, rays)?), tally(rays, &after));
+    let covered_after = coverage(&margins.inflate(capsules), rays)?;
+    let before = tally(rays, &coverage(capsules, rays)?);
+    let after = tally(rays, &covered_after);
     let parts = std::array::from_fn(|k| PartFit {
         part: Part::ALL[k],
         rays: counts[k],
         margin: margins.0[k],
         largest_need: largest_need[k],
         covered_before: before.own_part[k],
-        covered_after: tally_after.own_part[k],
+        covered_after: after.own_part[k],
         capped: capped[k],
     });
     let uncovered = |any: bool| {
-        after
+        covered_after
             .iter()
             .enumerate()
             .filter(|(_, c)| !if any { c.1 } else { c.0 })
@@ -234,7 +235,7 @@ pub fn fit_part_margins(
         parts,
         rays: rays.len(),
         any_part_before: before.any_part,
-        any_part_after: tally_after.any_part,
+        any_part_after: after.any_part,
         uncovered: uncovered(false),
         uncovered_any: uncovered(true),
     })
